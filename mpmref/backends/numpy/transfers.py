@@ -1,0 +1,166 @@
+r"""Particle-grid transfers of the NumPy reference: P2G, grid update and G2P.
+
+Notation (Jiang et al. 2015; Hu et al. 2018): particle :math:`p` with mass :math:`m_p`, initial volume
+:math:`V_p^0`, velocity :math:`v_p`, affine matrix :math:`C_p`, Kirchhoff stress :math:`\tau_p`; node
+:math:`i` at :math:`x_i`; weight :math:`w_{ip}`; :math:`D_p = \tfrac14\Delta x^2 I` for the quadratic
+B-spline, held as the scalar ``stencil.inertia``.
+"""
+
+import numpy as np
+
+from ...physics.boundary import project_velocity
+from ...physics.kernels import compute_stencil
+from ...state import GridState
+
+
+def node_index(stencil, offset, grid):
+    """Linear index of node ``base + offset`` for every particle."""
+    return (stencil.base + offset) @ grid.strides
+
+
+def scatter(index, values, n_nodes):
+    """Sum ``values`` (n,) or (n, k) into ``n_nodes`` bins by ``index`` (``np.bincount`` per column)."""
+    if values.ndim == 1:
+        return np.bincount(index, weights=values, minlength=n_nodes)
+    return np.stack([np.bincount(index, weights=values[:, k], minlength=n_nodes) for k in range(values.shape[1])], axis=1)
+
+
+def mls_gradient_weight(stencil, w, dpos):
+    r"""MLS approximation of the kernel gradient, :math:`\nabla w_{ip} \approx w_{ip} D_p^{-1}(x_i - x_p)`.
+
+    Hu et al. 2018 Eq. 16–18: with it, the nodal force becomes
+    :math:`f_i = -\sum_p V_p^0\, \tau_p\, w_{ip} D_p^{-1} (x_i - x_p)` and the velocity gradient
+    :math:`\nabla v_p = \sum_i v_i\, (w_{ip} D_p^{-1}(x_i - x_p))^T = C_p`.
+    """
+    return w[:, None] * dpos / stencil.inertia
+
+
+GRADIENT_WEIGHTS = {"mls": mls_gradient_weight}
+
+
+def p2g(particles, tau, grid, kernel, method):
+    r"""Particle to grid: node mass, momentum and internal force.
+
+    .. math::
+
+        m_i = \sum_p w_{ip} m_p, \qquad
+        (mv)_i = \sum_p w_{ip} m_p \left(v_p + C_p (x_i - x_p)\right), \qquad
+        f_i = -\sum_p V_p^0\, \tau_p\, g_{ip}
+
+    (Jiang et al. 2015 Eq. 11 for APIC momentum, :math:`C_p` omitted for PIC/FLIP; Hu et al. 2018 Eq. 18
+    for the MLS force). :math:`g_{ip}` is the force discretisation's gradient weight
+    (:func:`mls_gradient_weight`).
+
+    Parameters
+    ----------
+    particles : Particles
+    tau : (n, d, d) array   Kirchhoff stress of each particle
+    grid : Grid
+    kernel : kernel object  (``mpmref.physics.kernels``)
+    method : MethodSpec
+    """
+    st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
+    gradient_weight = GRADIENT_WEIGHTS[method.force]
+    m, n_nodes = particles.mass, grid.n_nodes
+    stress_volume = particles.vol0[:, None, None] * tau
+    mass = np.zeros(n_nodes)
+    momentum = np.zeros((n_nodes, grid.dim))
+    force = np.zeros((n_nodes, grid.dim))
+    for offset in st.offsets:
+        idx = node_index(st, offset, grid)
+        w = st.node_weight(offset)
+        dpos = st.node_offset_vector(offset)
+        p_mom = particles.v
+        if method.affine:
+            p_mom = p_mom + np.einsum("nab,nb->na", particles.C, dpos)
+        mass += scatter(idx, w * m, n_nodes)
+        momentum += scatter(idx, (w * m)[:, None] * p_mom, n_nodes)
+        force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gradient_weight(st, w, dpos)), n_nodes)
+    dtype = particles.x.dtype
+    return GridState(mass=mass.astype(dtype), momentum=momentum.astype(dtype), force=force.astype(dtype))
+
+
+def wall_bands(grid, width):
+    """Node sets of each wall: ``[(name, node_mask, inward_normal)]`` for nodes within ``width`` cells."""
+    idx = grid.node_indices()
+    bands = []
+    for a in range(grid.dim):
+        for side, mask in (("min", idx[:, a] < width), ("max", idx[:, a] > grid.cells[a] - width)):
+            normal = np.zeros(grid.dim)
+            normal[a] = 1.0 if side == "min" else -1.0
+            bands.append((f"{'xyz'[a]}_{side}", mask, normal))
+    return bands
+
+
+def grid_update(gs, grid, dt, gravity, walls, bands):
+    r"""Grid velocity update: symplectic Euler with gravity, then Eq. 25 at the walls.
+
+    .. math::
+
+        \tilde v_i = \frac{(mv)_i}{m_i}, \qquad v_i = \tilde v_i + \Delta t \left(\frac{f_i}{m_i} + g\right)
+
+    followed by :func:`mpmref.physics.boundary.project_velocity` on each wall's band of nodes
+    (Hu et al. 2018 Alg. 1, grid operations). Returns ``(v, v_tilde)``; ``v_tilde`` (the velocity before
+    forces) is what FLIP needs. Nodes without mass get zero velocity.
+
+    Parameters
+    ----------
+    gs : GridState, dt : float, gravity : (d,) array
+    walls : dict name -> WallSpec;  bands : output of :func:`wall_bands`
+    """
+    has_mass = gs.mass > 0
+    inv_m = np.where(has_mass, 1.0 / np.where(has_mass, gs.mass, 1.0), 0.0)[:, None]
+    v_tilde = gs.momentum * inv_m
+    v = (gs.momentum + dt * gs.force) * inv_m + dt * gravity * has_mass[:, None]
+    v = v.astype(gs.momentum.dtype)
+    for name, mask, normal in bands:
+        wall = walls[name]
+        if wall.type == "open":
+            continue
+        sel = mask & has_mass
+        v[sel] = project_velocity(v[sel], np.broadcast_to(normal, (int(sel.sum()), grid.dim)), wall.type, wall.friction)
+    return v, v_tilde
+
+
+def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
+    r"""Grid to particle: new velocity, affine matrix, deformation and position.
+
+    .. math::
+
+        v_p^{PIC} = \sum_i w_{ip} v_i, \qquad
+        C_p = \sum_i v_i\, g_{ip}^T \;(= B_p D_p^{-1},\ \text{Jiang et al. 2015 Eq. 10}),
+
+        v_p^{FLIP} = v_p + \sum_i w_{ip}(v_i - \tilde v_i), \qquad
+        v_p \leftarrow \alpha v_p^{FLIP} + (1-\alpha) v_p^{PIC} \;(\text{FLIP only}),
+
+        F_p \leftarrow (I + \Delta t\, C_p) F_p, \qquad J_p \leftarrow (1 + \Delta t \operatorname{tr} C_p) J_p,
+        \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
+
+    (Hu et al. 2018 Eq. 17 for the F update; the J update is the first-order form of Taichi's mpm88).
+    Returns new :class:`~mpmref.state.Particles`; the input is not modified.
+    """
+    st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
+    gradient_weight = GRADIENT_WEIGHTS[method.force]
+    n, d = particles.x.shape
+    v_pic = np.zeros((n, d), dtype=v_grid.dtype)
+    grad_v = np.zeros((n, d, d), dtype=v_grid.dtype)
+    dv_flip = np.zeros((n, d), dtype=v_grid.dtype) if method.flip else None
+    for offset in st.offsets:
+        idx = node_index(st, offset, grid)
+        w = st.node_weight(offset)
+        vi = v_grid[idx]
+        v_pic += w[:, None] * vi
+        grad_v += np.einsum("na,nb->nab", vi, gradient_weight(st, w, st.node_offset_vector(offset)))
+        if method.flip:
+            dv_flip += w[:, None] * (vi - v_tilde[idx])
+    v_new = v_pic
+    if method.flip:
+        v_new = method.flip_alpha * (particles.v + dv_flip) + (1.0 - method.flip_alpha) * v_pic
+    changes = {"x": particles.x + dt * v_pic, "v": v_new}
+    if method.affine:
+        changes["C"] = grad_v
+    if particles.F is not None:
+        changes["F"] = particles.F + dt * grad_v @ particles.F
+    if particles.J is not None:
+        changes["J"] = particles.J * (1.0 + dt * np.trace(grad_v, axis1=1, axis2=2))
+    return particles.with_(**changes)

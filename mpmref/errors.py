@@ -1,0 +1,54 @@
+"""Exceptions raised by mpmref, each carrying what a user needs to act on it."""
+
+
+class MpmrefError(Exception):
+    """Base class of every error raised on purpose by mpmref."""
+
+
+class SceneError(MpmrefError, ValueError):
+    """A scene field is missing, unknown, of the wrong type or out of its allowed range.
+
+    Parameters
+    ----------
+    field : str
+        Dotted path of the offending field, e.g. ``"materials.jelly.nu"``.
+    value : object
+        The value that was given.
+    allowed : str
+        Human description of what would have been accepted.
+    """
+
+    def __init__(self, field, value, allowed):
+        self.field, self.value, self.allowed = field, value, allowed
+        super().__init__(f"scene field '{field}' = {value!r} is invalid: allowed {allowed}")
+
+
+class NonFiniteError(MpmrefError, FloatingPointError):
+    """A non-finite value appeared in the particle state.
+
+    Attributes name the step, the first offending particle and quantity, and the CFL number
+    ``dt * (c_max + |v|_max) / dx`` of the step that produced it; ``checkpoint`` is the path of the
+    last good state written before raising (or ``None``).
+    """
+
+    def __init__(self, step, particle, quantity, cfl, checkpoint=None):
+        self.step, self.particle, self.quantity, self.cfl = step, particle, quantity, cfl
+        self.checkpoint = checkpoint
+        where = f"; last good state saved to {checkpoint}" if checkpoint else ""
+        super().__init__(
+            f"non-finite {quantity} at step {step}, particle {particle} "
+            f"(CFL number of that step {cfl:.3g}){where}"
+        )
+
+
+class DomainExitError(MpmrefError):
+    """Particles left the region where their kernel stencil fits on the grid (policy ``error``)."""
+
+    def __init__(self, step, particles, positions, checkpoint=None):
+        self.step, self.particles, self.positions, self.checkpoint = step, particles, positions, checkpoint
+        where = f"; last good state saved to {checkpoint}" if checkpoint else ""
+        super().__init__(
+            f"{len(particles)} particle(s) left the domain at step {step} "
+            f"(first: index {particles[0]} at {positions[0].tolist()}); "
+            f"set 'domain_exit' to 'clamp' or 'delete' to continue instead{where}"
+        )

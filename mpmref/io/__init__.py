@@ -1,0 +1,1 @@
+"""Outputs: VTK series (meshio, pyvista), ParaView ``.pvd`` index, diagnostics CSV, checkpoints."""

@@ -1,0 +1,63 @@
+"""The output folder of a run: particle/grid VTK series, ``.pvd`` indexes, ``diagnostics.csv``, checkpoint."""
+
+import csv
+import io
+from pathlib import Path
+
+from .atomic import write_text_atomic
+from .checkpoint import load_checkpoint, save_checkpoint
+from .vtk import write_grid_vti, write_particles_vtu, write_pvd
+
+CHECKPOINT_NAME = "checkpoint.npz"
+
+
+class RunOutput:
+    """Writes the files of one run into ``out_dir`` and remembers what it wrote (for resuming)."""
+
+    def __init__(self, out_dir, scene):
+        self.dir = Path(out_dir)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.scene = scene
+        self.particle_series = []  # [(time, file)]
+        self.grid_series = []
+        self.rows = []  # diagnostics rows (dicts)
+
+    @property
+    def checkpoint_path(self):
+        return self.dir / CHECKPOINT_NAME
+
+    def write_frame(self, step, time, x, point_data, grid_data=None):
+        name = f"particles_{step:06d}.vtu"
+        write_particles_vtu(self.dir / name, x, point_data)
+        self.particle_series.append((time, name))
+        write_pvd(self.dir / "particles.pvd", self.particle_series)
+        if grid_data is not None:
+            gname = f"grid_{step:06d}.vti"
+            g = self.scene.grid
+            write_grid_vti(self.dir / gname, g.origin, g.dx, g.node_shape, grid_data)
+            self.grid_series.append((time, gname))
+            write_pvd(self.dir / "grid.pvd", self.grid_series)
+
+    def write_diagnostics(self, row):
+        self.rows.append(row)
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=list(self.rows[0]))
+        writer.writeheader()
+        writer.writerows(self.rows)
+        write_text_atomic(self.dir / "diagnostics.csv", buf.getvalue())
+
+    def bookkeeping(self):
+        return {"particle_series": self.particle_series, "grid_series": self.grid_series, "rows": self.rows}
+
+    def restore(self, book):
+        self.particle_series = [tuple(e) for e in book["particle_series"]]
+        self.grid_series = [tuple(e) for e in book["grid_series"]]
+        self.rows = list(book["rows"])
+
+    def save_checkpoint(self, particles, meta, path=None):
+        path = path or self.checkpoint_path
+        save_checkpoint(path, particles, {**meta, "output": self.bookkeeping()})
+        return path
+
+    def load_checkpoint(self):
+        return load_checkpoint(self.checkpoint_path)

@@ -1,0 +1,1 @@
+"""Backend-neutral physics: interpolation kernels, materials and boundary projection."""

@@ -1,0 +1,154 @@
+r"""Constitutive models: energy density, Kirchhoff stress and wave speed.
+
+Each material works on a batch of deformation descriptors: the deformation gradient ``F`` of shape
+``(n, d, d)`` for solids, or the volume ratio ``J`` of shape ``(n,)`` for the weakly compressible fluid
+(``tracks`` says which). The Kirchhoff stress :math:`\tau = P F^T = J\sigma` is what the MLS-MPM force
+needs (Hu et al. 2018 Eq. 18); ``first_piola`` gives :math:`P = \partial\Psi/\partial F` for checks.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def lame_parameters(E, nu):
+    r"""Lamé parameters from Young's modulus and Poisson's ratio.
+
+    .. math:: \mu = \frac{E}{2(1+\nu)},\qquad \lambda = \frac{E\nu}{(1+\nu)(1-2\nu)}
+    """
+    return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def polar_rotation(F):
+    r"""Rotation :math:`R` of the polar decomposition :math:`F = RS` and the signed singular values.
+
+    Computed from the SVD :math:`F = U\Sigma V^T` with the sign of the last column of :math:`U` (and of
+    the last singular value) flipped where :math:`\det(UV^T) < 0`, so that :math:`R = UV^T` is a proper
+    rotation (Stomakhin et al. 2012 §4; Irving et al. 2004 §4).
+    """
+    U, sigma, Vt = np.linalg.svd(F)
+    flip = np.linalg.det(U) * np.linalg.det(Vt) < 0
+    U[flip, :, -1] *= -1.0
+    sigma[flip, -1] *= -1.0
+    return U @ Vt, sigma
+
+
+@dataclass(frozen=True)
+class ElasticSolid:
+    """Shared parameters of the hyperelastic solids: Young's modulus ``E``, Poisson ratio ``nu``, density ``rho``."""
+
+    E: float
+    nu: float
+    rho: float
+    tracks = "F"
+
+    @property
+    def mu(self):
+        return lame_parameters(self.E, self.nu)[0]
+
+    @property
+    def lam(self):
+        return lame_parameters(self.E, self.nu)[1]
+
+    def wave_speed(self):
+        r"""Dilatational (P-)wave speed :math:`c = \sqrt{(\lambda + 2\mu)/\rho}` used by the CFL rule."""
+        return float(np.sqrt((self.lam + 2.0 * self.mu) / self.rho))
+
+    def first_piola(self, F):
+        r"""First Piola–Kirchhoff stress :math:`P = \tau F^{-T}`."""
+        return self.kirchhoff_stress(F) @ np.linalg.inv(F).transpose(0, 2, 1)
+
+
+@dataclass(frozen=True)
+class FixedCorotated(ElasticSolid):
+    r"""Fixed-corotated elasticity (Stomakhin et al. 2012, Eq. 2 and §4).
+
+    .. math::
+
+        \Psi(F) = \mu \sum_i (\sigma_i - 1)^2 + \frac{\lambda}{2}(J - 1)^2, \qquad
+        \tau = P F^T = 2\mu (F - R) F^T + \lambda (J - 1) J\, I
+
+    :math:`\sigma_i` are the singular values of :math:`F`, :math:`R` its polar rotation,
+    :math:`J = \det F`, :math:`\mu, \lambda` the Lamé parameters.
+    """
+
+    def energy_density(self, F):
+        _, sigma = polar_rotation(F)
+        J = np.prod(sigma, axis=1)
+        return self.mu * np.sum((sigma - 1.0) ** 2, axis=1) + 0.5 * self.lam * (J - 1.0) ** 2
+
+    def kirchhoff_stress(self, F):
+        R, _ = polar_rotation(F)
+        J = np.linalg.det(F)
+        eye = np.eye(F.shape[1], dtype=F.dtype)
+        return 2.0 * self.mu * (F - R) @ F.transpose(0, 2, 1) + (self.lam * (J - 1.0) * J)[:, None, None] * eye
+
+
+@dataclass(frozen=True)
+class NeoHookean(ElasticSolid):
+    r"""Compressible Neo-Hookean elasticity (Bonet & Wood 2008 Eq. 6.28; Sifakis & Barbič 2012 §3.4).
+
+    .. math::
+
+        \Psi(F) = \frac{\mu}{2}\left(\operatorname{tr}(F^TF) - d\right) - \mu \ln J + \frac{\lambda}{2}(\ln J)^2,
+        \qquad \tau = \mu (F F^T - I) + \lambda \ln J\, I
+
+    :math:`d` is the dimension, :math:`J = \det F > 0`.
+    """
+
+    def energy_density(self, F):
+        logJ = np.log(np.linalg.det(F))
+        d = F.shape[1]
+        return 0.5 * self.mu * (np.einsum("nij,nij->n", F, F) - d) - self.mu * logJ + 0.5 * self.lam * logJ**2
+
+    def kirchhoff_stress(self, F):
+        logJ = np.log(np.linalg.det(F))
+        eye = np.eye(F.shape[1], dtype=F.dtype)
+        return self.mu * (F @ F.transpose(0, 2, 1) - eye) + (self.lam * logJ)[:, None, None] * eye
+
+
+@dataclass(frozen=True)
+class WeaklyCompressibleFluid:
+    r"""Weakly compressible fluid with a Tait-type equation of state, tracking only :math:`J`.
+
+    .. math::
+
+        p = K\,(J^{-\gamma} - 1), \qquad
+        \Psi(J) = K\left(\frac{J^{1-\gamma}}{\gamma - 1} + J - \frac{\gamma}{\gamma-1}\right)
+        \;(\gamma \ne 1),\quad \Psi(J) = K\,(J - 1 - \ln J)\;(\gamma = 1),
+
+    so that :math:`p = -\mathrm d\Psi/\mathrm dJ` and the Kirchhoff stress is
+    :math:`\tau = -pJ\,I = K(J - J^{1-\gamma})\,I`. Source: Tait equation as used for weakly compressible
+    fluids in Becker & Teschner 2007 Eq. 7 and Tampubolon et al. 2017 §4.1; with :math:`\gamma=1`,
+    :math:`K=400`, :math:`\rho=1` this is the fluid of Taichi's ``mpm88`` example (Hu et al. 2019, the
+    "88-line" program). :math:`K` is the bulk stiffness, :math:`\gamma` the exponent, :math:`\rho` density.
+    """
+
+    K: float
+    gamma: float
+    rho: float
+    tracks = "J"
+
+    def pressure(self, J):
+        return self.K * (J ** (-self.gamma) - 1.0)
+
+    def energy_density(self, J):
+        if self.gamma == 1.0:
+            return self.K * (J - 1.0 - np.log(J))
+        g = self.gamma
+        return self.K * (J ** (1.0 - g) / (g - 1.0) + J - g / (g - 1.0))
+
+    def kirchhoff_stress_from_J(self, J, dim):
+        eye = np.eye(dim, dtype=J.dtype)
+        return (-self.pressure(J) * J)[:, None, None] * eye
+
+    def wave_speed(self):
+        r"""Sound speed at rest, :math:`c = \sqrt{\gamma K / \rho}` (bulk modulus :math:`-J\,dp/dJ = \gamma K` at J = 1)."""
+        return float(np.sqrt(self.gamma * self.K / self.rho))
+
+
+MATERIAL_TYPES = {
+    "fixed_corotated": FixedCorotated,
+    "neo_hookean": NeoHookean,
+    "fluid": WeaklyCompressibleFluid,
+}

@@ -1,0 +1,485 @@
+"""Scenes: what a user declares, as a TOML file or through ``SceneBuilder``, validated before any work.
+
+Every problem is reported as a :class:`~mpmref.errors.SceneError` naming the field (dotted path), the
+value given and the allowed range. See ``docs/scenes.md`` for every field and its default.
+"""
+
+import copy
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SceneError
+from .physics.boundary import BOUNDARY_TYPES
+from .physics.kernels import KERNELS, get_kernel
+from .physics.materials import MATERIAL_TYPES, lame_parameters
+from .state import Grid
+
+SCHEMES = ("pic", "flip", "apic", "mls")
+FORCES = ("mls",)
+WALL_TYPES = BOUNDARY_TYPES + ("open",)
+DOMAIN_EXIT_POLICIES = ("error", "clamp", "delete")
+DTYPES = ("float64", "float32")
+SHAPES = ("box", "disk", "sphere", "points", "mesh")
+SAMPLINGS = ("regular", "jittered", "random")
+OUTPUT_FIELDS = ("velocity", "mass", "volume", "J", "stress", "pressure", "material")
+AXES = "xyz"
+
+TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "gravity", "boundary", "time", "output", "name"}
+MATERIAL_KEYS = {
+    "fixed_corotated": {"type", "E", "nu", "rho"},
+    "neo_hookean": {"type", "E", "nu", "rho"},
+    "fluid": {"type", "K", "gamma", "rho"},
+}
+BODY_KEYS = {
+    "shape", "material", "lower", "upper", "center", "radius", "positions", "file", "ppc", "sampling",
+    "seed", "count", "particle_volume", "velocity", "angular_velocity", "rotation_center",
+}
+
+
+# ----------------------------------------------------------------------------------------- checks
+def _fail(path, value, allowed):
+    raise SceneError(path, value, allowed)
+
+
+def _section(data, path, allowed_keys):
+    if not isinstance(data, dict):
+        _fail(path, data, "a table (mapping)")
+    unknown = sorted(set(data) - set(allowed_keys))
+    if unknown:
+        _fail(f"{path}.{unknown[0]}" if path else unknown[0], data[unknown[0]],
+              f"one of the known keys {sorted(allowed_keys)}")
+    return data
+
+
+def _number(data, key, path, default=None, lo=None, hi=None, lo_open=False, hi_open=False, required=False):
+    full = f"{path}.{key}" if path else key
+    if key not in data:
+        if required:
+            _fail(full, None, f"a number{_range_text(lo, hi, lo_open, hi_open)} (required)")
+        return default
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        _fail(full, value, f"a finite number{_range_text(lo, hi, lo_open, hi_open)}")
+    bad_lo = lo is not None and (value <= lo if lo_open else value < lo)
+    bad_hi = hi is not None and (value >= hi if hi_open else value > hi)
+    if bad_lo or bad_hi:
+        _fail(full, value, f"a number{_range_text(lo, hi, lo_open, hi_open)}")
+    return float(value)
+
+
+def _range_text(lo, hi, lo_open, hi_open):
+    if lo is None and hi is None:
+        return ""
+    left = "(" if lo_open else "["
+    right = ")" if hi_open else "]"
+    return f" in {left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}{right}"
+
+
+def _integer(data, key, path, default=None, lo=None, hi=None, required=False):
+    full = f"{path}.{key}" if path else key
+    if key not in data:
+        if required:
+            _fail(full, None, f"an integer in [{lo}, {hi}] (required)")
+        return default
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int) or (lo is not None and value < lo) or (
+        hi is not None and value > hi
+    ):
+        _fail(full, value, f"an integer in [{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]")
+    return int(value)
+
+
+def _choice(data, key, path, options, default=None, required=False):
+    full = f"{path}.{key}" if path else key
+    if key not in data:
+        if required:
+            _fail(full, None, f"one of {list(options)} (required)")
+        return default
+    if data[key] not in options:
+        _fail(full, data[key], f"one of {list(options)}")
+    return data[key]
+
+
+def _vector(data, key, path, dim, default=None, required=False, positive=False):
+    full = f"{path}.{key}" if path else key
+    if key not in data:
+        if required:
+            _fail(full, None, f"a list of {dim} numbers (required)")
+        return None if default is None else np.array(default, dtype=np.float64)
+    value = data[key]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = [value] * dim
+    ok = isinstance(value, (list, tuple)) and len(value) == dim and all(
+        isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in value
+    )
+    if not ok or (positive and min(value) <= 0):
+        _fail(full, value, f"a list of {dim} finite{' positive' if positive else ''} numbers")
+    return np.array(value, dtype=np.float64)
+
+
+# ------------------------------------------------------------------------------------------ specs
+@dataclass(frozen=True)
+class MethodSpec:
+    """Transfer scheme, force discretisation and kernel (see docs/mpm_cycle.md)."""
+
+    scheme: str
+    force: str
+    kernel: str
+    flip_alpha: float
+
+    @property
+    def affine(self):
+        """Whether particles carry the affine matrix ``C`` through P2G (APIC and MLS-MPM)."""
+        return self.scheme in ("apic", "mls")
+
+    @property
+    def flip(self):
+        return self.scheme == "flip"
+
+
+@dataclass(frozen=True)
+class WallSpec:
+    type: str
+    friction: float
+
+
+@dataclass(frozen=True)
+class BoundarySpec:
+    width: int
+    walls: dict  # "x_min" -> WallSpec
+    domain_exit: str
+
+
+@dataclass(frozen=True)
+class TimeSpec:
+    dt: float | None
+    cfl: float | None
+    steps: int | None
+    t_end: float | None
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    every: int
+    fields: tuple
+    grid: bool
+    checkpoint: bool
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    index: int
+    shape: str
+    material: str
+    params: dict
+
+
+@dataclass
+class Scene:
+    """A validated scene. Build with :meth:`from_toml`, :meth:`from_dict` or :class:`SceneBuilder`."""
+
+    name: str
+    dim: int
+    dtype: np.dtype
+    grid: Grid
+    method: MethodSpec
+    materials: dict  # name -> material object (ordered: index = material id)
+    bodies: list
+    gravity: np.ndarray
+    boundary: BoundarySpec
+    time: TimeSpec
+    output: OutputSpec
+    source: dict = field(repr=False)
+    base_dir: Path = field(default_factory=Path.cwd, repr=False)
+
+    # --------------------------------------------------------------------------- construction
+    @classmethod
+    def from_toml(cls, path):
+        """Read and validate a TOML scene file; relative file paths resolve next to it."""
+        path = Path(path)
+        try:
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise SceneError("scene file", str(path), "an existing TOML file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError("scene file", str(path), f"valid TOML ({exc})") from None
+        data.setdefault("name", path.stem)
+        return cls.from_dict(data, base_dir=path.parent)
+
+    @classmethod
+    def from_dict(cls, data, base_dir=None):
+        """Validate a scene given as nested dicts (the TOML structure) and return a :class:`Scene`."""
+        data = copy.deepcopy(data)
+        _section(data, "", TOP_KEYS)
+        dim = _integer(data, "dim", "", lo=2, hi=3, required=True)
+        dtype = np.dtype(_choice(data, "dtype", "", DTYPES, default="float64"))
+        grid = _parse_grid(data.get("grid", {}), dim)
+        method = _parse_method(data.get("method", {}))
+        materials = _parse_materials(data.get("materials"))
+        bodies = _parse_bodies(data.get("bodies"), dim, materials)
+        gravity = _vector(data, "gravity", "", dim, default=[0.0] * dim)
+        boundary = _parse_boundary(data.get("boundary", {}), dim, grid)
+        time = _parse_time(data.get("time", {}))
+        output = _parse_output(data.get("output", {}))
+        name = data.get("name", "scene")
+        if not isinstance(name, str) or not name or any(c in name for c in "/\\"):
+            _fail("name", name, "a non-empty string without path separators")
+        return cls(name=name, dim=dim, dtype=dtype, grid=grid, method=method, materials=materials,
+                   bodies=bodies, gravity=gravity, boundary=boundary, time=time, output=output,
+                   source=data, base_dir=Path(base_dir) if base_dir else Path.cwd())
+
+    # ------------------------------------------------------------------------------- derived
+    @property
+    def kernel(self):
+        return get_kernel(self.method.kernel)
+
+    @property
+    def material_list(self):
+        return list(self.materials.values())
+
+    def tracks(self, kind):
+        """Whether any material of the scene tracks ``kind`` (``"F"`` or ``"J"``)."""
+        return any(m.tracks == kind for m in self.materials.values())
+
+    def max_wave_speed(self):
+        return max(m.wave_speed() for m in self.materials.values())
+
+    def valid_region(self):
+        """Lower and upper bound of particle positions for which the kernel stencil fits on the grid."""
+        k = self.kernel
+        lo = self.grid.origin + k.low_margin * self.grid.dx
+        hi = self.grid.origin + (np.array(self.grid.cells) - k.high_margin) * self.grid.dx
+        return lo, hi
+
+    def fingerprint(self):
+        """A stable JSON text of the declared scene (used to match checkpoints to scenes)."""
+        return json.dumps(self.source, sort_keys=True, default=str)
+
+
+# ----------------------------------------------------------------------------------- sections
+def _parse_grid(g, dim):
+    _section(g, "grid", {"origin", "size", "dx", "cells"})
+    origin = _vector(g, "origin", "grid", dim, default=[0.0] * dim)
+    size = _vector(g, "size", "grid", dim, required=True, positive=True)
+    if ("dx" in g) == ("cells" in g):
+        _fail("grid.dx", g.get("dx"), "exactly one of 'grid.dx' or 'grid.cells' (cells along the first axis)")
+    if "dx" in g:
+        dx = _number(g, "dx", "grid", lo=0.0, lo_open=True)
+    else:
+        dx = size[0] / _integer(g, "cells", "grid", lo=4, hi=4096)
+    cells_f = size / dx
+    cells = np.rint(cells_f).astype(int)
+    if np.any(np.abs(cells_f - cells) > 1e-9 * cells_f) or np.any(cells < 4):
+        _fail("grid.size", size.tolist(), f"a whole number (>= 4) of cells of dx = {dx} along every axis")
+    return Grid(origin=origin, dx=float(dx), cells=tuple(int(c) for c in cells))
+
+
+def _parse_method(m):
+    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha"})
+    scheme = _choice(m, "scheme", "method", SCHEMES, default="mls")
+    force = _choice(m, "force", "method", FORCES, default="mls")
+    kernel = _choice(m, "kernel", "method", tuple(KERNELS), default="quadratic")
+    if "flip_alpha" in m and scheme != "flip":
+        _fail("method.flip_alpha", m["flip_alpha"], f"only with method.scheme = 'flip' (scheme is '{scheme}')")
+    alpha = _number(m, "flip_alpha", "method", default=0.95 if scheme == "flip" else 0.0, lo=0.0, hi=1.0)
+    return MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha)
+
+
+def _parse_materials(mats):
+    if not isinstance(mats, dict) or not mats:
+        _fail("materials", mats, "a table with at least one named material, e.g. [materials.jelly]")
+    out = {}
+    for name, spec in mats.items():
+        path = f"materials.{name}"
+        if not isinstance(spec, dict):
+            _fail(path, spec, "a table")
+        kind = _choice(spec, "type", path, tuple(MATERIAL_TYPES), required=True)
+        _section(spec, path, MATERIAL_KEYS[kind])
+        rho = _number(spec, "rho", path, default=1000.0, lo=0.0, lo_open=True)
+        if kind == "fluid":
+            K = _number(spec, "K", path, required=True, lo=0.0, lo_open=True)
+            gamma = _number(spec, "gamma", path, default=7.0, lo=1.0, hi=20.0)
+            out[name] = MATERIAL_TYPES[kind](K=K, gamma=gamma, rho=rho)
+        else:
+            E = _number(spec, "E", path, required=True, lo=0.0, lo_open=True)
+            nu = _number(spec, "nu", path, default=0.3, lo=0.0, hi=0.5, hi_open=True)
+            out[name] = MATERIAL_TYPES[kind](E=E, nu=nu, rho=rho)
+            mu, lam = lame_parameters(E, nu)
+            if not (math.isfinite(mu) and math.isfinite(lam)):
+                _fail(f"{path}.nu", nu, "a value for which the Lamé parameters are finite")
+    return out
+
+
+def _parse_bodies(bodies, dim, materials):
+    if not isinstance(bodies, list) or not bodies:
+        _fail("bodies", bodies, "a non-empty array of tables, e.g. [[bodies]]")
+    out = []
+    for i, b in enumerate(bodies):
+        path = f"bodies[{i}]"
+        _section(b, path, BODY_KEYS)
+        shape = _choice(b, "shape", path, SHAPES, required=True)
+        material = _choice(b, "material", path, tuple(materials), required=True)
+        p = {"velocity": _vector(b, "velocity", path, dim, default=[0.0] * dim)}
+        if shape == "box":
+            p["lower"] = _vector(b, "lower", path, dim, required=True)
+            p["upper"] = _vector(b, "upper", path, dim, required=True)
+            if np.any(p["upper"] <= p["lower"]):
+                _fail(f"{path}.upper", p["upper"].tolist(), f"greater than lower = {p['lower'].tolist()} on every axis")
+        elif shape in ("disk", "sphere"):
+            want = 2 if shape == "disk" else 3
+            if dim != want:
+                _fail(f"{path}.shape", shape, f"'{'disk' if dim == 2 else 'sphere'}' in a {dim}D scene")
+            p["center"] = _vector(b, "center", path, dim, required=True)
+            p["radius"] = _number(b, "radius", path, required=True, lo=0.0, lo_open=True)
+        elif shape == "points":
+            p["positions"] = _points_array(b, path, dim)
+        else:
+            if not isinstance(b.get("file"), str):
+                _fail(f"{path}.file", b.get("file"), "the path of a mesh or point cloud readable by meshio")
+            p["file"] = b["file"]
+        p["ppc"] = _integer(b, "ppc", path, default=2**dim, lo=1, hi=64)
+        p["sampling"] = _choice(b, "sampling", path, SAMPLINGS, default="regular")
+        if p["sampling"] == "regular" and round(p["ppc"] ** (1.0 / dim)) ** dim != p["ppc"]:
+            _fail(f"{path}.ppc", p["ppc"], f"a perfect {dim}th power (1, {2**dim}, {3**dim}, ...) for regular sampling")
+        p["seed"] = _integer(b, "seed", path, default=0, lo=0)
+        p["count"] = _integer(b, "count", path, default=None, lo=1)
+        if p["count"] is not None and p["sampling"] != "random":
+            _fail(f"{path}.count", p["count"], "only with sampling = 'random'")
+        p["particle_volume"] = _number(b, "particle_volume", path, default=None, lo=0.0, lo_open=True)
+        if dim == 2:
+            p["angular_velocity"] = _number(b, "angular_velocity", path, default=0.0)
+        else:
+            p["angular_velocity"] = _vector(b, "angular_velocity", path, 3, default=[0.0, 0.0, 0.0])
+        p["rotation_center"] = _vector(b, "rotation_center", path, dim)
+        out.append(BodySpec(index=i, shape=shape, material=material, params=p))
+    return out
+
+
+def _points_array(b, path, dim):
+    pos = b.get("positions")
+    try:
+        arr = np.asarray(pos, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.ndim != 2 or arr.shape[1] != dim or arr.shape[0] == 0 or not np.all(np.isfinite(arr)):
+        _fail(f"{path}.positions", pos if arr is None else f"array of shape {arr.shape}",
+              f"a finite array of shape (n, {dim}) with n >= 1")
+    return arr
+
+
+def _parse_boundary(bd, dim, grid):
+    _section(bd, "boundary", {"width", "type", "friction", "walls", "domain_exit"})
+    width = _integer(bd, "width", "boundary", default=3, lo=0, hi=min(grid.cells) // 2 - 1)
+    default_type = _choice(bd, "type", "boundary", WALL_TYPES, default="separate")
+    default_mu = _number(bd, "friction", "boundary", default=0.0, lo=0.0)
+    names = [f"{AXES[a]}_{side}" for a in range(dim) for side in ("min", "max")]
+    walls_in = bd.get("walls", {})
+    _section(walls_in, "boundary.walls", set(names))
+    walls = {}
+    for name in names:
+        w = walls_in.get(name, {})
+        path = f"boundary.walls.{name}"
+        _section(w, path, {"type", "friction"})
+        walls[name] = WallSpec(type=_choice(w, "type", path, WALL_TYPES, default=default_type),
+                               friction=_number(w, "friction", path, default=default_mu, lo=0.0))
+    exit_policy = _choice(bd, "domain_exit", "boundary", DOMAIN_EXIT_POLICIES, default="error")
+    return BoundarySpec(width=width, walls=walls, domain_exit=exit_policy)
+
+
+def _parse_time(t):
+    _section(t, "time", {"dt", "cfl", "steps", "t_end"})
+    if ("dt" in t) == ("cfl" in t):
+        _fail("time.dt", t.get("dt"), "exactly one of 'time.dt' (fixed step) or 'time.cfl' (CFL number)")
+    dt = _number(t, "dt", "time", lo=0.0, lo_open=True)
+    cfl = _number(t, "cfl", "time", lo=0.0, hi=10.0, lo_open=True)
+    if "steps" in t and "t_end" in t:
+        _fail("time.steps", t["steps"], "either 'time.steps' or 'time.t_end', not both")
+    steps = _integer(t, "steps", "time", lo=0)
+    t_end = _number(t, "t_end", "time", lo=0.0)
+    return TimeSpec(dt=dt, cfl=cfl, steps=steps, t_end=t_end)
+
+
+def _parse_output(o):
+    _section(o, "output", {"every", "fields", "grid", "checkpoint"})
+    every = _integer(o, "every", "output", default=50, lo=1)
+    fields_ = o.get("fields", list(OUTPUT_FIELDS))
+    if not isinstance(fields_, list) or any(f not in OUTPUT_FIELDS for f in fields_):
+        _fail("output.fields", fields_, f"a list drawn from {list(OUTPUT_FIELDS)}")
+    for key in ("grid", "checkpoint"):
+        if key in o and not isinstance(o[key], bool):
+            _fail(f"output.{key}", o[key], "true or false")
+    return OutputSpec(every=every, fields=tuple(fields_), grid=o.get("grid", False),
+                      checkpoint=o.get("checkpoint", True))
+
+
+# ------------------------------------------------------------------------------------ builder
+class SceneBuilder:
+    """Build a scene in Python; ``build()`` runs the same validation as a TOML file.
+
+    Example
+    -------
+    >>> scene = (SceneBuilder(dim=2, name="drop").grid(size=1.0, cells=64)
+    ...          .method("apic").material("jelly", "fixed_corotated", E=1e4, nu=0.3, rho=1.0)
+    ...          .box("jelly", lower=[0.4, 0.4], upper=[0.6, 0.6]).gravity([0.0, -9.8])
+    ...          .time(dt=1e-4, steps=100).build())
+    """
+
+    def __init__(self, dim, name="scene", dtype="float64"):
+        self._data = {"dim": dim, "name": name, "dtype": dtype, "materials": {}, "bodies": []}
+
+    def grid(self, size, dx=None, cells=None, origin=None):
+        g = {"size": size}
+        g.update({k: v for k, v in (("dx", dx), ("cells", cells), ("origin", origin)) if v is not None})
+        self._data["grid"] = g
+        return self
+
+    def method(self, scheme, **options):
+        self._data["method"] = {"scheme": scheme, **options}
+        return self
+
+    def material(self, name, type, **params):
+        self._data["materials"][name] = {"type": type, **params}
+        return self
+
+    def body(self, shape, material, **params):
+        self._data["bodies"].append({"shape": shape, "material": material, **params})
+        return self
+
+    def box(self, material, lower, upper, **params):
+        return self.body("box", material, lower=list(lower), upper=list(upper), **params)
+
+    def ball(self, material, center, radius, **params):
+        shape = "disk" if self._data["dim"] == 2 else "sphere"
+        return self.body(shape, material, center=list(center), radius=radius, **params)
+
+    def points(self, material, positions, **params):
+        return self.body("points", material, positions=np.asarray(positions).tolist(), **params)
+
+    def gravity(self, g):
+        self._data["gravity"] = list(g)
+        return self
+
+    def walls(self, type="separate", friction=0.0, width=3, domain_exit="error", **per_wall):
+        self._data["boundary"] = {"type": type, "friction": friction, "width": width,
+                                  "domain_exit": domain_exit, "walls": per_wall}
+        return self
+
+    def time(self, **params):
+        self._data["time"] = params
+        return self
+
+    def output(self, **params):
+        self._data["output"] = params
+        return self
+
+    def as_dict(self):
+        return copy.deepcopy(self._data)
+
+    def build(self):
+        return Scene.from_dict(self._data)

@@ -1,0 +1,254 @@
+"""Simulation: particle state + stepper + backend + outputs + diagnostics."""
+
+import time as _time
+
+import numpy as np
+
+from .backends import make_backend
+from .bodies import sample_particles
+from .diagnostics import diagnostics
+from .errors import DomainExitError, MpmrefError, NonFiniteError
+from .io.run_output import RunOutput
+from .steppers import SynchronousStepper
+
+
+class Simulation:
+    """Run a :class:`~mpmref.scene.Scene` on a backend.
+
+    Parameters
+    ----------
+    scene : Scene
+    backend : str            ``"numpy"`` (the reference)
+    out_dir : path or None   where VTK series, ``diagnostics.csv`` and checkpoints go; None writes nothing
+    particles : Particles    initial state (default: sampled from the scene's bodies)
+
+    The particle arrays are readable and settable as ``sim.x``, ``sim.v``, ``sim.C``, ``sim.F``,
+    ``sim.J``, ``sim.mass``, ``sim.vol0``. Each step builds a new state; the current one is replaced only
+    when the new one is finite and inside the domain, so after an error ``sim`` holds the last good state.
+    """
+
+    def __init__(self, scene, backend="numpy", out_dir=None, particles=None):
+        self.scene = scene
+        self.backend = make_backend(backend, scene)
+        self.stepper = SynchronousStepper(scene, self.backend)
+        self.particles = particles if particles is not None else sample_particles(scene)
+        self.output = RunOutput(out_dir, scene) if out_dir is not None else None
+        self.step_count = 0
+        self.time = 0.0
+        self.deleted = 0
+        self.last_dt = None
+
+    # ------------------------------------------------------------------------ state access
+    def _particle_field(name):  # noqa: N805 - class-body helper building properties
+        def getter(self):
+            return getattr(self.particles, name)
+
+        def setter(self, value):
+            old = getattr(self.particles, name)
+            if old is None:
+                raise AttributeError(f"this scene does not allocate '{name}'")
+            value = np.asarray(value, dtype=old.dtype)
+            if value.shape != old.shape:
+                raise ValueError(f"'{name}' must have shape {old.shape}, got {value.shape}")
+            setattr(self.particles, name, value.copy())
+
+        return property(getter, setter)
+
+    x = _particle_field("x")
+    v = _particle_field("v")
+    C = _particle_field("C")
+    F = _particle_field("F")
+    J = _particle_field("J")
+    mass = _particle_field("mass")
+    vol0 = _particle_field("vol0")
+    del _particle_field
+
+    @property
+    def n_particles(self):
+        return self.particles.n
+
+    def diagnostics(self):
+        """Mass, momentum, angular momentum and energies of the current state (dict)."""
+        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity,
+                        self.scene.kernel.inertia_factor * self.scene.grid.dx**2)
+        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted}
+
+    # --------------------------------------------------------------------------- stepping
+    def step(self, dt=None):
+        """Advance one time step of ``dt`` (default: the scene's fixed or CFL step); returns the Δt used."""
+        dt = self.stepper.time_step(self.particles) if dt is None else dt
+        new = self.stepper.advance(self.particles, dt)
+        self._check_finite(new, dt)
+        new = self._apply_domain_policy(new)
+        self.particles = new
+        self.step_count += 1
+        self.time += dt
+        self.last_dt = dt
+        return dt
+
+    def _check_finite(self, new, dt):
+        for name, arr in new.arrays().items():
+            bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
+            if bad.any():
+                raise NonFiniteError(step=self.step_count + 1, particle=int(np.argmax(bad)), quantity=name,
+                                     cfl=self.stepper.cfl_number(self.particles, dt),
+                                     checkpoint=self._save_last_good("nonfinite"))
+
+    def _apply_domain_policy(self, new):
+        lo, hi = self.scene.valid_region()
+        outside = np.any((new.x < lo) | (new.x >= hi), axis=1)
+        if not outside.any():
+            return new
+        policy = self.scene.boundary.domain_exit
+        if policy == "error":
+            idx = np.nonzero(outside)[0]
+            raise DomainExitError(self.step_count + 1, idx, new.x[idx], checkpoint=self._save_last_good("domain_exit"))
+        if policy == "clamp":
+            span = hi - lo
+            eps = np.asarray(1e-6 * span, dtype=new.x.dtype)
+            return new.with_(x=np.clip(new.x, lo + eps, hi - eps).astype(new.x.dtype))
+        self.deleted += int(outside.sum())
+        return new.select(~outside)
+
+    def _save_last_good(self, reason):
+        if self.output is None:
+            return None
+        return self.output.save_checkpoint(self.particles, self._meta(reason),
+                                           path=self.output.dir / f"last_good_{reason}.npz")
+
+    # ----------------------------------------------------------------------------- running
+    def run(self, steps=None, t_end=None, progress=False):
+        """Run until ``steps`` more steps are done or time ``t_end`` is reached (default: the scene's).
+
+        Writes outputs every ``scene.output.every`` steps (and at the start and end) when the simulation
+        has an output folder. Returns a summary dict (steps, wall time, particle-steps/s, drifts).
+        """
+        steps, t_end = self._resolve_stop(steps, t_end)
+        first = self.diagnostics()
+        if self.output is not None and self.step_count == 0 and not self.output.rows:
+            self.write_output()
+        bar = _progress(steps, t_end, self.time, progress)
+        start, done, particle_steps = _time.perf_counter(), 0, 0
+        try:
+            while not self._finished(done, steps, t_end):
+                n = self.n_particles
+                dt = self.step_clipped(t_end)
+                done += 1
+                particle_steps += n
+                bar.update(1 if steps is not None else dt)
+                if self.output is not None and self.step_count % self.scene.output.every == 0:
+                    self.write_output()
+        finally:
+            bar.close()
+        wall = _time.perf_counter() - start
+        if self.output is not None and self.step_count % self.scene.output.every != 0:
+            self.write_output()
+        return _summary(first, self.diagnostics(), done, wall, particle_steps)
+
+    def step_clipped(self, t_end):
+        """One step, shortened if needed so as not to pass ``t_end``."""
+        if t_end is None:
+            return self.step()
+        dt = self.stepper.time_step(self.particles)
+        return self.step(min(dt, t_end - self.time))
+
+    def _resolve_stop(self, steps, t_end):
+        if steps is None and t_end is None:
+            steps = self.scene.time.steps
+            if steps is not None:
+                steps = max(0, steps - self.step_count)  # scene step counts are totals (resume-safe)
+            t_end = self.scene.time.t_end
+        if steps is None and t_end is None:
+            raise MpmrefError("no stop given: set time.steps or time.t_end in the scene, or pass steps/t_end")
+        return steps, t_end
+
+    def _finished(self, done, steps, t_end):
+        if steps is not None:
+            return done >= steps
+        return self.time >= t_end * (1.0 - 1e-12)
+
+    # ------------------------------------------------------------------------------ outputs
+    def point_data(self, fields=None):
+        """Per-particle output arrays named as in ``scene.output.fields``."""
+        fields = fields or self.scene.output.fields
+        p = self.particles
+        J = self.volume_ratio()
+        data = {"velocity": p.v, "mass": p.mass, "volume": p.vol0 * J, "J": J,
+                "material": p.material.astype(np.int32)}
+        if "stress" in fields or "pressure" in fields:
+            sigma = self.backend.stress(p) / J[:, None, None]
+            data["stress"] = sigma
+            data["pressure"] = -np.trace(sigma, axis1=1, axis2=2) / p.dim
+        return {k: data[k] for k in fields}
+
+    def volume_ratio(self):
+        """:math:`J = V/V^0` per particle: ``det F`` for solids, the tracked ``J`` for fluids."""
+        p = self.particles
+        J = np.ones(p.n, dtype=p.x.dtype)
+        for mat_id, material in enumerate(self.scene.material_list):
+            sel = p.material == mat_id
+            J[sel] = np.linalg.det(p.F[sel]) if material.tracks == "F" else p.J[sel]
+        return J
+
+    def grid_data(self):
+        gs = self.backend.p2g(self.particles)
+        has = gs.mass > 0
+        vel = np.where(has[:, None], gs.momentum / np.where(has, gs.mass, 1.0)[:, None], 0.0)
+        return {"mass": gs.mass, "velocity": vel}
+
+    def write_output(self):
+        """Write a particle frame (and grid frame), a diagnostics row and, if enabled, a checkpoint."""
+        out = self.output
+        out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
+                        self.grid_data() if self.scene.output.grid else None)
+        out.write_diagnostics(self.diagnostics())
+        if self.scene.output.checkpoint:
+            out.save_checkpoint(self.particles, self._meta("output"))
+
+    def _meta(self, reason):
+        return {"step": self.step_count, "time": self.time, "deleted": self.deleted, "reason": reason,
+                "scene": self.scene.fingerprint()}
+
+    @classmethod
+    def resume(cls, scene, out_dir, backend="numpy"):
+        """Continue the run whose checkpoint is in ``out_dir`` (bit-identical to an uninterrupted run)."""
+        sim = cls(scene, backend=backend, out_dir=out_dir, particles=None)
+        path = sim.output.checkpoint_path
+        if not path.exists():
+            raise MpmrefError(f"no checkpoint to resume from: {path} does not exist")
+        particles, meta = sim.output.load_checkpoint()
+        if meta["scene"] != scene.fingerprint():
+            raise MpmrefError(f"checkpoint {path} was written by a different scene; refusing to resume")
+        sim.particles = particles
+        sim.step_count, sim.time, sim.deleted = meta["step"], meta["time"], meta["deleted"]
+        sim.output.restore(meta["output"])
+        return sim
+
+
+def _progress(steps, t_end, t0, enabled):
+    from tqdm import tqdm
+
+    if steps is not None:
+        return tqdm(total=steps, disable=not enabled, unit="step", dynamic_ncols=True)
+    return tqdm(total=t_end - t0, disable=not enabled, unit="s(sim)", dynamic_ncols=True,
+                bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
+
+
+def _summary(first, last, steps, wall, particle_steps):
+    def rel(key):
+        a, b = first.get(key), last.get(key)
+        if a is None:
+            return None
+        scale = max(abs(a), 1e-300)
+        return (b - a) / scale
+
+    momentum_keys = [k for k in first if k.startswith("momentum_")]
+    p0 = np.array([first[k] for k in momentum_keys])
+    p1 = np.array([last[k] for k in momentum_keys])
+    ref = max(np.sqrt(first["mass"] * 2 * max(first["kinetic"], last["kinetic"], 1e-300)), 1e-300)
+    return {
+        "steps": steps, "wall_s": wall, "particle_steps_per_s": particle_steps / wall if wall > 0 else float("nan"),
+        "mass_drift_rel": rel("mass"),
+        "momentum_drift_rel": float(np.linalg.norm(p1 - p0) / ref),
+        "energy_drift_rel": rel("total_energy"), "final": last,
+    }
