@@ -1,0 +1,39 @@
+"""Shared builders for tests: small random particle states and scenes."""
+
+import numpy as np
+
+from mpmref import Scene, SceneBuilder
+from mpmref.state import Particles
+
+
+def box_scene(dim=2, scheme="apic", cells=16, material="fixed_corotated", walls="open", gravity=None, **time):
+    b = SceneBuilder(dim=dim, name="t").grid(size=1.0, cells=cells).method(scheme)
+    if material == "fluid":
+        b.material("m", "fluid", K=400.0, gamma=1.0, rho=1.0)
+    else:
+        b.material("m", material, E=1e3, nu=0.3, rho=1.0)
+    lo, hi = [0.3] * dim, [0.7] * dim
+    b.box("m", lower=lo, upper=hi, ppc=2**dim)
+    b.walls(walls)
+    if gravity is not None:
+        b.gravity(gravity)
+    b.time(**(time or {"dt": 1e-4, "steps": 10}))
+    return b.build()
+
+
+def random_particles(scene, n, rng, affine_scale=1.0):
+    """Particles at random positions well inside the grid with random v, C, F (det > 0) and J."""
+    d = scene.dim
+    lo, hi = scene.valid_region()
+    x = lo + 0.1 + rng.random((n, d)) * (hi - lo - 0.2)
+    eye = np.eye(d)
+    return Particles(
+        x=x, v=rng.standard_normal((n, d)), mass=0.5 + rng.random(n), vol0=(0.5 + rng.random(n)) * 1e-3,
+        material=np.zeros(n, dtype=np.int32),
+        C=affine_scale * rng.standard_normal((n, d, d)) if scene.method.affine else None,
+        F=eye + 0.1 * rng.standard_normal((n, d, d)) if scene.tracks("F") else None,
+        J=1.0 + 0.1 * rng.random(n) if scene.tracks("J") else None,
+    )
+
+
+__all__ = ["box_scene", "random_particles", "Scene"]

@@ -1,0 +1,173 @@
+"""One test per class of bad scene: each error names the field, the value and the allowed range."""
+
+import copy
+
+import pytest
+
+from helpers import box_scene
+from mpmref import Scene, SceneBuilder, SceneError
+from mpmref.bodies import sample_particles
+
+
+def good():
+    return (SceneBuilder(dim=2, name="ok").grid(size=1.0, cells=16).method("apic")
+            .material("jelly", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
+            .box("jelly", lower=[0.3, 0.3], upper=[0.6, 0.6]).time(dt=1e-4, steps=10).as_dict())
+
+
+def with_(path, value):
+    d = copy.deepcopy(good())
+    *head, last = path
+    target = d
+    for k in head:
+        target = target[k]
+    if value is _DELETE:
+        del target[last]
+    else:
+        target[last] = value
+    return d
+
+
+_DELETE = object()
+
+
+def expect(data, field, allowed_words):
+    with pytest.raises(SceneError) as info:
+        sample_particles(Scene.from_dict(data))
+    err = info.value
+    assert err.field == field
+    assert allowed_words in err.allowed
+    assert field in str(err)
+    return err
+
+
+def test_the_good_scene_is_accepted():
+    scene = Scene.from_dict(good())
+    assert sample_particles(scene).n > 0
+
+
+def test_unknown_top_level_key():
+    expect(with_(["gravty"], [0, -9.8]), "gravty", "known keys")
+
+
+def test_unknown_nested_key():
+    expect(with_(["materials", "jelly", "youngs"], 1.0), "materials.jelly.youngs", "known keys")
+
+
+def test_missing_required_field():
+    expect(with_(["materials", "jelly", "E"], _DELETE), "materials.jelly.E", "required")
+
+
+def test_wrong_type():
+    err = expect(with_(["materials", "jelly", "E"], "stiff"), "materials.jelly.E", "finite number")
+    assert err.value == "stiff"
+
+
+@pytest.mark.parametrize("nu", [0.5, 0.7, -0.1])
+def test_poisson_ratio_out_of_range(nu):
+    err = expect(with_(["materials", "jelly", "nu"], nu), "materials.jelly.nu", "[0.0, 0.5)")
+    assert err.value == nu
+
+
+@pytest.mark.parametrize("E", [0.0, -5.0])
+def test_youngs_modulus_must_be_positive(E):
+    expect(with_(["materials", "jelly", "E"], E), "materials.jelly.E", "(0.0, inf]")
+
+
+@pytest.mark.parametrize("dx", [0.0, -0.1])
+def test_grid_spacing_must_be_positive(dx):
+    d = good()
+    d["grid"] = {"size": [1.0, 1.0], "dx": dx}
+    expect(d, "grid.dx", "(0.0, inf]")
+
+
+def test_grid_size_must_be_whole_cells():
+    d = good()
+    d["grid"] = {"size": [1.0, 1.0], "dx": 0.3}
+    expect(d, "grid.size", "whole number")
+
+
+def test_non_finite_value():
+    expect(with_(["time", "dt"], float("nan")), "time.dt", "finite number")
+
+
+def test_unknown_choice():
+    expect(with_(["method", "scheme"], "sph"), "method.scheme", "'pic'")
+
+
+def test_flip_alpha_only_with_flip():
+    d = with_(["method", "flip_alpha"], 0.9)
+    expect(d, "method.flip_alpha", "only with method.scheme = 'flip'")
+
+
+def test_dt_and_cfl_are_exclusive():
+    expect(with_(["time", "cfl"], 0.5), "time.dt", "exactly one")
+
+
+def test_body_outside_domain_names_body_and_region():
+    d = good()
+    d["bodies"][0]["upper"] = [1.2, 0.6]
+    err = expect(d, "bodies[0]", "valid region")
+    assert "quadratic" in err.allowed
+
+
+def test_body_refers_to_unknown_material():
+    expect(with_(["bodies", 0, "material"], "steel"), "bodies[0].material", "'jelly'")
+
+
+def test_disk_in_3d_is_refused():
+    d = good()
+    d.update(dim=3, grid={"size": 1.0, "cells": 16})
+    d["bodies"] = [{"shape": "disk", "material": "jelly", "center": [0.5] * 3, "radius": 0.1}]
+    expect(d, "bodies[0].shape", "'sphere' in a 3D scene")
+
+
+def test_regular_sampling_needs_perfect_power():
+    expect(with_(["bodies", 0, "ppc"], 3), "bodies[0].ppc", "perfect 2th power")
+
+
+def test_vector_of_wrong_length():
+    expect(with_(["gravity"], [0.0, -9.8, 0.0]), "gravity", "list of 2")
+
+
+def test_wall_type_and_friction():
+    d = good()
+    d["boundary"] = {"walls": {"y_min": {"type": "glue"}}}
+    expect(d, "boundary.walls.y_min.type", "'sticky'")
+    d["boundary"] = {"walls": {"y_min": {"friction": -0.1}}}
+    expect(d, "boundary.walls.y_min.friction", "[0.0, inf]")
+
+
+def test_invalid_toml_file(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text("dim = 2\n[grid\nsize = 1\n")
+    with pytest.raises(SceneError) as info:
+        Scene.from_toml(path)
+    assert info.value.field == "scene file" and "valid TOML" in info.value.allowed
+
+
+def test_missing_scene_file(tmp_path):
+    with pytest.raises(SceneError, match="existing TOML file"):
+        Scene.from_toml(tmp_path / "nope.toml")
+
+
+def test_toml_key_after_bodies_table_is_reported_as_body_key(tmp_path):
+    """A common TOML slip: a top-level key written after [[bodies]] belongs to the body."""
+    path = tmp_path / "slip.toml"
+    path.write_text(
+        'dim = 2\n[grid]\nsize = 1.0\ncells = 16\n[materials.m]\ntype = "fluid"\nK = 10.0\n'
+        '[[bodies]]\nshape = "box"\nmaterial = "m"\nlower = [0.3, 0.3]\nupper = [0.6, 0.6]\n'
+        'gravity = [0.0, -9.8]\n[time]\ndt = 1e-4\n'
+    )
+    with pytest.raises(SceneError) as info:
+        Scene.from_toml(path)
+    assert info.value.field == "bodies[0].gravity"
+
+
+def test_python_builder_and_dict_agree():
+    a = box_scene(2, "apic")
+    b = Scene.from_dict(SceneBuilder(dim=2, name="t").grid(size=1.0, cells=16).method("apic")
+                        .material("m", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
+                        .box("m", lower=[0.3] * 2, upper=[0.7] * 2, ppc=4).walls("open")
+                        .time(dt=1e-4, steps=10).as_dict())
+    assert a.fingerprint() == b.fingerprint()

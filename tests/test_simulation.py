@@ -1,0 +1,161 @@
+"""Runs as a user meets them: restart, failures caught with context, domain-exit policies, the CLI."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+import pyvista as pv
+
+from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
+from mpmref.cli import main
+from mpmref.io.checkpoint import load_checkpoint
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def jelly_with_loner(loner_velocity=(0.0, 0.0), exit_policy="error", dt=None, cfl=None, steps=20, walls="separate"):
+    """A jelly box plus one isolated particle far from it (so its fate touches no other particle)."""
+    b = (SceneBuilder(dim=2, name="loner").grid(size=1.0, cells=16).method("mls")
+         .material("jelly", "neo_hookean", E=1e3, nu=0.3, rho=1.0)
+         .box("jelly", lower=[0.3, 0.3], upper=[0.5, 0.5], angular_velocity=1.0)
+         .points("jelly", [[0.85, 0.85]], velocity=list(loner_velocity))
+         .gravity([0.0, -9.8]).walls(walls, friction=0.2, domain_exit=exit_policy)
+         .output(every=5, grid=True))
+    b.time(**({"dt": dt} if dt else {"cfl": cfl or 0.3}), steps=steps)
+    return b.build()
+
+
+@pytest.mark.parametrize("time_rule", [{"dt": 1e-3}, {"cfl": 0.4}])
+def test_restart_is_bit_identical(tmp_path, time_rule):
+    scene = jelly_with_loner(**time_rule, steps=20)
+    full = Simulation(scene, out_dir=tmp_path / "full")
+    full.run()
+    part = Simulation(scene, out_dir=tmp_path / "part")
+    part.run(steps=10)
+    del part  # the first process "dies" here; only its folder remains
+    resumed = Simulation.resume(scene, tmp_path / "part")
+    assert resumed.step_count == 10
+    resumed.run()
+    assert resumed.step_count == full.step_count == 20
+    for name, a in full.particles.arrays().items():
+        assert np.array_equal(a, resumed.particles.arrays()[name]), name
+    assert resumed.time == full.time
+    assert (tmp_path / "full/diagnostics.csv").read_text() == (tmp_path / "part/diagnostics.csv").read_text()
+    assert (tmp_path / "full/particles.pvd").read_text() == (tmp_path / "part/particles.pvd").read_text()
+
+
+def test_resume_refuses_a_different_scene(tmp_path):
+    Simulation(jelly_with_loner(dt=1e-3, steps=5), out_dir=tmp_path).run()
+    with pytest.raises(Exception, match="different scene"):
+        Simulation.resume(jelly_with_loner(dt=2e-3, steps=5), tmp_path)
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in log")
+def test_non_finite_is_caught_at_its_step_with_context(tmp_path):
+    scene = jelly_with_loner(dt=1e-3)
+    sim = Simulation(scene, out_dir=tmp_path)
+    sim.run(steps=3)
+    F = sim.F.copy()
+    F[-1] = np.diag([-1.0, 1.0])  # inverted element: Neo-Hookean log(J) is undefined
+    sim.F = F
+    before = sim.particles.copy()
+    with pytest.raises(NonFiniteError) as info:
+        sim.step()
+    err = info.value
+    assert err.step == 4 and err.particle == sim.n_particles - 1 and err.quantity in ("x", "v")
+    c = scene.max_wave_speed()
+    vmax = np.max(np.linalg.norm(before.v, axis=1))
+    assert err.cfl == pytest.approx(1e-3 * (c + vmax) / scene.grid.dx, rel=1e-12)
+    # the simulation still holds the last good state, and it was written to disk
+    assert sim.step_count == 3
+    for name, a in before.arrays().items():
+        assert np.array_equal(a, sim.particles.arrays()[name])
+    saved, meta = load_checkpoint(err.checkpoint)
+    assert meta["step"] == 3 and np.array_equal(saved.F, F)
+
+
+def test_domain_exit_error_is_default_and_keeps_last_good_state(tmp_path):
+    sim = Simulation(jelly_with_loner(loner_velocity=(0.0, 150.0), dt=1e-3, walls="open"), out_dir=tmp_path)
+    with pytest.raises(DomainExitError) as info:
+        sim.run(steps=5)
+    err = info.value
+    assert list(err.particles) == [sim.n_particles - 1]
+    assert Path(err.checkpoint).exists() and sim.step_count == err.step - 1
+
+
+def test_domain_exit_clamp_and_delete():
+    fast = {"loner_velocity": (0.0, 150.0), "dt": 1e-3, "walls": "open"}  # leaves in one step
+    clamp = Simulation(jelly_with_loner(exit_policy="clamp", **fast))
+    n_clamp = clamp.n_particles
+    clamp.run(steps=3)
+    lo, hi = clamp.scene.valid_region()
+    assert clamp.n_particles == n_clamp
+    assert np.all((clamp.x >= lo) & (clamp.x < hi))
+    assert clamp.x[-1, 1] == pytest.approx(hi[1], abs=1e-5)
+    delete = Simulation(jelly_with_loner(exit_policy="delete", **fast))
+    n0, m0 = delete.n_particles, delete.mass.sum()
+    delete.run(steps=3)
+    d = delete.diagnostics()
+    assert delete.n_particles == n0 - 1 and d["deleted"] == 1
+    assert d["mass"] == pytest.approx(m0 - delete.scene.materials["jelly"].rho * 1 / 16**2 / 4, rel=1e-12)
+
+
+def test_state_arrays_are_settable_with_shape_checks():
+    sim = Simulation(jelly_with_loner(dt=1e-3))
+    v = np.ones_like(sim.v)
+    sim.v = v
+    assert np.array_equal(sim.v, v)
+    with pytest.raises(ValueError, match="shape"):
+        sim.v = np.ones((3, 2))
+    with pytest.raises(AttributeError, match="does not allocate 'J'"):
+        sim.J = np.ones(sim.n_particles)
+
+
+def test_cli_run_writes_a_series_that_meshio_and_pyvista_read(tmp_path, capsys):
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text((ROOT / "examples/jelly.toml").read_text().replace("every = 100", "every = 2\ngrid = true"))
+    out = tmp_path / "out"
+    assert main(["run", str(scene_file), "--steps", "4", "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "particle-steps/s" in printed and "mass drift" in printed
+    frames = sorted(out.glob("particles_*.vtu"))
+    assert [f.name for f in frames] == ["particles_000000.vtu", "particles_000002.vtu", "particles_000004.vtu"]
+    mesh = meshio.read(frames[-1])
+    assert set(mesh.point_data) == {"velocity", "mass", "volume", "J", "stress", "pressure", "material"}
+    assert mesh.point_data["velocity"].shape == (len(mesh.points), 3)
+    reader = pv.get_reader(str(out / "particles.pvd"))
+    assert len(reader.time_values) == 3
+    reader.set_active_time_value(reader.time_values[-1])
+    block = reader.read()[0]
+    np.testing.assert_allclose(block.points, mesh.points)
+    grid = pv.read(out / "grid_000004.vti")
+    assert grid.dimensions == (65, 65, 1)
+    assert {"mass", "velocity"} <= set(grid.point_data.keys())
+    # Σ_i w_ip = 1 and Σ_i w_ip x_i = x_p: grid mass and centre of mass equal the particles' (VTK axis order)
+    m_grid = grid.point_data["mass"]
+    m_part, x_part = mesh.point_data["mass"], mesh.points
+    assert m_grid.sum() == pytest.approx(m_part.sum(), rel=1e-12)
+    np.testing.assert_allclose(m_grid @ grid.points / m_grid.sum(), m_part @ x_part / m_part.sum(), rtol=1e-12)
+    rows = (out / "diagnostics.csv").read_text().splitlines()
+    assert rows[0].startswith("step,time,") and len(rows) == 4
+
+
+def test_cli_resume_continues_to_the_requested_step(tmp_path):
+    args = ["run", str(ROOT / "examples/jelly.toml"), "--out", str(tmp_path), "--no-progress"]
+    assert main(args + ["--steps", "3"]) == 0
+    assert main(args + ["--steps", "6", "--resume"]) == 0
+    rows = (tmp_path / "diagnostics.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["0", "3", "6"]
+
+
+def test_cli_reports_bad_scene_with_exit_code_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((ROOT / "examples/jelly.toml").read_text().replace("nu = 0.3", "nu = 0.5"))
+    proc = subprocess.run([sys.executable, "-m", "mpmref.cli", "run", str(bad), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "materials.jelly.nu" in proc.stderr and "0.5" in proc.stderr and "[0.0, 0.5)" in proc.stderr
+    assert not (tmp_path / "o").exists()  # validated before any work
