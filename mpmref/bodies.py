@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SceneError
+from .physics.polypic import higher_modes
 from .state import Particles
 
 
@@ -113,7 +114,8 @@ def sample_particles(scene):
     """Sample every body of ``scene`` and return a :class:`~mpmref.state.Particles` of the scene's dtype.
 
     ``C`` is allocated only for affine schemes and starts at the gradient of the initial velocity field
-    (exact for a rigid rotation); ``F`` starts at the identity, ``J`` at one. Raises
+    (exact for a rigid rotation); PolyPIC's higher ``modes`` start at zero; ``F`` starts at the
+    identity, ``J`` and ``Jp`` at one. Raises
     :class:`~mpmref.errors.SceneError` if a body has particles outside the grid's valid region.
     """
     dim, dx, dtype = scene.dim, scene.grid.dx, scene.dtype
@@ -146,4 +148,12 @@ def sample_particles(scene):
         C=cat["C"].astype(dtype) if scene.method.affine else None,
         F=np.broadcast_to(eye, (n, dim, dim)).copy() if scene.tracks("F") else None,
         J=np.ones(n, dtype=dtype) if scene.tracks("J") else None,
+        Jp=np.ones(n, dtype=dtype) if scene.tracks("Jp") else None,
+        modes=_zero_modes(scene, n) if scene.method.polypic else None,
     )
+
+
+def _zero_modes(scene, n):
+    """PolyPIC higher-mode coefficients, all zero (the initial field is at most affine)."""
+    m = len(higher_modes(scene.dim, scene.kernel.support))
+    return np.zeros((n, m, scene.dim), dtype=scene.dtype)

@@ -12,6 +12,10 @@ The affine kinetic energy :math:`\tfrac12 m_p \operatorname{tr}(C_p D_p C_p^T)` 
 
 import numpy as np
 
+from .physics.kernels import compute_stencil
+from .physics.materials import state_args
+from .physics import polypic
+
 
 def cross(a, b):
     """2D: scalar cross product (n,); 3D: vector cross product (n, 3)."""
@@ -44,18 +48,30 @@ def elastic_energy(particles, materials):
         sel = particles.material == mat_id
         if not sel.any():
             continue
-        arg = particles.F[sel] if material.tracks == "F" else particles.J[sel]
-        total += float(np.sum(particles.vol0[sel] * material.energy_density(arg.astype(np.float64))))
+        args = [a.astype(np.float64) for a in state_args(material, particles, sel)]
+        total += float(np.sum(particles.vol0[sel] * material.energy_density(*args)))
     return total
 
 
-def diagnostics(particles, materials, gravity, inertia):
-    """Mass, linear and angular momentum, kinetic (particle and affine), elastic, gravitational and total energy.
+def polypic_mode_norms(particles, kernel, grid):
+    r"""Squared norms :math:`\sum_i w_{ip} s_r(x_i)^2` of each particle's higher PolyPIC modes, (n, M)."""
+    st = compute_stencil(kernel, particles.x.astype(np.float64), grid.origin, grid.dx)
+    _, norm = polypic.axis_basis(st.w, st.fx, st.dx)
+    return polypic.mode_norms(norm, polypic.higher_modes(grid.dim, kernel.support))
+
+
+def diagnostics(particles, materials, gravity, inertia, mode_norms=None):
+    r"""Mass, momenta, kinetic (particle, affine, higher modes), elastic, gravitational and total energy.
+
+    The kinetic energy a particle carries in its velocity modes is
+    :math:`\tfrac12 m_p (|v_p|^2 + \operatorname{tr}(C_p D_p C_p^T) + \sum_r |c_{pr}|^2 \sum_i w_{ip} s_r^2)`
+    — the energy its polynomial velocity field puts on its stencil (modes are orthogonal).
 
     Parameters
     ----------
     particles : Particles;  materials : list of material objects (index = material id)
-    gravity : (d,) array;   inertia : the scalar :math:`D_p` of the kernel
+    gravity : (d,) array;   inertia : the scalar :math:`D_p` of the kernel (None if not constant)
+    mode_norms : (n, M) array or None  PolyPIC higher-mode norms (:func:`polypic_mode_norms`)
     """
     m = particles.mass.astype(np.float64)
     v = particles.v.astype(np.float64)
@@ -74,7 +90,12 @@ def diagnostics(particles, materials, gravity, inertia):
         float(0.5 * inertia * np.sum(m * np.sum(particles.C.astype(np.float64) ** 2, axis=(1, 2))))
         if particles.C is not None else 0.0
     )
+    out["kinetic_modes"] = (
+        float(0.5 * np.sum(m[:, None] * mode_norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2)))
+        if particles.modes is not None else 0.0
+    )
     out["elastic"] = elastic_energy(particles, materials)
     out["gravitational"] = float(-np.sum(m * (particles.x.astype(np.float64) @ np.asarray(gravity, dtype=np.float64))))
-    out["total_energy"] = out["kinetic"] + out["kinetic_affine"] + out["elastic"] + out["gravitational"]
+    out["total_energy"] = (out["kinetic"] + out["kinetic_affine"] + out["kinetic_modes"] + out["elastic"]
+                           + out["gravitational"])
     return out

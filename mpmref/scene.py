@@ -19,8 +19,8 @@ from .physics.kernels import KERNELS, get_kernel
 from .physics.materials import MATERIAL_TYPES, lame_parameters
 from .state import Grid
 
-SCHEMES = ("pic", "flip", "apic", "mls")
-FORCES = ("mls",)
+SCHEMES = ("pic", "flip", "apic", "polypic", "mls")
+FORCES = ("mls", "classic")
 WALL_TYPES = BOUNDARY_TYPES + ("open",)
 DOMAIN_EXIT_POLICIES = ("error", "clamp", "delete")
 DTYPES = ("float64", "float32")
@@ -134,8 +134,12 @@ class MethodSpec:
 
     @property
     def affine(self):
-        """Whether particles carry the affine matrix ``C`` through P2G (APIC and MLS-MPM)."""
-        return self.scheme in ("apic", "mls")
+        """Whether particles carry the affine matrix ``C`` through P2G (APIC, PolyPIC and MLS-MPM)."""
+        return self.scheme in ("apic", "polypic", "mls")
+
+    @property
+    def polypic(self):
+        return self.scheme == "polypic"
 
     @property
     def flip(self):
@@ -244,7 +248,9 @@ class Scene:
         return list(self.materials.values())
 
     def tracks(self, kind):
-        """Whether any material of the scene tracks ``kind`` (``"F"`` or ``"J"``)."""
+        """Whether any material of the scene tracks ``kind`` (``"F"``, ``"J"`` or ``"Jp"``)."""
+        if kind == "Jp":
+            return any(getattr(m, "plastic", False) for m in self.materials.values())
         return any(m.tracks == kind for m in self.materials.values())
 
     def max_wave_speed(self):
@@ -288,7 +294,22 @@ def _parse_method(m):
     if "flip_alpha" in m and scheme != "flip":
         _fail("method.flip_alpha", m["flip_alpha"], f"only with method.scheme = 'flip' (scheme is '{scheme}')")
     alpha = _number(m, "flip_alpha", "method", default=0.95 if scheme == "flip" else 0.0, lo=0.0, hi=1.0)
-    return MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha)
+    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha)
+    _check_combination(spec)
+    return spec
+
+
+def _check_combination(spec):
+    """Refuse combinations of scheme, force and kernel that have no consistent discretisation."""
+    if spec.scheme == "mls" and spec.force == "classic":
+        _fail("method.force", "classic", "'mls' with method.scheme = 'mls' (MLS-MPM is the APIC transfer with "
+              "the MLS force; for APIC with the classic force use scheme = 'apic', force = 'classic')")
+    if spec.kernel == "linear" and spec.affine:
+        _fail("method.kernel", "linear", f"'quadratic' or 'cubic' with method.scheme = '{spec.scheme}' (an affine "
+              "scheme needs a constant inertia D_p, which the linear hat does not have)")
+    if spec.kernel == "linear" and spec.force == "mls":
+        _fail("method.force", "mls", "'classic' with method.kernel = 'linear' (the MLS force needs D_p^-1, "
+              "undefined for the linear hat)")
 
 
 def _parse_materials(mats):

@@ -6,7 +6,7 @@ import numpy as np
 
 from .backends import make_backend
 from .bodies import sample_particles
-from .diagnostics import diagnostics
+from .diagnostics import diagnostics, polypic_mode_norms
 from .errors import DomainExitError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
 from .steppers import SynchronousStepper
@@ -69,8 +69,10 @@ class Simulation:
 
     def diagnostics(self):
         """Mass, momentum, angular momentum and energies of the current state (dict)."""
-        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity,
-                        self.scene.kernel.inertia_factor * self.scene.grid.dx**2)
+        kernel, grid = self.scene.kernel, self.scene.grid
+        inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
+        norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
+        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, inertia, norms)
         return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted}
 
     # --------------------------------------------------------------------------- stepping

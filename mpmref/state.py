@@ -1,14 +1,14 @@
 """Particle and grid state (structure of arrays).
 
-Only the fields a scene needs are allocated: ``C`` for schemes that carry an affine velocity, ``F`` for
-materials that track the deformation gradient, ``J`` for materials that track only the volume ratio.
+Only the fields a scene needs are allocated: ``C`` for schemes that carry an affine velocity, ``modes``
+for PolyPIC, ``F`` for materials that track the deformation gradient, ``J`` for materials that track only
+the volume ratio, ``Jp`` for plastic materials.
 """
 
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-OPTIONAL_FIELDS = ("C", "F", "J")
 
 
 @dataclass
@@ -23,6 +23,8 @@ class Particles:
     C : (n, d, d)        affine velocity matrix (APIC / MLS only) or ``None``
     F : (n, d, d)        deformation gradient (solids only) or ``None``
     J : (n,)             volume ratio (fluid only) or ``None``
+    Jp : (n,)            plastic volume ratio (plastic materials only) or ``None``
+    modes : (n, M, d)    PolyPIC coefficients of the modes beyond constant and linear, or ``None``
     """
 
     x: np.ndarray
@@ -33,6 +35,8 @@ class Particles:
     C: np.ndarray | None = None
     F: np.ndarray | None = None
     J: np.ndarray | None = None
+    Jp: np.ndarray | None = None
+    modes: np.ndarray | None = None
 
     @property
     def n(self):

@@ -48,7 +48,64 @@ class QuadraticBSpline:
         return w, dw
 
 
-KERNELS = {"quadratic": QuadraticBSpline()}
+@dataclass(frozen=True)
+class CubicBSpline:
+    r"""Cubic B-spline kernel (support 4 nodes per axis).
+
+    .. math::
+
+        N(x) = \begin{cases} \tfrac12 |x|^3 - |x|^2 + \tfrac23 & |x| < 1 \\
+               \tfrac16 (2 - |x|)^3 & 1 \le |x| < 2 \\ 0 & \text{otherwise}\end{cases}
+
+    Source: Steffen et al. 2008 Eq. 16; Jiang et al. 2015 §5.3 give :math:`D_p = \tfrac13 \Delta x^2 I`
+    (``inertia_factor``).
+    """
+
+    name: str = "cubic"
+    support: int = 4
+    inertia_factor: float = 1.0 / 3.0
+    low_margin: float = 1.0
+    high_margin: float = 1.0
+
+    def base_node(self, xi):
+        """Lowest stencil node index per axis: ``floor(xi) - 1``."""
+        return np.floor(xi).astype(np.int64) - 1
+
+    def weights(self, fx):
+        """Per-axis weights and derivatives (grid units) for offsets ``fx = xi - base`` in [1, 2)."""
+        a, b = fx - 1.0, 2.0 - fx  # distances to the two middle nodes
+        w = np.stack([b**3 / 6.0, 0.5 * a**3 - a**2 + 2.0 / 3.0, 0.5 * b**3 - b**2 + 2.0 / 3.0, a**3 / 6.0], axis=-1)
+        dw = np.stack([-0.5 * b**2, 1.5 * a**2 - 2.0 * a, -1.5 * b**2 + 2.0 * b, 0.5 * a**2], axis=-1)
+        return w, dw
+
+
+@dataclass(frozen=True)
+class LinearHat:
+    r"""Linear hat kernel (support 2 nodes per axis), :math:`N(x) = \max(0, 1 - |x|)`.
+
+    For teaching and to show grid-crossing error (Bardenhagen & Kober 2004 §2): its gradient jumps
+    when a particle crosses a node. Its inertia :math:`D_p = f(1-f)\Delta x^2` varies and vanishes on
+    nodes, so it serves only schemes without an affine matrix and with the classic force
+    (``inertia_factor`` is ``None``).
+    """
+
+    name: str = "linear"
+    support: int = 2
+    inertia_factor: float = None
+    low_margin: float = 0.0
+    high_margin: float = 0.0
+
+    def base_node(self, xi):
+        return np.floor(xi).astype(np.int64)
+
+    def weights(self, fx):
+        """Weights ``1 - fx, fx`` and derivatives ``-1, 1`` (grid units) for ``fx`` in [0, 1)."""
+        w = np.stack([1.0 - fx, fx], axis=-1)
+        dw = np.stack([-np.ones_like(fx), np.ones_like(fx)], axis=-1)
+        return w, dw
+
+
+KERNELS = {"quadratic": QuadraticBSpline(), "cubic": CubicBSpline(), "linear": LinearHat()}
 
 
 def get_kernel(name):
@@ -72,7 +129,7 @@ class Stencil:
     fx : (n, d) float array      ``xi - base``, the particle's offset from that node in cells
     w, dw : (n, d, S) arrays     per-axis weights and their derivative (grid units)
     dx : float                   grid spacing
-    inertia : float              :math:`D_p / I`, the APIC inertia scalar (``inertia_factor * dx**2``)
+    inertia : float or None      :math:`D_p / I`, the APIC inertia scalar (``inertia_factor * dx**2``)
     """
 
     base: np.ndarray
@@ -118,4 +175,5 @@ def compute_stencil(kernel, x, origin, dx):
     base = kernel.base_node(xi)
     fx = xi - base
     w, dw = kernel.weights(fx)
-    return Stencil(base=base, fx=fx, w=w, dw=dw, dx=dtype(dx), inertia=dtype(kernel.inertia_factor * dx * dx))
+    inertia = None if kernel.inertia_factor is None else dtype(kernel.inertia_factor * dx * dx)
+    return Stencil(base=base, fx=fx, w=w, dw=dw, dx=dtype(dx), inertia=inertia)

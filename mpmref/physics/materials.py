@@ -152,3 +152,19 @@ MATERIAL_TYPES = {
     "neo_hookean": NeoHookean,
     "fluid": WeaklyCompressibleFluid,
 }
+
+
+def state_args(material, particles, sel):
+    """The per-particle state a material's functions take: ``(J,)``, ``(F,)`` or ``(F, Jp)`` for plastic ones."""
+    if material.tracks == "J":
+        return (particles.J[sel],)
+    if getattr(material, "plastic", False):
+        return (particles.F[sel], particles.Jp[sel])
+    return (particles.F[sel],)
+
+
+def kirchhoff_stress_of(material, particles, sel):
+    r"""Kirchhoff stress :math:`\tau` (m, d, d) of the selected particles of ``material``."""
+    if material.tracks == "J":
+        return material.kirchhoff_stress_from_J(particles.J[sel], particles.dim)
+    return material.kirchhoff_stress(*state_args(material, particles, sel))

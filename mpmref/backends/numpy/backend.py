@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ...physics.materials import kirchhoff_stress_of
 from . import transfers
 
 
@@ -9,7 +10,8 @@ class NumpyBackend:
     """Reference implementation of the three stages for ``scene``.
 
     ``stress(particles)`` evaluates every particle's Kirchhoff stress through its material;
-    ``p2g``, ``grid_update`` and ``g2p`` are the stages of :mod:`.transfers`.
+    ``p2g``, ``grid_update`` and ``g2p`` are the stages of :mod:`.transfers`; ``return_map`` applies
+    each plastic material's projection after G2P.
     """
 
     name = "numpy"
@@ -28,11 +30,19 @@ class NumpyBackend:
             sel = particles.material == mat_id
             if not sel.any():
                 continue
-            if material.tracks == "F":
-                tau[sel] = material.kirchhoff_stress(particles.F[sel])
-            else:
-                tau[sel] = material.kirchhoff_stress_from_J(particles.J[sel], d)
+            tau[sel] = kirchhoff_stress_of(material, particles, sel)
         return tau
+
+    def return_map(self, particles):
+        """Plastic projection of every plastic material's particles (a new state; others untouched)."""
+        if particles.Jp is None:
+            return particles
+        F, Jp = particles.F.copy(), particles.Jp.copy()
+        for mat_id, material in enumerate(self.scene.material_list):
+            sel = particles.material == mat_id
+            if getattr(material, "plastic", False) and sel.any():
+                F[sel], Jp[sel] = material.return_map(F[sel], Jp[sel])
+        return particles.with_(F=F, Jp=Jp)
 
     def p2g(self, particles):
         return transfers.p2g(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.method)
@@ -48,4 +58,4 @@ class NumpyBackend:
         """One full MPM step (P2G, grid update, G2P); returns new particles."""
         grid_state = self.p2g(particles)
         v_grid, v_tilde = self.grid_update(grid_state, dt)
-        return self.g2p(particles, v_grid, v_tilde, dt)
+        return self.return_map(self.g2p(particles, v_grid, v_tilde, dt))

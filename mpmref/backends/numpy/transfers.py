@@ -10,6 +10,7 @@ import numpy as np
 
 from ...physics.boundary import project_velocity
 from ...physics.kernels import compute_stencil
+from ...physics.polypic import axis_basis, higher_modes, mode_norms, mode_values
 from ...state import GridState
 
 
@@ -25,7 +26,7 @@ def scatter(index, values, n_nodes):
     return np.stack([np.bincount(index, weights=values[:, k], minlength=n_nodes) for k in range(values.shape[1])], axis=1)
 
 
-def mls_gradient_weight(stencil, w, dpos):
+def mls_gradient_weight(stencil, w, dpos, offset):
     r"""MLS approximation of the kernel gradient, :math:`\nabla w_{ip} \approx w_{ip} D_p^{-1}(x_i - x_p)`.
 
     Hu et al. 2018 Eq. 16–18: with it, the nodal force becomes
@@ -35,7 +36,16 @@ def mls_gradient_weight(stencil, w, dpos):
     return w[:, None] * dpos / stencil.inertia
 
 
-GRADIENT_WEIGHTS = {"mls": mls_gradient_weight}
+def classic_gradient_weight(stencil, w, dpos, offset):
+    r"""Classic MPM: the exact kernel gradient :math:`\nabla w_{ip}` (Sulsky et al. 1994; talk Table 2 "MPM").
+
+    The nodal force is :math:`f_i = -\sum_p V_p^0 P(F_p) F_p^T \nabla w_{ip}` and the velocity gradient
+    :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T` (Stomakhin et al. 2013 Eq. 6 and 7).
+    """
+    return stencil.node_gradient(offset)
+
+
+GRADIENT_WEIGHTS = {"mls": mls_gradient_weight, "classic": classic_gradient_weight}
 
 
 def p2g(particles, tau, grid, kernel, method):
@@ -47,9 +57,10 @@ def p2g(particles, tau, grid, kernel, method):
         (mv)_i = \sum_p w_{ip} m_p \left(v_p + C_p (x_i - x_p)\right), \qquad
         f_i = -\sum_p V_p^0\, \tau_p\, g_{ip}
 
-    (Jiang et al. 2015 Eq. 11 for APIC momentum, :math:`C_p` omitted for PIC/FLIP; Hu et al. 2018 Eq. 18
-    for the MLS force). :math:`g_{ip}` is the force discretisation's gradient weight
-    (:func:`mls_gradient_weight`).
+    (Jiang et al. 2015 Eq. 11 for APIC momentum, :math:`C_p` omitted for PIC/FLIP; PolyPIC adds
+    :math:`\sum_r c_{pr} s_r(x_i)` of its higher modes, Fu et al. 2017 Eq. 7; Hu et al. 2018 Eq. 18 for
+    the MLS force). :math:`g_{ip}` is the force discretisation's gradient weight
+    (:func:`mls_gradient_weight` or :func:`classic_gradient_weight`).
 
     Parameters
     ----------
@@ -66,6 +77,7 @@ def p2g(particles, tau, grid, kernel, method):
     mass = np.zeros(n_nodes)
     momentum = np.zeros((n_nodes, grid.dim))
     force = np.zeros((n_nodes, grid.dim))
+    basis = polypic_basis(st, grid) if method.polypic else None
     for offset in st.offsets:
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
@@ -73,11 +85,19 @@ def p2g(particles, tau, grid, kernel, method):
         p_mom = particles.v
         if method.affine:
             p_mom = p_mom + np.einsum("nab,nb->na", particles.C, dpos)
+        if basis is not None:
+            p_mom = p_mom + np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]), particles.modes)
         mass += scatter(idx, w * m, n_nodes)
         momentum += scatter(idx, (w * m)[:, None] * p_mom, n_nodes)
-        force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gradient_weight(st, w, dpos)), n_nodes)
+        force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gradient_weight(st, w, dpos, offset)), n_nodes)
     dtype = particles.x.dtype
     return GridState(mass=mass.astype(dtype), momentum=momentum.astype(dtype), force=force.astype(dtype))
+
+
+def polypic_basis(stencil, grid):
+    """PolyPIC per-axis polynomials, their norms and the higher-mode list for these particles."""
+    q, norm = axis_basis(stencil.w, stencil.fx, stencil.dx)
+    return q, higher_modes(grid.dim, stencil.w.shape[2]), norm
 
 
 def wall_bands(grid, width):
@@ -123,42 +143,59 @@ def grid_update(gs, grid, dt, gravity, walls, bands):
 
 
 def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
-    r"""Grid to particle: new velocity, affine matrix, deformation and position.
+    r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
     .. math::
 
         v_p^{PIC} = \sum_i w_{ip} v_i, \qquad
-        C_p = \sum_i v_i\, g_{ip}^T \;(= B_p D_p^{-1},\ \text{Jiang et al. 2015 Eq. 10}),
+        C_p = B_p D_p^{-1} = \sum_i w_{ip} v_i (x_i - x_p)^T D_p^{-1} \;(\text{Jiang et al. 2015 Eq. 10}),
 
+        \nabla v_p = \sum_i v_i\, g_{ip}^T, \qquad
         v_p^{FLIP} = v_p + \sum_i w_{ip}(v_i - \tilde v_i), \qquad
         v_p \leftarrow \alpha v_p^{FLIP} + (1-\alpha) v_p^{PIC} \;(\text{FLIP only}),
 
-        F_p \leftarrow (I + \Delta t\, C_p) F_p, \qquad J_p \leftarrow (1 + \Delta t \operatorname{tr} C_p) J_p,
-        \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
+        F_p \leftarrow (I + \Delta t\, \nabla v_p) F_p, \qquad
+        J_p \leftarrow (1 + \Delta t \operatorname{tr} \nabla v_p) J_p, \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
 
-    (Hu et al. 2018 Eq. 17 for the F update; the J update is the first-order form of Taichi's mpm88).
+    With the MLS force :math:`\nabla v_p = C_p` (Hu et al. 2018 Eq. 17); with the classic force
+    :math:`g_{ip} = \nabla w_{ip}`. PolyPIC's higher modes are the projections of
+    :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     Returns new :class:`~mpmref.state.Particles`; the input is not modified.
     """
     st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
-    gradient_weight = GRADIENT_WEIGHTS[method.force]
     n, d = particles.x.shape
-    v_pic = np.zeros((n, d), dtype=v_grid.dtype)
-    grad_v = np.zeros((n, d, d), dtype=v_grid.dtype)
-    dv_flip = np.zeros((n, d), dtype=v_grid.dtype) if method.flip else None
+    dtype = v_grid.dtype
+    need_B = method.affine or method.force == "mls"
+    v_pic = np.zeros((n, d), dtype=dtype)
+    B = np.zeros((n, d, d), dtype=dtype) if need_B else None
+    grad_v = np.zeros((n, d, d), dtype=dtype) if method.force == "classic" else None
+    dv_flip = np.zeros((n, d), dtype=dtype) if method.flip else None
+    basis = polypic_basis(st, grid) if method.polypic else None
+    modes = np.zeros_like(particles.modes) if basis is not None else None
     for offset in st.offsets:
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
         vi = v_grid[idx]
         v_pic += w[:, None] * vi
-        grad_v += np.einsum("na,nb->nab", vi, gradient_weight(st, w, st.node_offset_vector(offset)))
+        if need_B:
+            B += np.einsum("na,nb->nab", w[:, None] * vi, st.node_offset_vector(offset))
+        if grad_v is not None:
+            grad_v += np.einsum("na,nb->nab", vi, st.node_gradient(offset))
         if method.flip:
             dv_flip += w[:, None] * (vi - v_tilde[idx])
+        if basis is not None:
+            modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
+    C = B / st.inertia if need_B else None
+    grad_v = C if method.force == "mls" else grad_v
     v_new = v_pic
     if method.flip:
         v_new = method.flip_alpha * (particles.v + dv_flip) + (1.0 - method.flip_alpha) * v_pic
     changes = {"x": particles.x + dt * v_pic, "v": v_new}
     if method.affine:
-        changes["C"] = grad_v
+        changes["C"] = C
+    if basis is not None:
+        norms = mode_norms(basis[2], basis[1])[..., None]
+        changes["modes"] = np.divide(modes, norms, out=np.zeros_like(modes), where=norms > 0)
     if particles.F is not None:
         changes["F"] = particles.F + dt * grad_v @ particles.F
     if particles.J is not None:
