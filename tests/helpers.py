@@ -3,11 +3,13 @@
 import numpy as np
 
 from mpmref import Scene, SceneBuilder
+from mpmref.physics.polypic import higher_modes
 from mpmref.state import Particles
 
 
-def box_scene(dim=2, scheme="apic", cells=16, material="fixed_corotated", walls="open", gravity=None, **time):
-    b = SceneBuilder(dim=dim, name="t").grid(size=1.0, cells=cells).method(scheme)
+def box_scene(dim=2, scheme="apic", cells=16, material="fixed_corotated", walls="open", gravity=None,
+              kernel="quadratic", force="mls", **time):
+    b = SceneBuilder(dim=dim, name="t").grid(size=1.0, cells=cells).method(scheme, kernel=kernel, force=force)
     if material == "fluid":
         b.material("m", "fluid", K=400.0, gamma=1.0, rho=1.0)
     else:
@@ -33,7 +35,28 @@ def random_particles(scene, n, rng, affine_scale=1.0):
         C=affine_scale * rng.standard_normal((n, d, d)) if scene.method.affine else None,
         F=eye + 0.1 * rng.standard_normal((n, d, d)) if scene.tracks("F") else None,
         J=1.0 + 0.1 * rng.random(n) if scene.tracks("J") else None,
+        Jp=1.0 + 0.1 * rng.random(n) if scene.tracks("Jp") else None,
+        modes=affine_scale * rng.standard_normal((n, len(higher_modes(d, scene.kernel.support)), d))
+        if scene.method.polypic else None,
     )
+
+
+def valid_methods():
+    """Every (scheme, force, kernel) that the scene rules accept, as keyword dicts."""
+    from mpmref import SceneError
+    from mpmref.scene import FORCES, SCHEMES
+    from mpmref.physics.kernels import KERNELS
+
+    out = []
+    for scheme in SCHEMES:
+        for force in FORCES:
+            for kernel in KERNELS:
+                try:
+                    box_scene(2, scheme, kernel=kernel, force=force)
+                except SceneError:
+                    continue
+                out.append({"scheme": scheme, "force": force, "kernel": kernel})
+    return out
 
 
 __all__ = ["box_scene", "random_particles", "Scene"]

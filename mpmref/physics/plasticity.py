@@ -4,7 +4,8 @@ Both keep the *elastic* deformation gradient :math:`F = F_E` per particle (``tra
 plastic volume ratio :math:`J_P` (``plastic = True``). The energy and the Kirchhoff stress
 :math:`\tau = P F^T` are those of :math:`F_E`; after G2P the backend calls ``return_map(F, Jp)``, which
 projects the trial :math:`F_E` back onto the admissible set, moves the excess into the plastic part and
-updates :math:`J_P` so that :math:`J_P \det F_E` (the total volume ratio) is unchanged:
+updates :math:`J_P` so that :math:`J_P \det F_E` (the total volume ratio) is unchanged (up to the snow
+model's clamp of :math:`J_P`):
 
 .. math:: J_P^{new} = J_P \, \frac{\det F_E^{trial}}{\det F_E^{new}}.
 
@@ -23,9 +24,9 @@ from .materials import FixedCorotated, lame_parameters
 
 SIGMA_FLOOR = 1.0e-6
 """Smallest singular value the Hencky strain :math:`\\ln\\sigma` is taken of (sand): a compression of a
-million to one, :math:`\\ln\\sigma \\ge -13.8`. Only an inverted or collapsed trial :math:`F` (signed
-:math:`\\sigma \\le 0`, which a return-mapped state never has) reaches it; the floor keeps the strain finite
-and strongly compressive there, so the stress pushes the particle back instead of producing NaN."""
+million to one, :math:`\\ln\\sigma \\ge -13.8`. Only an inverted or collapsed :math:`F` (signed
+:math:`\\sigma \\le 0`) reaches it; the floor keeps the strain finite and strongly compressive there, so the
+stress pushes the particle back instead of producing NaN."""
 
 
 def signed_svd(F):
@@ -127,7 +128,9 @@ class SnowPlasticity:
         return F_new, np.clip(Jp * ratio, self.Jp_min, self.Jp_max)
 
     def wave_speed(self):
-        r"""P-wave speed of the stiffest admissible snow, :math:`\sqrt{(\lambda_0 + 2\mu_0)\,e^{\xi(1 - J_P^{min})}/\rho}`.
+        r"""P-wave speed of the stiffest admissible snow (the CFL bound).
+
+        .. math:: c = \sqrt{(\lambda_0 + 2\mu_0)\,e^{\xi(1 - J_P^{min})}/\rho}
 
         Hardening scales both Lamé parameters by :math:`e^{\xi(1-J_P)}`, largest at the clamp
         :math:`J_P = J_P^{min}`; using it keeps the CFL time step safe for any particle state.

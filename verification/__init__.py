@@ -1,0 +1,1 @@
+"""Verification cases: one module per case, each with ``Params``, ``run``, ``checks`` and ``report``."""

@@ -1,0 +1,31 @@
+"""Shared pieces of verification cases: named checks with their bound and verdict."""
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Check:
+    """One named figure of a case, the bound it is held to, and whether it holds.
+
+    ``relation`` says how ``value`` is compared with ``bound``: ``"<="``, ``">="``, ``"<"`` or ``">"``.
+    """
+
+    name: str
+    value: float
+    relation: str
+    bound: float
+    reason: str
+
+    @property
+    def passed(self):
+        ops = {"<=": lambda a, b: a <= b, ">=": lambda a, b: a >= b, "<": lambda a, b: a < b, ">": lambda a, b: a > b}
+        return bool(ops[self.relation](self.value, self.bound))
+
+    def line(self):
+        verdict = "pass" if self.passed else "FAIL"
+        return f"| {self.name} | {self.value:.6g} | {self.relation} {self.bound:.6g} | {verdict} | {self.reason} |"
+
+
+def checks_table(checks):
+    head = ["| check | value | bound | verdict | why this bound |", "|---|---|---|---|---|"]
+    return "\n".join(head + [c.line() for c in checks])
