@@ -4,6 +4,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from .backends import BACKENDS
 from .errors import MpmrefError, SceneError
 
 
@@ -17,7 +18,7 @@ def _parser():
     stop.add_argument("--t-end", type=float, help="end time (overrides time.steps / time.t_end)")
     run.add_argument("--out", type=Path, help="output folder (default: reports/<scene name>)")
     run.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
-    run.add_argument("--backend", default="numpy", help="execution backend (default: numpy)")
+    run.add_argument("--backend", default="numpy", choices=BACKENDS, help="execution backend (default: numpy)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -31,7 +32,7 @@ def _format_summary(summary, out_dir):
         f"particles        {final['n_particles']} (deleted at the domain edge: {final['deleted']})",
         f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
         f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls change it)",
-        f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + elastic + gravitational)",
+        f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + gravitational)",
         f"outputs          {out_dir} (open particles.pvd in ParaView)",
     ]
     return "\n".join(lines)

@@ -50,5 +50,5 @@ class DomainExitError(MpmrefError):
         super().__init__(
             f"{len(particles)} particle(s) left the domain at step {step} "
             f"(first: index {particles[0]} at {positions[0].tolist()}); "
-            f"set 'domain_exit' to 'clamp' or 'delete' to continue instead{where}"
+            f"set 'boundary.domain_exit' to 'clamp' or 'delete' to continue instead{where}"
         )

@@ -15,8 +15,11 @@ import numpy as np
 
 from .errors import SceneError
 from .physics.boundary import BOUNDARY_TYPES
+from .physics.colliders import Ball, Box, Collider, Cylinder, Plane
 from .physics.kernels import KERNELS, get_kernel
-from .physics.materials import MATERIAL_TYPES, lame_parameters
+from .physics.materials import MATERIAL_TYPES as ELASTIC_TYPES
+from .physics.materials import lame_parameters
+from .physics.plasticity import DruckerPragerSand, SnowPlasticity
 from .state import Grid
 
 SCHEMES = ("pic", "flip", "apic", "polypic", "mls")
@@ -28,12 +31,17 @@ SHAPES = ("box", "disk", "sphere", "points", "mesh")
 SAMPLINGS = ("regular", "jittered", "random")
 OUTPUT_FIELDS = ("velocity", "mass", "volume", "J", "stress", "pressure", "material")
 AXES = "xyz"
+MATERIAL_TYPES = {**ELASTIC_TYPES, "snow": SnowPlasticity, "sand": DruckerPragerSand}
 
-TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "gravity", "boundary", "time", "output", "name"}
+TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "colliders", "gravity", "boundary", "time",
+            "output", "name"}
+COLLIDER_SHAPES = ("plane", "box", "disk", "sphere", "cylinder")
 MATERIAL_KEYS = {
     "fixed_corotated": {"type", "E", "nu", "rho"},
     "neo_hookean": {"type", "E", "nu", "rho"},
     "fluid": {"type", "K", "gamma", "rho"},
+    "snow": {"type", "E", "nu", "rho", "theta_c", "theta_s", "hardening", "Jp_min", "Jp_max"},
+    "sand": {"type", "E", "nu", "rho", "friction_angle", "cohesion"},
 }
 BODY_KEYS = {
     "shape", "material", "lower", "upper", "center", "radius", "positions", "file", "ppc", "sampling",
@@ -194,6 +202,7 @@ class Scene:
     method: MethodSpec
     materials: dict  # name -> material object (ordered: index = material id)
     bodies: list
+    colliders: list
     gravity: np.ndarray
     boundary: BoundarySpec
     time: TimeSpec
@@ -227,6 +236,7 @@ class Scene:
         method = _parse_method(data.get("method", {}))
         materials = _parse_materials(data.get("materials"))
         bodies = _parse_bodies(data.get("bodies"), dim, materials)
+        colliders = _parse_colliders(data.get("colliders", []), dim)
         gravity = _vector(data, "gravity", "", dim, default=[0.0] * dim)
         boundary = _parse_boundary(data.get("boundary", {}), dim, grid)
         time = _parse_time(data.get("time", {}))
@@ -235,7 +245,7 @@ class Scene:
         if not isinstance(name, str) or not name or any(c in name for c in "/\\"):
             _fail("name", name, "a non-empty string without path separators")
         return cls(name=name, dim=dim, dtype=dtype, grid=grid, method=method, materials=materials,
-                   bodies=bodies, gravity=gravity, boundary=boundary, time=time, output=output,
+                   bodies=bodies, colliders=colliders, gravity=gravity, boundary=boundary, time=time, output=output,
                    source=data, base_dir=Path(base_dir) if base_dir else Path.cwd())
 
     # ------------------------------------------------------------------------------- derived
@@ -330,11 +340,26 @@ def _parse_materials(mats):
         else:
             E = _number(spec, "E", path, required=True, lo=0.0, lo_open=True)
             nu = _number(spec, "nu", path, default=0.3, lo=0.0, hi=0.5, hi_open=True)
-            out[name] = MATERIAL_TYPES[kind](E=E, nu=nu, rho=rho)
+            out[name] = MATERIAL_TYPES[kind](E=E, nu=nu, rho=rho, **_plastic_parameters(kind, spec, path))
             mu, lam = lame_parameters(E, nu)
             if not (math.isfinite(mu) and math.isfinite(lam)):
                 _fail(f"{path}.nu", nu, "a value for which the Lamé parameters are finite")
     return out
+
+
+def _plastic_parameters(kind, spec, path):
+    """Validated extra parameters of the plastic materials (defaults: Stomakhin 2013; Klar 2016)."""
+    if kind == "snow":
+        p = {"theta_c": _number(spec, "theta_c", path, default=2.5e-2, lo=0.0, hi=1.0, lo_open=True, hi_open=True),
+             "theta_s": _number(spec, "theta_s", path, default=7.5e-3, lo=0.0),
+             "hardening": _number(spec, "hardening", path, default=10.0, lo=0.0, hi=100.0),
+             "Jp_min": _number(spec, "Jp_min", path, default=0.6, lo=0.0, hi=1.0, lo_open=True),
+             "Jp_max": _number(spec, "Jp_max", path, default=20.0, lo=1.0)}
+        return p
+    if kind == "sand":
+        return {"friction_angle": _number(spec, "friction_angle", path, default=30.0, lo=0.0, hi=90.0, hi_open=True),
+                "cohesion": _number(spec, "cohesion", path, default=0.0, lo=0.0, hi=1.0)}
+    return {}
 
 
 def _parse_bodies(bodies, dim, materials):
@@ -366,8 +391,10 @@ def _parse_bodies(bodies, dim, materials):
             p["file"] = b["file"]
         p["ppc"] = _integer(b, "ppc", path, default=2**dim, lo=1, hi=64)
         p["sampling"] = _choice(b, "sampling", path, SAMPLINGS, default="regular")
-        if p["sampling"] == "regular" and round(p["ppc"] ** (1.0 / dim)) ** dim != p["ppc"]:
-            _fail(f"{path}.ppc", p["ppc"], f"a perfect {dim}th power (1, {2**dim}, {3**dim}, ...) for regular sampling")
+        samples = shape != "points"  # for given points, ppc only sets the particle volume
+        if samples and p["sampling"] == "regular" and round(p["ppc"] ** (1.0 / dim)) ** dim != p["ppc"]:
+            power = "square" if dim == 2 else "cube"
+            _fail(f"{path}.ppc", p["ppc"], f"a perfect {power} (1, {2**dim}, {3**dim}, ...) for regular sampling")
         p["seed"] = _integer(b, "seed", path, default=0, lo=0)
         p["count"] = _integer(b, "count", path, default=None, lo=1)
         if p["count"] is not None and p["sampling"] != "random":
@@ -380,6 +407,46 @@ def _parse_bodies(bodies, dim, materials):
         p["rotation_center"] = _vector(b, "rotation_center", path, dim)
         out.append(BodySpec(index=i, shape=shape, material=material, params=p))
     return out
+
+
+def _parse_colliders(colliders, dim):
+    if not isinstance(colliders, list):
+        _fail("colliders", colliders, "an array of tables, e.g. [[colliders]]")
+    out = []
+    for i, c in enumerate(colliders):
+        path = f"colliders[{i}]"
+        _section(c, path, {"shape", "type", "friction", "velocity", "point", "normal", "center", "radius",
+                           "lower", "upper", "axis"})
+        shape = _choice(c, "shape", path, COLLIDER_SHAPES, required=True)
+        if shape in ("disk", "sphere") and shape != ("disk" if dim == 2 else "sphere"):
+            _fail(f"{path}.shape", shape, f"'{'disk' if dim == 2 else 'sphere'}' in a {dim}D scene")
+        if shape == "cylinder" and dim != 3:
+            _fail(f"{path}.shape", shape, "'cylinder' only in 3D (use 'disk' in 2D)")
+        out.append(Collider(shape=_collider_shape(c, path, shape, dim),
+                            type=_choice(c, "type", path, BOUNDARY_TYPES, default="separate"),
+                            friction=_number(c, "friction", path, default=0.0, lo=0.0),
+                            velocity=_vector(c, "velocity", path, dim, default=[0.0] * dim)))
+    return out
+
+
+def _collider_shape(c, path, shape, dim):
+    if shape == "plane":
+        normal = _vector(c, "normal", path, dim, required=True)
+        if np.linalg.norm(normal) == 0:
+            _fail(f"{path}.normal", normal.tolist(), "a non-zero vector")
+        return Plane(point=_vector(c, "point", path, dim, required=True), normal=normal)
+    if shape == "box":
+        lower, upper = _vector(c, "lower", path, dim, required=True), _vector(c, "upper", path, dim, required=True)
+        if np.any(upper <= lower):
+            _fail(f"{path}.upper", upper.tolist(), f"greater than lower = {lower.tolist()} on every axis")
+        return Box(lower=lower, upper=upper)
+    radius = _number(c, "radius", path, required=True, lo=0.0, lo_open=True)
+    if shape == "cylinder":
+        axis = _vector(c, "axis", path, dim, required=True)
+        if np.linalg.norm(axis) == 0:
+            _fail(f"{path}.axis", axis.tolist(), "a non-zero vector")
+        return Cylinder(point=_vector(c, "point", path, dim, required=True), axis=axis, radius=radius)
+    return Ball(center=_vector(c, "center", path, dim, required=True), radius=radius)
 
 
 def _points_array(b, path, dim):
@@ -396,7 +463,8 @@ def _points_array(b, path, dim):
 
 def _parse_boundary(bd, dim, grid):
     _section(bd, "boundary", {"width", "type", "friction", "walls", "domain_exit"})
-    width = _integer(bd, "width", "boundary", default=3, lo=0, hi=min(grid.cells) // 2 - 1)
+    width_max = min(grid.cells) // 2 - 1
+    width = _integer(bd, "width", "boundary", default=min(3, width_max), lo=0, hi=width_max)
     default_type = _choice(bd, "type", "boundary", WALL_TYPES, default="separate")
     default_mu = _number(bd, "friction", "boundary", default=0.0, lo=0.0)
     names = [f"{AXES[a]}_{side}" for a in range(dim) for side in ("min", "max")]
@@ -481,6 +549,12 @@ class SceneBuilder:
 
     def points(self, material, positions, **params):
         return self.body("points", material, positions=np.asarray(positions).tolist(), **params)
+
+    def collider(self, shape, type="separate", friction=0.0, **params):
+        self._data.setdefault("colliders", []).append({"shape": shape, "type": type, "friction": friction,
+                                                       **{k: list(v) if isinstance(v, (tuple, np.ndarray)) else v
+                                                          for k, v in params.items()}})
+        return self
 
     def gravity(self, g):
         self._data["gravity"] = list(g)

@@ -79,7 +79,7 @@ class Simulation:
     def step(self, dt=None):
         """Advance one time step of ``dt`` (default: the scene's fixed or CFL step); returns the Δt used."""
         dt = self.stepper.time_step(self.particles) if dt is None else dt
-        new = self.stepper.advance(self.particles, dt)
+        new = self.stepper.advance(self.particles, dt, self.time)
         self._check_finite(new, dt)
         new = self._apply_domain_policy(new)
         self.particles = new
@@ -178,18 +178,31 @@ class Simulation:
         data = {"velocity": p.v, "mass": p.mass, "volume": p.vol0 * J, "J": J,
                 "material": p.material.astype(np.int32)}
         if "stress" in fields or "pressure" in fields:
-            sigma = self.backend.stress(p) / J[:, None, None]
+            sigma = self.backend.stress(p) / self.elastic_volume_ratio()[:, None, None]
             data["stress"] = sigma
             data["pressure"] = -np.trace(sigma, axis1=1, axis2=2) / p.dim
         return {k: data[k] for k in fields}
 
     def volume_ratio(self):
-        """:math:`J = V/V^0` per particle: ``det F`` for solids, the tracked ``J`` for fluids."""
+        """:math:`J = V/V^0` per particle: ``det F`` for elastic solids, ``det F_E * J_P`` for plastic
+        ones (F holds the elastic part), the tracked ``J`` for fluids."""
         p = self.particles
         J = np.ones(p.n, dtype=p.x.dtype)
         for mat_id, material in enumerate(self.scene.material_list):
             sel = p.material == mat_id
-            J[sel] = np.linalg.det(p.F[sel]) if material.tracks == "F" else p.J[sel]
+            if material.tracks == "J":
+                J[sel] = p.J[sel]
+            else:
+                J[sel] = np.linalg.det(p.F[sel]) * (p.Jp[sel] if getattr(material, "plastic", False) else 1.0)
+        return J
+
+    def elastic_volume_ratio(self):
+        """:math:`J_E`, relating Kirchhoff and Cauchy stress (:math:`\sigma = \tau / J_E`): ``det F`` or the fluid's ``J``."""
+        p = self.particles
+        J = np.ones(p.n, dtype=p.x.dtype)
+        for mat_id, material in enumerate(self.scene.material_list):
+            sel = p.material == mat_id
+            J[sel] = p.J[sel] if material.tracks == "J" else np.linalg.det(p.F[sel])
         return J
 
     def grid_data(self):

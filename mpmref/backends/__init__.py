@@ -1,7 +1,5 @@
 """Execution backends. Each exposes the same stages: ``p2g``, ``grid_update``, ``g2p``."""
 
-from ..errors import SceneError
-
 BACKENDS = ("numpy",)
 
 
@@ -11,4 +9,4 @@ def make_backend(name, scene):
         from .numpy import NumpyBackend
 
         return NumpyBackend(scene)
-    raise SceneError("backend", name, f"one of {list(BACKENDS)}")
+    raise ValueError(f"unknown backend {name!r}: available backends are {list(BACKENDS)}")

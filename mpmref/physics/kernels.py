@@ -21,8 +21,8 @@ class QuadraticBSpline:
         N(x) = \begin{cases} \tfrac34 - |x|^2 & |x| < \tfrac12 \\
                \tfrac12 (\tfrac32 - |x|)^2 & \tfrac12 \le |x| < \tfrac32 \\ 0 & \text{otherwise}\end{cases}
 
-    Source: Steffen et al. 2008; Stomakhin et al. 2013 Eq. 10–11; Hu et al. 2018 §5. With this kernel the
-    APIC inertia tensor is constant, :math:`D_p = \tfrac14 \Delta x^2 I` (Jiang et al. 2015 §5.3), which
+    Source: Steffen, Kirby & Berzins 2008 §3 (quadratic B-spline MPM); used by Hu et al. 2018 §5 and the
+    88-line programs. With this kernel the APIC inertia tensor is constant, :math:`D_p = \tfrac14 \Delta x^2 I` (Jiang et al. 2015 §5.3), which
     is ``inertia_factor``.
     """
 
@@ -57,8 +57,8 @@ class CubicBSpline:
         N(x) = \begin{cases} \tfrac12 |x|^3 - |x|^2 + \tfrac23 & |x| < 1 \\
                \tfrac16 (2 - |x|)^3 & 1 \le |x| < 2 \\ 0 & \text{otherwise}\end{cases}
 
-    Source: Steffen et al. 2008 Eq. 16; Jiang et al. 2015 §5.3 give :math:`D_p = \tfrac13 \Delta x^2 I`
-    (``inertia_factor``).
+    Source: Steffen, Kirby & Berzins 2008 §3; the kernel of Stomakhin et al. 2013 §4. Jiang et al. 2015
+    §5.3 give :math:`D_p = \tfrac13 \Delta x^2 I` (``inertia_factor``).
     """
 
     name: str = "cubic"

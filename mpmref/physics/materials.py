@@ -19,17 +19,26 @@ def lame_parameters(E, nu):
     return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
 
 
-def polar_rotation(F):
-    r"""Rotation :math:`R` of the polar decomposition :math:`F = RS` and the signed singular values.
+def signed_svd(F):
+    r"""Batched SVD :math:`F = U\,\mathrm{diag}(\sigma)\,V^T` with :math:`U, V` proper rotations.
 
-    Computed from the SVD :math:`F = U\Sigma V^T` with the sign of the last column of :math:`U` (and of
-    the last singular value) flipped where :math:`\det(UV^T) < 0`, so that :math:`R = UV^T` is a proper
-    rotation (Stomakhin et al. 2012 §4; Irving et al. 2004 §4).
+    Where :math:`\det(UV^T) < 0` the last column of :math:`U` and the last (smallest) singular value
+    are negated (Irving et al. 2004 §4), so an inverted :math:`F` shows as a negative last singular value.
+    Returns ``U`` (n, d, d), ``sigma`` (n, d), ``Vt`` (n, d, d).
     """
     U, sigma, Vt = np.linalg.svd(F)
     flip = np.linalg.det(U) * np.linalg.det(Vt) < 0
     U[flip, :, -1] *= -1.0
     sigma[flip, -1] *= -1.0
+    return U, sigma, Vt
+
+
+def polar_rotation(F):
+    r"""Rotation :math:`R = UV^T` of the polar decomposition :math:`F = RS` and the signed singular values.
+
+    Uses :func:`signed_svd`, so :math:`R` is a proper rotation (Stomakhin et al. 2012 §4).
+    """
+    U, sigma, Vt = signed_svd(F)
     return U @ Vt, sigma
 
 

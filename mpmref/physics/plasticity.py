@@ -20,27 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import FixedCorotated, lame_parameters
+from .materials import FixedCorotated, lame_parameters, signed_svd
 
 SIGMA_FLOOR = 1.0e-6
 """Smallest singular value the Hencky strain :math:`\\ln\\sigma` is taken of (sand): a compression of a
 million to one, :math:`\\ln\\sigma \\ge -13.8`. Only an inverted or collapsed :math:`F` (signed
 :math:`\\sigma \\le 0`) reaches it; the floor keeps the strain finite and strongly compressive there, so the
 stress pushes the particle back instead of producing NaN."""
-
-
-def signed_svd(F):
-    r"""Batched SVD :math:`F = U\,\mathrm{diag}(\sigma)\,V^T` with :math:`U, V` proper rotations.
-
-    Where :math:`\det(UV^T) < 0` the last column of :math:`U` and the last (smallest) singular value
-    are negated (Irving et al. 2004 §4), as in :func:`~mpmref.physics.materials.polar_rotation`.
-    Returns ``U`` (n, d, d), ``sigma`` (n, d), ``Vt`` (n, d, d).
-    """
-    U, sigma, Vt = np.linalg.svd(F)
-    flip = np.linalg.det(U) * np.linalg.det(Vt) < 0
-    U[flip, :, -1] *= -1.0
-    sigma[flip, -1] *= -1.0
-    return U, sigma, Vt
 
 
 def _compose(U, sigma, Vt):
@@ -80,8 +66,8 @@ class SnowPlasticity:
     trial :math:`F_E` (signed :math:`\sigma_d < 0`) comes back un-inverted with
     :math:`\hat\sigma_d = 1-\theta_c`; its volume ratio is negative, so :math:`J_P` clamps to ``Jp_min``.
 
-    Allowed ranges (checked by the scene validator): ``E > 0``, ``-1 < nu < 0.5``, ``rho > 0``,
-    ``0 < theta_c < 1``, ``theta_s >= 0``, ``hardening >= 0``, ``0 < Jp_min <= 1 <= Jp_max``.
+    Allowed ranges (checked by the scene validator): ``E > 0``, ``0 <= nu < 0.5``, ``rho > 0``,
+    ``0 < theta_c < 1``, ``theta_s >= 0``, ``0 <= hardening <= 100``, ``0 < Jp_min <= 1 <= Jp_max``.
     """
 
     E: float
@@ -176,8 +162,8 @@ class DruckerPragerSand:
     :math:`\phi` is ``friction_angle`` in degrees, :math:`\mu, \lambda` the Lamé parameters, :math:`d` the
     dimension. ``Jp`` is only bookkeeping here; the stress does not depend on it.
 
-    Allowed ranges (checked by the scene validator): ``E > 0``, ``-1 < nu < 0.5``, ``rho > 0``,
-    ``0 <= friction_angle < 90``, ``cohesion >= 0``.
+    Allowed ranges (checked by the scene validator): ``E > 0``, ``0 <= nu < 0.5``, ``rho > 0``,
+    ``0 <= friction_angle < 90``, ``0 <= cohesion <= 1``.
     """
 
     E: float

@@ -1,4 +1,4 @@
-r"""PolyPIC velocity modes (Fu, Guo, Wang & Teran 2017, "A polynomial particle-in-cell method").
+r"""PolyPIC velocity modes (Fu, Guo, Gast, Jiang & Teran 2017, "A polynomial particle-in-cell method").
 
 Each particle carries a polynomial velocity :math:`v_p(x_i) = \sum_r c_{pr}\, s_r(x_i - x_p)` over its
 stencil nodes. The modes are tensor products :math:`s_r = \prod_a q^{(a)}_{r_a}` of per-axis polynomials

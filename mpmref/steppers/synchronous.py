@@ -33,5 +33,5 @@ class SynchronousStepper:
         """The CFL number ``dt (c + |v|max) / dx`` of a step of size ``dt`` from ``particles``."""
         return dt * (self.wave_speed + self.max_speed(particles)) / self.scene.grid.dx
 
-    def advance(self, particles, dt):
-        return self.backend.step(particles, dt)
+    def advance(self, particles, dt, time):
+        return self.backend.step(particles, dt, time)

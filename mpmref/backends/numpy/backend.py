@@ -21,6 +21,7 @@ class NumpyBackend:
         self.kernel = scene.kernel
         self.bands = transfers.wall_bands(scene.grid, scene.boundary.width)
         self.gravity = scene.gravity.astype(scene.dtype)
+        self.node_x = scene.grid.node_positions() if scene.colliders else None
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
@@ -47,15 +48,15 @@ class NumpyBackend:
     def p2g(self, particles):
         return transfers.p2g(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.method)
 
-    def grid_update(self, grid_state, dt):
-        return transfers.grid_update(grid_state, self.scene.grid, dt, self.gravity,
-                                     self.scene.boundary.walls, self.bands)
+    def grid_update(self, grid_state, dt, time=0.0):
+        return transfers.grid_update(grid_state, self.scene.grid, dt, self.gravity, self.scene.boundary.walls,
+                                     self.bands, self.scene.colliders, time, self.node_x)
 
     def g2p(self, particles, v_grid, v_tilde, dt):
         return transfers.g2p(particles, v_grid, v_tilde, self.scene.grid, self.kernel, self.scene.method, dt)
 
-    def step(self, particles, dt):
-        """One full MPM step (P2G, grid update, G2P); returns new particles."""
+    def step(self, particles, dt, time=0.0):
+        """One full MPM step from ``time`` (P2G, grid update, G2P, return map); returns new particles."""
         grid_state = self.p2g(particles)
-        v_grid, v_tilde = self.grid_update(grid_state, dt)
+        v_grid, v_tilde = self.grid_update(grid_state, dt, time)
         return self.return_map(self.g2p(particles, v_grid, v_tilde, dt))

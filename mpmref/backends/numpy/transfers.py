@@ -112,21 +112,24 @@ def wall_bands(grid, width):
     return bands
 
 
-def grid_update(gs, grid, dt, gravity, walls, bands):
-    r"""Grid velocity update: symplectic Euler with gravity, then Eq. 25 at the walls.
+def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, node_x=None):
+    r"""Grid velocity update: symplectic Euler with gravity, then Eq. 25 at the walls and colliders.
 
     .. math::
 
         \tilde v_i = \frac{(mv)_i}{m_i}, \qquad v_i = \tilde v_i + \Delta t \left(\frac{f_i}{m_i} + g\right)
 
-    followed by :func:`mpmref.physics.boundary.project_velocity` on each wall's band of nodes
-    (Hu et al. 2018 Alg. 1, grid operations). Returns ``(v, v_tilde)``; ``v_tilde`` (the velocity before
-    forces) is what FLIP needs. Nodes without mass get zero velocity.
+    followed by :func:`mpmref.physics.boundary.project_velocity` on each wall's band of nodes and by
+    each level-set collider at ``time`` (Hu et al. 2018 Alg. 1, grid operations). Returns
+    ``(v, v_tilde)``; ``v_tilde`` (the velocity before forces) is what FLIP needs. Nodes without mass
+    get zero velocity.
 
     Parameters
     ----------
     gs : GridState, dt : float, gravity : (d,) array
     walls : dict name -> WallSpec;  bands : output of :func:`wall_bands`
+    colliders : sequence of :class:`mpmref.physics.colliders.Collider`; time : float
+    node_x : (N, d) node positions (needed only with colliders)
     """
     has_mass = gs.mass > 0
     inv_m = np.where(has_mass, 1.0 / np.where(has_mass, gs.mass, 1.0), 0.0)[:, None]
@@ -139,6 +142,8 @@ def grid_update(gs, grid, dt, gravity, walls, bands):
             continue
         sel = mask & has_mass
         v[sel] = project_velocity(v[sel], np.broadcast_to(normal, (int(sel.sum()), grid.dim)), wall.type, wall.friction)
+    for collider in colliders:
+        v = collider.apply(v, node_x, has_mass, time)
     return v, v_tilde
 
 

@@ -1,0 +1,228 @@
+"""The documentation in docs/ stays true: its Python examples run, its links resolve, its references are complete.
+
+* Every ```python block of every docs/*.md page is executed (one test per block, id ``page.md:index``), in a
+  fresh namespace, from the repository root, so that relative paths such as ``examples/mpm88.toml`` work.
+  Blocks meant only for display use ```text, ```bash or ```toml; ```toml blocks must at least be valid TOML.
+* Every relative link target exists; ``#anchors`` into docs pages name real headings; a link whose text is a
+  qualified name (```mpmref.x.y```) points at the source file that defines that object.
+* The scene reference lists every key and option the validator accepts, and the pages list every
+  diagnostics column and command-line option.
+"""
+
+import ast
+import contextlib
+import inspect
+import io
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
+PAGES = sorted(DOCS.glob("*.md"))
+
+FENCE = re.compile(r"^```([\w+-]*)[^\n]*\n(.*?)^```[ \t]*$", re.MULTILINE | re.DOTALL)
+LINK = re.compile(r"\[([^\]]*)\]\(([^)\s]+)\)")
+QUALNAME = re.compile(r"^`(mpmref(?:\.\w+)+)`$")
+
+
+def fenced_blocks(text, language):
+    return [m.group(2) for m in FENCE.finditer(text) if m.group(1) == language]
+
+
+def strip_fences(text):
+    return FENCE.sub("", text)
+
+
+def python_blocks():
+    params = []
+    for page in PAGES:
+        for index, code in enumerate(fenced_blocks(page.read_text(encoding="utf-8"), "python")):
+            params.append(pytest.param(page, code, id=f"{page.name}:{index}"))
+    return params
+
+
+def watched_files():
+    """Files a snippet could plausibly leave behind in the repository by mistake."""
+    return {p for folder in ("docs", "reports") for p in (ROOT / folder).rglob("*") if p.is_file()}
+
+
+@pytest.mark.parametrize("page, code", python_blocks())
+def test_python_block_runs(page, code, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    before = watched_files()
+    namespace = {"__name__": "__docs__"}
+    exec(compile(code, f"{page.relative_to(ROOT)} (python block)", "exec"), namespace)
+    assert watched_files() == before, "a docs example wrote files into the repository; use a TemporaryDirectory"
+
+
+def test_there_are_examples_and_none_escape_the_runner():
+    """At least one block per page, and no Python block hidden under another fence tag that the runner skips."""
+    for page in PAGES:
+        text = page.read_text(encoding="utf-8")
+        tags = {m.group(1) for m in FENCE.finditer(text)}
+        assert not tags & {"py", "python3", "pycon", "ipython"}, f"{page.name}: use ```python (tested) or ```text"
+        assert fenced_blocks(text, "python"), f"{page.name} has no runnable ```python example"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
+def test_toml_blocks_are_valid_toml(page):
+    for code in fenced_blocks(page.read_text(encoding="utf-8"), "toml"):
+        tomllib.loads(code)
+
+
+# ----------------------------------------------------------------------------------------------- links
+def slugs(page):
+    """GitHub-style anchors of the headings of a Markdown page."""
+    seen, out = {}, set()
+    for line in strip_fences(page.read_text(encoding="utf-8")).splitlines():
+        m = re.match(r"^#{1,6}\s+(.*?)\s*#*\s*$", line)
+        if not m:
+            continue
+        slug = re.sub(r"[^\w\- ]", "", m.group(1).strip().lower()).replace(" ", "-")
+        n = seen.get(slug, 0)
+        seen[slug] = n + 1
+        out.add(slug if n == 0 else f"{slug}-{n}")
+    return out
+
+
+def links(page):
+    return LINK.findall(strip_fences(page.read_text(encoding="utf-8")))
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
+def test_relative_links_resolve(page):
+    problems = []
+    for _, target in links(page):
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto:
+            continue
+        path_part, _, anchor = target.partition("#")
+        path = (page.parent / path_part).resolve() if path_part else page
+        if not path.exists():
+            problems.append(f"{target}: {path} does not exist")
+        elif anchor and path.suffix == ".md" and anchor not in slugs(path):
+            problems.append(f"{target}: no heading '#{anchor}' in {path.name}")
+    assert not problems, f"{page.name}:\n" + "\n".join(problems)
+
+
+def resolve(qualname):
+    """Import the longest importable module prefix of ``qualname`` and walk the remaining attributes."""
+    import importlib
+
+    parts = qualname.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:cut]))
+        except ImportError:
+            continue
+        for attr in parts[cut:]:
+            obj = getattr(obj, attr)
+        return obj
+    raise ImportError(qualname)
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
+def test_code_links_name_objects_defined_in_the_linked_file(page):
+    checked = 0
+    for text, target in links(page):
+        m = QUALNAME.match(text)
+        if not m or not target.endswith(".py"):
+            continue
+        obj = resolve(m.group(1))
+        source = Path(inspect.getsourcefile(inspect.unwrap(obj))).resolve()
+        assert source == (page.parent / target).resolve(), f"{m.group(1)} is defined in {source}, link says {target}"
+        checked += 1
+    if page.name == "mpm_cycle.md":
+        assert checked >= 20  # every equation there links to its implementation
+
+
+# ---------------------------------------------------------------------------------- reference coverage
+def minimal_scene():
+    return {
+        "dim": 2,
+        "grid": {"size": 1.0, "cells": 16},
+        "method": {},
+        "materials": {"m": {"type": "fixed_corotated", "E": 1.0e3}},
+        "bodies": [{"shape": "box", "material": "m", "lower": [0.3, 0.3], "upper": [0.6, 0.6]}],
+        "boundary": {"walls": {}},
+        "time": {"dt": 1.0e-3},
+        "output": {},
+    }
+
+
+def accepted_keys(mutate):
+    """The keys the validator accepts at one place, read from its own 'unknown key' error."""
+    from mpmref import Scene, SceneError
+
+    data = minimal_scene()
+    mutate(data)
+    with pytest.raises(SceneError) as info:
+        Scene.from_dict(data)
+    allowed = info.value.allowed
+    assert "known keys" in allowed, allowed
+    return set(ast.literal_eval(allowed[allowed.index("["):]))
+
+
+def probe(*path, material_type=None):
+    """A mutation that puts an unknown key at ``path`` (optionally after switching the material's type)."""
+    def mutate(data):
+        if material_type is not None:
+            required = {"K": 1.0e3} if material_type == "fluid" else {"E": 1.0e3}
+            data["materials"]["m"] = {"type": material_type, **required}
+        target = data
+        for key in path:
+            target = target[key]
+        target["__probe__"] = 1
+
+    return mutate
+
+
+def test_scene_reference_lists_every_key_and_option():
+    from mpmref import scene as sc
+    from mpmref.physics.kernels import KERNELS
+
+    text = (DOCS / "scenes.md").read_text(encoding="utf-8")
+    keys = set()
+    keys |= accepted_keys(probe())
+    for section in ("grid", "method", "boundary", "time", "output"):
+        keys |= accepted_keys(probe(section))
+    keys |= accepted_keys(probe("boundary", "walls"))
+    keys |= accepted_keys(probe("bodies", 0))
+    if "colliders" in sc.TOP_KEYS:
+        def collider_probe(data):
+            data["colliders"] = [{"shape": "plane", "point": [0.0, 0.1], "normal": [0.0, 1.0], "__probe__": 1}]
+        keys |= accepted_keys(collider_probe)
+    for kind in sc.MATERIAL_TYPES:
+        keys |= accepted_keys(probe("materials", "m", material_type=kind))
+    missing = sorted(k for k in keys if f"`{k}`" not in text)
+    assert not missing, f"docs/scenes.md does not document the scene keys {missing}"
+
+    options = set(sc.SCHEMES) | set(sc.FORCES) | set(KERNELS) | set(sc.WALL_TYPES) | set(sc.DOMAIN_EXIT_POLICIES)
+    options |= set(sc.DTYPES) | set(sc.SHAPES) | set(sc.SAMPLINGS) | set(sc.OUTPUT_FIELDS) | set(sc.MATERIAL_TYPES)
+    options |= set(getattr(sc, "COLLIDER_SHAPES", ()))
+    missing = sorted(o for o in options if f'"{o}"' not in text)
+    assert not missing, f"docs/scenes.md does not list the allowed values {missing}"
+
+
+def test_diagnostics_columns_and_cli_options_are_documented():
+    from mpmref import SceneBuilder, Simulation
+    from mpmref.cli import main
+
+    started = (DOCS / "getting_started.md").read_text(encoding="utf-8")
+    cycle = (DOCS / "mpm_cycle.md").read_text(encoding="utf-8")
+    for dim in (2, 3):
+        scene = (SceneBuilder(dim=dim).grid(size=1.0, cells=8).material("w", "fluid", K=1.0)
+                 .box("w", lower=[0.4] * dim, upper=[0.6] * dim).time(dt=1e-3).build())
+        for key in Simulation(scene).diagnostics():
+            assert key in started, f"diagnostics column '{key}' missing from getting_started.md"
+            if key not in ("step", "time", "deleted"):
+                assert f"`{key}`" in cycle or f"`{key.rsplit('_', 1)[0]}_x`" in cycle, \
+                    f"diagnostics column '{key}' is not defined in mpm_cycle.md"
+
+    help_text = io.StringIO()
+    with contextlib.redirect_stdout(help_text), pytest.raises(SystemExit):
+        main(["run", "--help"])
+    for option in set(re.findall(r"--[a-z][a-z-]*", help_text.getvalue())) - {"--help"}:
+        assert f"`{option}" in started, f"command-line option {option} missing from getting_started.md"
