@@ -318,8 +318,8 @@ def _check_combination(spec):
         _fail("method.kernel", "linear", f"'quadratic' or 'cubic' with method.scheme = '{spec.scheme}' (an affine "
               "scheme needs a constant inertia D_p, which the linear hat does not have)")
     if spec.kernel == "linear" and spec.force == "mls":
-        _fail("method.force", "mls", "'classic' with method.kernel = 'linear' (the MLS force needs D_p^-1, "
-              "undefined for the linear hat)")
+        _fail("method.force", "mls", "'classic' with method.kernel = 'linear' (the MLS force needs a constant D_p = k dx^2 I; the "
+              "linear hat's D_p varies with position and is singular on nodes)")
 
 
 def _parse_materials(mats):

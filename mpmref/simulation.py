@@ -197,7 +197,7 @@ class Simulation:
         return J
 
     def elastic_volume_ratio(self):
-        """:math:`J_E`, relating Kirchhoff and Cauchy stress (:math:`\sigma = \tau / J_E`): ``det F`` or the fluid's ``J``."""
+        r""":math:`J_E`, relating Kirchhoff and Cauchy stress (:math:`\sigma = \tau / J_E`): ``det F`` or the fluid's ``J``."""
         p = self.particles
         J = np.ones(p.n, dtype=p.x.dtype)
         for mat_id, material in enumerate(self.scene.material_list):

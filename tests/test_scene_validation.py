@@ -171,3 +171,27 @@ def test_python_builder_and_dict_agree():
                         .box("m", lower=[0.3] * 2, upper=[0.7] * 2, ppc=4).walls("open")
                         .time(dt=1e-4, steps=10).as_dict())
     assert a.fingerprint() == b.fingerprint()
+
+
+# ---- combination rules of scheme, force and kernel (one test per rule)
+def method_scene(**method):
+    d = good()
+    d["method"] = method
+    return d
+
+
+def test_mls_scheme_with_classic_force_is_refused_naming_both():
+    err = expect(method_scene(scheme="mls", force="classic"), "method.force", "method.scheme = 'mls'")
+    assert "classic" in str(err)
+
+
+@pytest.mark.parametrize("scheme", ["apic", "polypic", "mls"])
+def test_linear_kernel_with_affine_scheme_is_refused_naming_both(scheme):
+    err = expect(method_scene(scheme=scheme, kernel="linear", force="classic" if scheme != "mls" else "mls"),
+                 "method.kernel", f"method.scheme = '{scheme}'")
+    assert "linear" in str(err)
+
+
+def test_linear_kernel_with_mls_force_is_refused_naming_both():
+    err = expect(method_scene(scheme="pic", kernel="linear"), "method.force", "method.kernel = 'linear'")
+    assert "'mls'" in str(err)
