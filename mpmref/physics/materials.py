@@ -70,7 +70,7 @@ class ElasticSolid:
 
 @dataclass(frozen=True)
 class FixedCorotated(ElasticSolid):
-    r"""Fixed-corotated elasticity (Stomakhin et al. 2012, Eq. 2 and §4).
+    r"""Fixed-corotated elasticity (Stomakhin et al. 2012 §4).
 
     .. math::
 
@@ -95,7 +95,7 @@ class FixedCorotated(ElasticSolid):
 
 @dataclass(frozen=True)
 class NeoHookean(ElasticSolid):
-    r"""Compressible Neo-Hookean elasticity (Bonet & Wood 2008 Eq. 6.28; Sifakis & Barbič 2012 §3.4).
+    r"""Compressible Neo-Hookean elasticity (Bonet & Wood 2008 §6.4.3; Sifakis & Barbič 2012 §3.4).
 
     .. math::
 
@@ -128,7 +128,7 @@ class WeaklyCompressibleFluid:
 
     so that :math:`p = -\mathrm d\Psi/\mathrm dJ` and the Kirchhoff stress is
     :math:`\tau = -pJ\,I = K(J - J^{1-\gamma})\,I`. Source: Tait equation as used for weakly compressible
-    fluids in Becker & Teschner 2007 Eq. 7 and Tampubolon et al. 2017 §4.1; with :math:`\gamma=1`,
+    fluids in Becker & Teschner 2007 §4 and Tampubolon et al. 2017 §4.1; with :math:`\gamma=1`,
     :math:`K=400`, :math:`\rho=1` this is the fluid of Taichi's ``mpm88`` example (Hu et al. 2019, the
     "88-line" program). :math:`K` is the bulk stiffness, :math:`\gamma` the exponent, :math:`\rho` density.
     """

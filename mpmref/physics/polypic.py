@@ -4,7 +4,7 @@ Each particle carries a polynomial velocity :math:`v_p(x_i) = \sum_r c_{pr}\, s_
 stencil nodes. The modes are tensor products :math:`s_r = \prod_a q^{(a)}_{r_a}` of per-axis polynomials
 :math:`q_0 = 1, q_1 = \delta, q_2, \dots, q_{S-1}` (:math:`\delta = x_{i,a} - x_{p,a}`, :math:`S` the
 kernel support) made orthogonal under the particle's own weights by Gram–Schmidt,
-:math:`\langle f, g\rangle_a = \sum_k N_{a,k} f_k g_k` (Fu et al. 2017 §4, Eq. 9–12 build the same
+:math:`\langle f, g\rangle_a = \sum_k N_{a,k} f_k g_k` (Fu et al. 2017 §4 builds the same
 orthogonality for quadratic splines). Because :math:`w_{ip} = \prod_a N_{a,k_a}`, the :math:`S^d`
 modes are orthogonal under :math:`\sum_i w_{ip}\, \cdot\,\cdot`, so G2P is a projection:
 

@@ -7,8 +7,7 @@ def cfl_time_step(cfl, dx, wave_speed, v_max):
     r"""CFL time step :math:`\Delta t = C\,\Delta x / (c + |v|_{max})`.
 
     :math:`C` is the CFL number, :math:`c` the largest material wave speed (elastic P-wave or fluid sound
-    speed), :math:`|v|_{max}` the largest particle speed (Courant, Friedrichs & Lewy 1928; e.g. Fang et
-    al. 2018 Eq. 1 for MPM).
+    speed), :math:`|v|_{max}` the largest particle speed (Courant, Friedrichs & Lewy 1928; its use for MPM time steps: Fang et al. 2018 §3).
     """
     return cfl * dx / (wave_speed + v_max)
 

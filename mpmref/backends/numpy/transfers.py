@@ -29,7 +29,7 @@ def scatter(index, values, n_nodes):
 def mls_gradient_weight(stencil, w, dpos, offset):
     r"""MLS approximation of the kernel gradient, :math:`\nabla w_{ip} \approx w_{ip} D_p^{-1}(x_i - x_p)`.
 
-    Hu et al. 2018 Eq. 16–18: with it, the nodal force becomes
+    Hu et al. 2018 §4, leading to their Eq. 18: with it, the nodal force becomes
     :math:`f_i = -\sum_p V_p^0\, \tau_p\, w_{ip} D_p^{-1} (x_i - x_p)` and the velocity gradient
     :math:`\nabla v_p = \sum_i v_i\, (w_{ip} D_p^{-1}(x_i - x_p))^T = C_p`.
     """
@@ -40,7 +40,7 @@ def classic_gradient_weight(stencil, w, dpos, offset):
     r"""Classic MPM: the exact kernel gradient :math:`\nabla w_{ip}` (Sulsky et al. 1994; talk Table 2 "MPM").
 
     The nodal force is :math:`f_i = -\sum_p V_p^0 P(F_p) F_p^T \nabla w_{ip}` and the velocity gradient
-    :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T` (Stomakhin et al. 2013 Eq. 6 and 7).
+    :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T` (Stomakhin et al. 2013 §4).
     """
     return stencil.node_gradient(offset)
 
@@ -57,8 +57,8 @@ def p2g(particles, tau, grid, kernel, method):
         (mv)_i = \sum_p w_{ip} m_p \left(v_p + C_p (x_i - x_p)\right), \qquad
         f_i = -\sum_p V_p^0\, \tau_p\, g_{ip}
 
-    (Jiang et al. 2015 Eq. 11 for APIC momentum, :math:`C_p` omitted for PIC/FLIP; PolyPIC adds
-    :math:`\sum_r c_{pr} s_r(x_i)` of its higher modes, Fu et al. 2017 Eq. 7; Hu et al. 2018 Eq. 18 for
+    (Jiang et al. 2015 §5 for APIC momentum, :math:`C_p` omitted for PIC/FLIP; PolyPIC adds
+    :math:`\sum_r c_{pr} s_r(x_i)` of its higher modes, Fu et al. 2017 §4; Hu et al. 2018 Eq. 18 for
     the MLS force). :math:`g_{ip}` is the force discretisation's gradient weight
     (:func:`mls_gradient_weight` or :func:`classic_gradient_weight`).
 
@@ -153,7 +153,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
     .. math::
 
         v_p^{PIC} = \sum_i w_{ip} v_i, \qquad
-        C_p = B_p D_p^{-1} = \sum_i w_{ip} v_i (x_i - x_p)^T D_p^{-1} \;(\text{Jiang et al. 2015 Eq. 10}),
+        C_p = B_p D_p^{-1} = \sum_i w_{ip} v_i (x_i - x_p)^T D_p^{-1} \;(\text{Jiang et al. 2015 §5}),
 
         \nabla v_p = \sum_i v_i\, g_{ip}^T, \qquad
         v_p^{FLIP} = v_p + \sum_i w_{ip}(v_i - \tilde v_i), \qquad
@@ -162,7 +162,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
         F_p \leftarrow (I + \Delta t\, \nabla v_p) F_p, \qquad
         J_p \leftarrow (1 + \Delta t \operatorname{tr} \nabla v_p) J_p, \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
 
-    With the MLS force :math:`\nabla v_p = C_p` (Hu et al. 2018 Eq. 17); with the classic force
+    With the MLS force :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the classic force
     :math:`g_{ip} = \nabla w_{ip}`. PolyPIC's higher modes are the projections of
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     Returns new :class:`~mpmref.state.Particles`; the input is not modified.
