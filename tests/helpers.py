@@ -59,4 +59,16 @@ def valid_methods():
     return out
 
 
-__all__ = ["box_scene", "random_particles", "Scene"]
+def fd_gradient(energy, F, h=1e-6):
+    """Central finite difference dPsi/dF_ij of a batched energy (n, d, d) -> (n,)."""
+    n, d, _ = F.shape
+    P = np.zeros_like(F)
+    for i in range(d):
+        for j in range(d):
+            dF = np.zeros_like(F)
+            dF[:, i, j] = h
+            P[:, i, j] = (energy(F + dF) - energy(F - dF)) / (2.0 * h)
+    return P
+
+
+__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "Scene"]

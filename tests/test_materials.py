@@ -12,6 +12,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from helpers import fd_gradient
 from mpmref.physics.materials import (
     FixedCorotated,
     NeoHookean,
@@ -44,18 +45,6 @@ def _random_F(rng, n, dim, scale=0.3, min_det=0.3):
     return np.array(out)
 
 
-def _fd_gradient(energy, F, h=1e-6):
-    """Central finite difference dPsi/dF_ij of a batched energy (n, d, d) -> (n,)."""
-    n, d, _ = F.shape
-    P = np.zeros_like(F)
-    for i in range(d):
-        for j in range(d):
-            dF = np.zeros_like(F)
-            dF[:, i, j] = h
-            P[:, i, j] = (energy(F + dF) - energy(F - dF)) / (2.0 * h)
-    return P
-
-
 def _rot2(theta):
     c, s = math.cos(theta), math.sin(theta)
     return np.array([[c, -s], [s, c]])
@@ -80,7 +69,7 @@ def test_solid_first_piola_is_energy_gradient(mat, dim):
     rng = np.random.default_rng(11 * dim + len(type(mat).__name__))
     F = _random_F(rng, 40, dim)
     h = 1e-6 * max(1.0, float(np.abs(F).max()))
-    P_fd = _fd_gradient(mat.energy_density, F, h)
+    P_fd = fd_gradient(mat.energy_density, F, h)
     P = mat.first_piola(F)
     scale = np.linalg.norm(P_fd, axis=(1, 2))
     err = np.linalg.norm(P - P_fd, axis=(1, 2))
@@ -100,7 +89,7 @@ def test_fixed_corotated_first_piola_inverted_elements(dim):
     F = _random_F(rng, 30, dim)
     F[:, 0, :] *= -1.0  # reflect: det F < 0
     assert np.all(np.linalg.det(F) < 0)
-    P_fd = _fd_gradient(mat.energy_density, F, 1e-6)
+    P_fd = fd_gradient(mat.energy_density, F, 1e-6)
     P = mat.first_piola(F)
     err = np.linalg.norm(P - P_fd, axis=(1, 2))
     assert np.all(err <= 1e-6 * np.linalg.norm(P_fd, axis=(1, 2))), err.max()
@@ -112,7 +101,7 @@ def test_fluid_stress_is_energy_gradient(mat, dim):
     rng = np.random.default_rng(5 * dim + int(mat.gamma))
     F = _random_F(rng, 40, dim, min_det=0.4)
     h = 1e-6
-    P_fd = _fd_gradient(_fluid_energy_of_F(mat), F, h)
+    P_fd = fd_gradient(_fluid_energy_of_F(mat), F, h)
     tau = _fluid_tau_of_F(mat, F)
     P = tau @ np.linalg.inv(F).transpose(0, 2, 1)
     scale = np.linalg.norm(P_fd, axis=(1, 2))

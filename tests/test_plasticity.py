@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from helpers import fd_gradient
 from mpmref.physics.plasticity import DruckerPragerSand, SnowPlasticity
 
 E, NU, RHO = 1.0e3, 0.3, 2.0
@@ -52,18 +53,6 @@ def _rotated_diag(rng, diag):
     return Q @ (diag[:, :, None] * W.transpose(0, 2, 1)), Q, W
 
 
-def _fd_gradient(energy, F, h=1e-6):
-    """Central finite difference dPsi/dF_ij of a batched energy (n, d, d) -> (n,)."""
-    n, d, _ = F.shape
-    P = np.zeros_like(F)
-    for i in range(d):
-        for j in range(d):
-            dF = np.zeros_like(F)
-            dF[:, i, j] = h
-            P[:, i, j] = (energy(F + dF) - energy(F - dF)) / (2.0 * h)
-    return P
-
-
 def _cone(mat, F_new, dim):
     """Shifted trace tr(eps) - d c and yield value ||dev eps|| + alpha (d lam + 2 mu)/(2 mu) (tr eps - d c).
 
@@ -91,7 +80,7 @@ def test_kirchhoff_stress_is_energy_gradient_times_Ft(mat, dim):
     rng = np.random.default_rng(31 * dim + len(MODEL_IDS[MODELS.index(mat)]))
     F = _random_F(rng, 40, dim)
     Jp = rng.uniform(0.8, 1.2, 40)
-    P_fd = _fd_gradient(lambda G: mat.energy_density(G, Jp), F)
+    P_fd = fd_gradient(lambda G: mat.energy_density(G, Jp), F)
     tau_fd = P_fd @ F.transpose(0, 2, 1)
     err = np.linalg.norm(mat.kirchhoff_stress(F, Jp) - tau_fd, axis=(1, 2))
     assert np.all(err <= 1e-6 * np.maximum(np.linalg.norm(tau_fd, axis=(1, 2)), mat.mu * 1e-3)), err.max()

@@ -42,22 +42,26 @@ def polar_rotation(F):
     return U @ Vt, sigma
 
 
+class LameParameters:
+    """Mixin for materials with fields ``E`` and ``nu``: the Lamé parameters ``mu`` and ``lam``."""
+
+    @property
+    def mu(self):
+        return float(lame_parameters(self.E, self.nu)[0])
+
+    @property
+    def lam(self):
+        return float(lame_parameters(self.E, self.nu)[1])
+
+
 @dataclass(frozen=True)
-class ElasticSolid:
+class ElasticSolid(LameParameters):
     """Shared parameters of the hyperelastic solids: Young's modulus ``E``, Poisson ratio ``nu``, density ``rho``."""
 
     E: float
     nu: float
     rho: float
     tracks = "F"
-
-    @property
-    def mu(self):
-        return lame_parameters(self.E, self.nu)[0]
-
-    @property
-    def lam(self):
-        return lame_parameters(self.E, self.nu)[1]
 
     def wave_speed(self):
         r"""Dilatational (P-)wave speed :math:`c = \sqrt{(\lambda + 2\mu)/\rho}` used by the CFL rule."""

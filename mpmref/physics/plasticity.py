@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import FixedCorotated, lame_parameters, signed_svd
+from .materials import FixedCorotated, LameParameters, signed_svd
 
 SIGMA_FLOOR = 1.0e-6
 """Smallest singular value the Hencky strain :math:`\\ln\\sigma` is taken of (sand): a compression of a
@@ -35,7 +35,7 @@ def _compose(U, sigma, Vt):
 
 
 @dataclass(frozen=True)
-class SnowPlasticity:
+class SnowPlasticity(LameParameters):
     r"""Snow: fixed-corotated elasticity with exponential hardening and a box-clamped elastic stretch.
 
     Stomakhin et al. 2013, "A material point method for snow simulation", §5 (energy density and
@@ -81,15 +81,6 @@ class SnowPlasticity:
     tracks = "F"
     plastic = True
 
-    @property
-    def mu(self):
-        r"""Un-hardened shear modulus :math:`\mu_0`."""
-        return float(lame_parameters(self.E, self.nu)[0])
-
-    @property
-    def lam(self):
-        r"""Un-hardened Lamé :math:`\lambda_0`."""
-        return float(lame_parameters(self.E, self.nu)[1])
 
     def hardening_factor(self, Jp):
         r"""Stiffness multiplier :math:`e^{\xi(1 - J_P)}` of both Lamé parameters."""
@@ -125,7 +116,7 @@ class SnowPlasticity:
 
 
 @dataclass(frozen=True)
-class DruckerPragerSand:
+class DruckerPragerSand(LameParameters):
     r"""Sand: Hencky-strain St. Venant–Kirchhoff elasticity with a Drucker–Prager return map.
 
     Klar et al. 2016, "Drucker-Prager elastoplasticity for sand animation", §4 (energy) and §7.3 with
@@ -174,13 +165,6 @@ class DruckerPragerSand:
     tracks = "F"
     plastic = True
 
-    @property
-    def mu(self):
-        return float(lame_parameters(self.E, self.nu)[0])
-
-    @property
-    def lam(self):
-        return float(lame_parameters(self.E, self.nu)[1])
 
     @property
     def alpha(self):
