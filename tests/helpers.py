@@ -71,4 +71,19 @@ def fd_gradient(energy, F, h=1e-6):
     return P
 
 
-__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "Scene"]
+def independent_lame(E_, nu_):
+    """Lamé parameters written out independently of ``mpmref.physics.materials.lame_parameters``."""
+    return E_ / (2.0 + 2.0 * nu_), E_ * nu_ / ((1.0 + nu_) * (1.0 - 2.0 * nu_))
+
+
+def random_deformations(rng, n, dim, scale=0.3, min_det=0.3):
+    """Deformation gradients I + scale * U(-1, 1) with det F > min_det (rejection sampling)."""
+    out = []
+    while len(out) < n:
+        F = np.eye(dim) + scale * rng.uniform(-1.0, 1.0, size=(dim, dim))
+        if np.linalg.det(F) > min_det:
+            out.append(F)
+    return np.array(out)
+
+
+__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations", "Scene"]

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from helpers import fd_gradient
+from helpers import fd_gradient, independent_lame, random_deformations
 from mpmref.physics.materials import (
     FixedCorotated,
     NeoHookean,
@@ -26,23 +26,6 @@ SOLIDS = [FixedCorotated(E=E, nu=NU, rho=RHO), NeoHookean(E=E, nu=NU, rho=RHO)]
 SOLID_IDS = ["fixed_corotated", "neo_hookean"]
 FLUIDS = [WeaklyCompressibleFluid(K=400.0, gamma=1.0, rho=1.0), WeaklyCompressibleFluid(K=50.0, gamma=7.0, rho=1.5)]
 FLUID_IDS = ["fluid_gamma1", "fluid_gamma7"]
-
-
-def _mu_lam(E_, nu_):
-    """Lamé parameters written out independently of ``lame_parameters``."""
-    mu = E_ / (2.0 + 2.0 * nu_)
-    lam = E_ * nu_ / ((1.0 + nu_) * (1.0 - 2.0 * nu_))
-    return mu, lam
-
-
-def _random_F(rng, n, dim, scale=0.3, min_det=0.3):
-    """Deformation gradients I + scale * U(-1, 1) with det F > min_det (rejection sampling)."""
-    out = []
-    while len(out) < n:
-        F = np.eye(dim) + scale * rng.uniform(-1.0, 1.0, size=(dim, dim))
-        if np.linalg.det(F) > min_det:
-            out.append(F)
-    return np.array(out)
 
 
 def _rot2(theta):
@@ -67,7 +50,7 @@ def _fluid_tau_of_F(mat, F):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_solid_first_piola_is_energy_gradient(mat, dim):
     rng = np.random.default_rng(11 * dim + len(type(mat).__name__))
-    F = _random_F(rng, 40, dim)
+    F = random_deformations(rng, 40, dim, scale=0.3)
     h = 1e-6 * max(1.0, float(np.abs(F).max()))
     P_fd = fd_gradient(mat.energy_density, F, h)
     P = mat.first_piola(F)
@@ -86,7 +69,7 @@ def test_fixed_corotated_first_piola_inverted_elements(dim):
     """Fixed-corotated is defined for det F < 0 (signed singular values); P must still be dPsi/dF."""
     mat = SOLIDS[0]
     rng = np.random.default_rng(77 + dim)
-    F = _random_F(rng, 30, dim)
+    F = random_deformations(rng, 30, dim, scale=0.3)
     F[:, 0, :] *= -1.0  # reflect: det F < 0
     assert np.all(np.linalg.det(F) < 0)
     P_fd = fd_gradient(mat.energy_density, F, 1e-6)
@@ -99,7 +82,7 @@ def test_fixed_corotated_first_piola_inverted_elements(dim):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_fluid_stress_is_energy_gradient(mat, dim):
     rng = np.random.default_rng(5 * dim + int(mat.gamma))
-    F = _random_F(rng, 40, dim, min_det=0.4)
+    F = random_deformations(rng, 40, dim, min_det=0.4, scale=0.3)
     h = 1e-6
     P_fd = fd_gradient(_fluid_energy_of_F(mat), F, h)
     tau = _fluid_tau_of_F(mat, F)
@@ -236,7 +219,7 @@ def test_fixed_corotated_uniaxial_stretch(dim):
     Psi = mu (s-1)^2 + lam/2 (s-1)^2;  tau = 2 mu (F - I) F^T + lam (s-1) s I.
     """
     mat = SOLIDS[0]
-    mu, lam = _mu_lam(E, NU)
+    mu, lam = independent_lame(E, NU)
     s = np.array([0.7, 1.0, 1.3, 2.0])
     F = np.zeros((len(s), dim, dim))
     F[:] = np.eye(dim)
@@ -257,7 +240,7 @@ def test_neo_hookean_uniaxial_stretch(dim):
     Psi = mu/2 (s^2 - 1) - mu ln s + lam/2 (ln s)^2;  tau = mu (F F^T - I) + lam ln s I.
     """
     mat = SOLIDS[1]
-    mu, lam = _mu_lam(E, NU)
+    mu, lam = independent_lame(E, NU)
     s = np.array([0.7, 1.0, 1.3, 2.0])
     F = np.zeros((len(s), dim, dim))
     F[:] = np.eye(dim)
@@ -315,7 +298,7 @@ def test_solid_wave_speed(cls, E_, nu_, rho_):
     # P-wave modulus M = lam + 2 mu = E (1 - nu) / ((1 + nu)(1 - 2 nu))
     M = E_ * (1.0 - nu_) / ((1.0 + nu_) * (1.0 - 2.0 * nu_))
     assert mat.wave_speed() == pytest.approx(math.sqrt(M / rho_), rel=1e-13)
-    mu, lam = _mu_lam(E_, nu_)
+    mu, lam = independent_lame(E_, nu_)
     mu_c, lam_c = lame_parameters(E_, nu_)
     assert mu_c == pytest.approx(mu, rel=1e-14)
     assert lam_c == pytest.approx(lam, rel=1e-14, abs=1e-300)
@@ -402,7 +385,7 @@ def test_polar_rotation_inverted_element(dim):
     # fixed-corotated energy of the inverted element uses the signed sigma:
     # the negative entry must be the smallest-magnitude one (Irving et al. 2004), so sigma = (-1, 2[, 1])
     # and Psi = mu ((-1-1)^2 + (2-1)^2) + lam/2 (-2-1)^2  (for d = 3 the extra sigma = 1 adds 0)
-    mu, lam = _mu_lam(E, NU)
+    mu, lam = independent_lame(E, NU)
     np.testing.assert_allclose(np.sort(sigma[0]), np.sort([-1.0, 2.0] + [1.0] * (dim - 2)), atol=1e-13)
     psi = SOLIDS[0].energy_density(F)[0]
     assert psi == pytest.approx(mu * (4.0 + 1.0) + 0.5 * lam * 9.0, rel=1e-12)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from helpers import fd_gradient
+from helpers import fd_gradient, independent_lame, random_deformations
 from mpmref.physics.plasticity import DruckerPragerSand, SnowPlasticity
 
 E, NU, RHO = 1.0e3, 0.3, 2.0
@@ -21,21 +21,6 @@ MODEL_IDS = ["snow", "sand"]
 SANDS = [SAND, DruckerPragerSand(E=E, nu=NU, rho=RHO, friction_angle=45.0, cohesion=0.02),
          DruckerPragerSand(E=E, nu=0.25, rho=RHO, friction_angle=0.0)]
 SAND_IDS = ["phi30", "phi45_cohesive", "phi0"]
-
-
-def _mu_lam(E_, nu_):
-    """Lamé parameters written out independently of ``lame_parameters``."""
-    return E_ / (2.0 + 2.0 * nu_), E_ * nu_ / ((1.0 + nu_) * (1.0 - 2.0 * nu_))
-
-
-def _random_F(rng, n, dim, scale=0.2, min_det=0.3):
-    """Deformation gradients I + scale * U(-1, 1) with det F > min_det (rejection sampling)."""
-    out = []
-    while len(out) < n:
-        F = np.eye(dim) + scale * rng.uniform(-1.0, 1.0, size=(dim, dim))
-        if np.linalg.det(F) > min_det:
-            out.append(F)
-    return np.array(out)
 
 
 def _random_rotations(rng, n, dim):
@@ -59,7 +44,7 @@ def _cone(mat, F_new, dim):
     Computed from NumPy's plain SVD of the mapped F (positive singular values), with alpha and the Lamé
     parameters written out here.
     """
-    mu, lam = _mu_lam(mat.E, mat.nu)
+    mu, lam = independent_lame(mat.E, mat.nu)
     s = math.sin(math.radians(mat.friction_angle))
     alpha = math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
     eps = np.log(np.linalg.svd(F_new, compute_uv=False))
@@ -78,7 +63,7 @@ def _cone(mat, F_new, dim):
 def test_kirchhoff_stress_is_energy_gradient_times_Ft(mat, dim):
     """tau = (dPsi/dF) F^T at fixed Jp, dPsi/dF by central differences."""
     rng = np.random.default_rng(31 * dim + len(MODEL_IDS[MODELS.index(mat)]))
-    F = _random_F(rng, 40, dim)
+    F = random_deformations(rng, 40, dim, scale=0.2)
     Jp = rng.uniform(0.8, 1.2, 40)
     P_fd = fd_gradient(lambda G: mat.energy_density(G, Jp), F)
     tau_fd = P_fd @ F.transpose(0, 2, 1)
@@ -91,7 +76,7 @@ def test_kirchhoff_stress_is_energy_gradient_times_Ft(mat, dim):
 def test_rotation_invariance_and_objectivity(mat, dim):
     """Psi(R F, Jp) = Psi(F, Jp) and tau(R F, Jp) = R tau(F, Jp) R^T for random proper rotations R."""
     rng = np.random.default_rng(500 + dim)
-    F = _random_F(rng, 50, dim, scale=0.3)
+    F = random_deformations(rng, 50, dim, scale=0.3)
     Jp = rng.uniform(0.8, 1.2, 50)
     R = _random_rotations(rng, 50, dim)
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
@@ -118,7 +103,7 @@ def test_rest_state_is_stress_free(mat, dim):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_float32_is_preserved(mat, dim):
     rng = np.random.default_rng(9)
-    F = _random_F(rng, 20, dim, scale=0.3).astype(np.float32)
+    F = random_deformations(rng, 20, dim, scale=0.3).astype(np.float32)
     Jp = rng.uniform(0.8, 1.2, 20).astype(np.float32)
     F_new, Jp_new = mat.return_map(F, Jp)
     for out in (mat.energy_density(F, Jp), mat.kirchhoff_stress(F, Jp), F_new, Jp_new):
@@ -135,7 +120,7 @@ def test_float32_is_preserved(mat, dim):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_snow_return_map_clamps_singular_values_and_keeps_U_V(dim):
     rng = np.random.default_rng(70 + dim)
-    F = _random_F(rng, 200, dim, scale=0.1, min_det=0.5)
+    F = random_deformations(rng, 200, dim, scale=0.1, min_det=0.5)
     Jp = rng.uniform(0.8, 1.2, 200)
     F_new, Jp_new = SNOW.return_map(F, Jp)
     lo, hi = 1.0 - SNOW.theta_c, 1.0 + SNOW.theta_s
@@ -190,7 +175,7 @@ def test_snow_hardening(dim):
     Psi = mu(Jp) sum (s_i - 1)^2 + lam(Jp)/2 (J - 1)^2;  R = I, so
     tau_ii = 2 mu(Jp) (s_i - 1) s_i + lam(Jp) (J - 1) J.
     """
-    mu0, lam0 = _mu_lam(E, NU)
+    mu0, lam0 = independent_lame(E, NU)
     Jp = np.array([0.6, 0.8, 1.0, 1.3, 5.0])
     h = np.array([math.exp(10.0 * (1.0 - j)) for j in Jp])
     np.testing.assert_allclose(SNOW.hardening_factor(Jp), h, rtol=1e-14)
@@ -228,7 +213,7 @@ def test_sand_alpha_known_values():
 @pytest.mark.parametrize("dim", [2, 3])
 def test_sand_hencky_energy_and_stress_on_diagonal_F(dim):
     """F = diag(exp(a_i)): eps = a, Psi = mu sum a^2 + lam/2 (sum a)^2, tau = diag(2 mu a_i + lam sum a)."""
-    mu, lam = _mu_lam(E, NU)
+    mu, lam = independent_lame(E, NU)
     a = np.array([[0.1, -0.2, 0.05], [-0.3, 0.0, 0.2], [0.0, 0.0, 0.0]])[:, :dim]
     F = np.exp(a)[:, :, None] * np.eye(dim)
     Jp = np.ones(3)
@@ -246,7 +231,7 @@ def test_sand_inverted_element_uses_the_singular_value_floor():
     Return map (phi = 30, nu = 0.3: k = (2 lam + 2 mu)/(2 mu) = 2.5): ||dev eps|| = (eps_y - eps_x)/sqrt(2) = 9.90
     < -alpha k tr = 11.13, inside the cone, so F and Jp are kept. A collapsed F (a zero column) gets finite
     energy and stress too."""
-    mu, lam = _mu_lam(E, NU)
+    mu, lam = independent_lame(E, NU)
     ex, ey = math.log(1e-6), math.log(1.2)
     F = np.array([np.diag([-0.5, 1.2]), [[1.0, 0.0], [0.3, 0.0]]])
     Jp = np.ones(2)
@@ -267,7 +252,7 @@ def test_sand_return_map_lands_in_the_cone(mat, dim):
     """After the map: tr(eps) - d c <= 0 and ||dev eps|| + alpha (d lam + 2 mu)/(2 mu)(tr eps - d c) <= 0;
     states that were in tension sit exactly at the tip eps = c I; the volume bookkeeping holds."""
     rng = np.random.default_rng(600 + dim)
-    F = _random_F(rng, 300, dim, scale=0.3)
+    F = random_deformations(rng, 300, dim, scale=0.3)
     Jp = rng.uniform(0.8, 1.2, 300)
     F_new, Jp_new = mat.return_map(F, Jp)
     eps, tr, y = _cone(mat, F_new, dim)
@@ -283,7 +268,7 @@ def test_sand_return_map_lands_in_the_cone(mat, dim):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_sand_return_map_is_idempotent(mat, dim):
     rng = np.random.default_rng(700 + dim)
-    F = _random_F(rng, 200, dim, scale=0.3)
+    F = random_deformations(rng, 200, dim, scale=0.3)
     Jp = rng.uniform(0.8, 1.2, 200)
     F1, Jp1 = mat.return_map(F, Jp)
     F2, Jp2 = mat.return_map(F1, Jp1)
@@ -297,7 +282,7 @@ def test_sand_states_inside_the_cone_are_unchanged(mat, dim):
     """eps = m 1 + r e with m < c, e a unit deviator and r < radius(m) = -alpha k (d m - d c) (k below):
     strictly inside, so F and Jp come back exactly."""
     rng = np.random.default_rng(800 + dim)
-    mu, lam = _mu_lam(mat.E, mat.nu)
+    mu, lam = independent_lame(mat.E, mat.nu)
     k = (dim * lam + 2.0 * mu) / (2.0 * mu)
     m = mat.cohesion - rng.uniform(0.01, 0.1, 50)
     e = rng.standard_normal((50, dim))

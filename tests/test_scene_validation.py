@@ -31,7 +31,7 @@ def with_(path, value):
 _DELETE = object()
 
 
-def expect(data, field, allowed_words):
+def check_refused(data, field, allowed_words):
     with pytest.raises(SceneError) as info:
         sample_particles(Scene.from_dict(data))
     err = info.value
@@ -47,95 +47,95 @@ def test_the_good_scene_is_accepted():
 
 
 def test_unknown_top_level_key():
-    expect(with_(["gravty"], [0, -9.8]), "gravty", "known keys")
+    check_refused(with_(["gravty"], [0, -9.8]), "gravty", "known keys")
 
 
 def test_unknown_nested_key():
-    expect(with_(["materials", "jelly", "youngs"], 1.0), "materials.jelly.youngs", "known keys")
+    check_refused(with_(["materials", "jelly", "youngs"], 1.0), "materials.jelly.youngs", "known keys")
 
 
 def test_missing_required_field():
-    expect(with_(["materials", "jelly", "E"], _DELETE), "materials.jelly.E", "required")
+    check_refused(with_(["materials", "jelly", "E"], _DELETE), "materials.jelly.E", "required")
 
 
 def test_wrong_type():
-    err = expect(with_(["materials", "jelly", "E"], "stiff"), "materials.jelly.E", "finite number")
+    err = check_refused(with_(["materials", "jelly", "E"], "stiff"), "materials.jelly.E", "finite number")
     assert err.value == "stiff"
 
 
 @pytest.mark.parametrize("nu", [0.5, 0.7, -0.1])
 def test_poisson_ratio_out_of_range(nu):
-    err = expect(with_(["materials", "jelly", "nu"], nu), "materials.jelly.nu", "[0.0, 0.5)")
+    err = check_refused(with_(["materials", "jelly", "nu"], nu), "materials.jelly.nu", "[0.0, 0.5)")
     assert err.value == nu
 
 
 @pytest.mark.parametrize("E", [0.0, -5.0])
 def test_youngs_modulus_must_be_positive(E):
-    expect(with_(["materials", "jelly", "E"], E), "materials.jelly.E", "(0.0, inf]")
+    check_refused(with_(["materials", "jelly", "E"], E), "materials.jelly.E", "(0.0, inf]")
 
 
 @pytest.mark.parametrize("dx", [0.0, -0.1])
 def test_grid_spacing_must_be_positive(dx):
     d = good()
     d["grid"] = {"size": [1.0, 1.0], "dx": dx}
-    expect(d, "grid.dx", "(0.0, inf]")
+    check_refused(d, "grid.dx", "(0.0, inf]")
 
 
 def test_grid_size_must_be_whole_cells():
     d = good()
     d["grid"] = {"size": [1.0, 1.0], "dx": 0.3}
-    expect(d, "grid.size", "whole number")
+    check_refused(d, "grid.size", "whole number")
 
 
 def test_non_finite_value():
-    expect(with_(["time", "dt"], float("nan")), "time.dt", "finite number")
+    check_refused(with_(["time", "dt"], float("nan")), "time.dt", "finite number")
 
 
 def test_unknown_choice():
-    expect(with_(["method", "scheme"], "sph"), "method.scheme", "'pic'")
+    check_refused(with_(["method", "scheme"], "sph"), "method.scheme", "'pic'")
 
 
 def test_flip_alpha_only_with_flip():
     d = with_(["method", "flip_alpha"], 0.9)
-    expect(d, "method.flip_alpha", "only with method.scheme = 'flip'")
+    check_refused(d, "method.flip_alpha", "only with method.scheme = 'flip'")
 
 
 def test_dt_and_cfl_are_exclusive():
-    expect(with_(["time", "cfl"], 0.5), "time.dt", "exactly one")
+    check_refused(with_(["time", "cfl"], 0.5), "time.dt", "exactly one")
 
 
 def test_body_outside_domain_names_body_and_region():
     d = good()
     d["bodies"][0]["upper"] = [1.2, 0.6]
-    err = expect(d, "bodies[0]", "valid region")
+    err = check_refused(d, "bodies[0]", "valid region")
     assert "quadratic" in err.allowed
 
 
 def test_body_refers_to_unknown_material():
-    expect(with_(["bodies", 0, "material"], "steel"), "bodies[0].material", "'jelly'")
+    check_refused(with_(["bodies", 0, "material"], "steel"), "bodies[0].material", "'jelly'")
 
 
 def test_disk_in_3d_is_refused():
     d = good()
     d.update(dim=3, grid={"size": 1.0, "cells": 16})
     d["bodies"] = [{"shape": "disk", "material": "jelly", "center": [0.5] * 3, "radius": 0.1}]
-    expect(d, "bodies[0].shape", "'sphere' in a 3D scene")
+    check_refused(d, "bodies[0].shape", "'sphere' in a 3D scene")
 
 
 def test_regular_sampling_needs_perfect_power():
-    expect(with_(["bodies", 0, "ppc"], 3), "bodies[0].ppc", "perfect square")
+    check_refused(with_(["bodies", 0, "ppc"], 3), "bodies[0].ppc", "perfect square")
 
 
 def test_vector_of_wrong_length():
-    expect(with_(["gravity"], [0.0, -9.8, 0.0]), "gravity", "list of 2")
+    check_refused(with_(["gravity"], [0.0, -9.8, 0.0]), "gravity", "list of 2")
 
 
 def test_wall_type_and_friction():
     d = good()
     d["boundary"] = {"walls": {"y_min": {"type": "glue"}}}
-    expect(d, "boundary.walls.y_min.type", "'sticky'")
+    check_refused(d, "boundary.walls.y_min.type", "'sticky'")
     d["boundary"] = {"walls": {"y_min": {"friction": -0.1}}}
-    expect(d, "boundary.walls.y_min.friction", "[0.0, inf]")
+    check_refused(d, "boundary.walls.y_min.friction", "[0.0, inf]")
 
 
 def test_invalid_toml_file(tmp_path):
@@ -181,17 +181,17 @@ def method_scene(**method):
 
 
 def test_mls_scheme_with_classic_force_is_refused_naming_both():
-    err = expect(method_scene(scheme="mls", force="classic"), "method.force", "method.scheme = 'mls'")
+    err = check_refused(method_scene(scheme="mls", force="classic"), "method.force", "method.scheme = 'mls'")
     assert "classic" in str(err)
 
 
 @pytest.mark.parametrize("scheme", ["apic", "polypic", "mls"])
 def test_linear_kernel_with_affine_scheme_is_refused_naming_both(scheme):
-    err = expect(method_scene(scheme=scheme, kernel="linear", force="classic" if scheme != "mls" else "mls"),
+    err = check_refused(method_scene(scheme=scheme, kernel="linear", force="classic" if scheme != "mls" else "mls"),
                  "method.kernel", f"method.scheme = '{scheme}'")
     assert "linear" in str(err)
 
 
 def test_linear_kernel_with_mls_force_is_refused_naming_both():
-    err = expect(method_scene(scheme="pic", kernel="linear"), "method.force", "method.kernel = 'linear'")
+    err = check_refused(method_scene(scheme="pic", kernel="linear"), "method.force", "method.kernel = 'linear'")
     assert "'mls'" in str(err)
