@@ -69,8 +69,14 @@ def test_there_are_examples_and_none_escape_the_runner():
 
 @pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
 def test_toml_blocks_are_valid_toml(page):
+    """Every ```toml block parses; those that are whole scenes (dim, grid, materials, bodies) also validate."""
+    from mpmref import Scene
+
     for code in fenced_blocks(page.read_text(encoding="utf-8"), "toml"):
-        tomllib.loads(code)
+        data = tomllib.loads(code)
+        assert isinstance(data, dict)
+        if {"dim", "grid", "materials", "bodies"} <= set(data):
+            assert Scene.from_dict(data).dim == data["dim"]
 
 
 # ----------------------------------------------------------------------------------------------- links
