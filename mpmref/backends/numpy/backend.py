@@ -45,18 +45,24 @@ class NumpyBackend:
                 F[sel], Jp[sel] = material.return_map(F[sel], Jp[sel])
         return particles.with_(F=F, Jp=Jp)
 
-    def p2g(self, particles):
-        return transfers.p2g(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.method)
+    def prepare(self, particles):
+        return transfers.prepare(particles, self.scene.grid, self.kernel, self.scene.method)
+
+    def p2g(self, particles, prepared=None):
+        return transfers.p2g(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.method,
+                             prepared)
 
     def grid_update(self, grid_state, dt, time=0.0):
         return transfers.grid_update(grid_state, self.scene.grid, dt, self.gravity, self.scene.boundary.walls,
                                      self.bands, self.scene.colliders, time, self.node_x)
 
-    def g2p(self, particles, v_grid, v_tilde, dt):
-        return transfers.g2p(particles, v_grid, v_tilde, self.scene.grid, self.kernel, self.scene.method, dt)
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
+        return transfers.g2p(particles, v_grid, v_tilde, self.scene.grid, self.kernel, self.scene.method, dt,
+                             prepared)
 
     def step(self, particles, dt, time=0.0):
         """One full MPM step from ``time`` (P2G, grid update, G2P, return map); returns new particles."""
-        grid_state = self.p2g(particles)
+        prepared = self.prepare(particles)  # the stencil is shared: particles do not move until G2P
+        grid_state = self.p2g(particles, prepared)
         v_grid, v_tilde = self.grid_update(grid_state, dt, time)
-        return self.return_map(self.g2p(particles, v_grid, v_tilde, dt))
+        return self.return_map(self.g2p(particles, v_grid, v_tilde, dt, prepared))

@@ -48,7 +48,17 @@ def classic_gradient_weight(stencil, w, dpos, offset):
 GRADIENT_WEIGHTS = {"mls": mls_gradient_weight, "classic": classic_gradient_weight}
 
 
-def p2g(particles, tau, grid, kernel, method):
+def prepare(particles, grid, kernel, method):
+    """Kernel stencil of the particles (and PolyPIC's basis): what P2G and G2P of one step share.
+
+    Particles do not move between P2G and G2P, so one step computes this once and passes it to both.
+    Returns ``(stencil, basis)``; ``basis`` is ``None`` unless the scheme is PolyPIC.
+    """
+    st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
+    return st, (polypic_basis(st, grid) if method.polypic else None)
+
+
+def p2g(particles, tau, grid, kernel, method, prepared=None):
     r"""Particle to grid: node mass, momentum and internal force.
 
     .. math::
@@ -69,15 +79,15 @@ def p2g(particles, tau, grid, kernel, method):
     grid : Grid
     kernel : kernel object  (``mpmref.physics.kernels``)
     method : MethodSpec
+    prepared : output of :func:`prepare` for these particles (computed here if ``None``)
     """
-    st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
+    st, basis = prepared or prepare(particles, grid, kernel, method)
     gradient_weight = GRADIENT_WEIGHTS[method.force]
     m, n_nodes = particles.mass, grid.n_nodes
     stress_volume = particles.vol0[:, None, None] * tau
     mass = np.zeros(n_nodes)
     momentum = np.zeros((n_nodes, grid.dim))
     force = np.zeros((n_nodes, grid.dim))
-    basis = polypic_basis(st, grid) if method.polypic else None
     for offset in st.offsets:
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
@@ -147,7 +157,7 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     return v, v_tilde
 
 
-def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
+def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt, prepared=None):
     r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
     .. math::
@@ -165,9 +175,10 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
     With the MLS force :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the classic force
     :math:`g_{ip} = \nabla w_{ip}`. PolyPIC's higher modes are the projections of
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
-    Returns new :class:`~mpmref.state.Particles`; the input is not modified.
+    ``prepared`` is the output of :func:`prepare` (computed here if ``None``). Returns new
+    :class:`~mpmref.state.Particles`; the input is not modified.
     """
-    st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
+    st, basis = prepared or prepare(particles, grid, kernel, method)
     n, d = particles.x.shape
     dtype = v_grid.dtype
     need_B = method.affine or method.force == "mls"
@@ -175,7 +186,6 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt):
     B = np.zeros((n, d, d), dtype=dtype) if need_B else None
     grad_v = np.zeros((n, d, d), dtype=dtype) if method.force == "classic" else None
     dv_flip = np.zeros((n, d), dtype=dtype) if method.flip else None
-    basis = polypic_basis(st, grid) if method.polypic else None
     modes = np.zeros_like(particles.modes) if basis is not None else None
     for offset in st.offsets:
         idx = node_index(st, offset, grid)
