@@ -1,11 +1,15 @@
 """Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume]``."""
 
 import argparse
+import importlib
 import sys
 from pathlib import Path
 
 from .backends import BACKENDS
 from .errors import MpmrefError, SceneError
+
+#: modules that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
+COMMAND_MODULES = ()
 
 
 def _parser():
@@ -20,6 +24,9 @@ def _parser():
     run.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
     run.add_argument("--backend", default="numpy", choices=BACKENDS, help="execution backend (default: numpy)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.set_defaults(func=cmd_run)
+    for module in COMMAND_MODULES:
+        importlib.import_module(module).add_parser(sub)
     return parser
 
 
@@ -57,7 +64,7 @@ def cmd_run(args):
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
-        return {"run": cmd_run}[args.command](args)
+        return args.func(args)
     except SceneError as exc:
         print(f"mpmref: invalid scene: {exc}", file=sys.stderr)
         return 2
