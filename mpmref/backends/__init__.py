@@ -1,6 +1,6 @@
 """Execution backends. Each exposes the same stages: ``p2g``, ``grid_update``, ``g2p``."""
 
-BACKENDS = ("numpy",)
+BACKENDS = ("numpy", "numba")
 
 
 def make_backend(name, scene):
@@ -9,4 +9,8 @@ def make_backend(name, scene):
         from .numpy import NumpyBackend
 
         return NumpyBackend(scene)
+    if name == "numba":
+        from .numba import NumbaBackend
+
+        return NumbaBackend(scene)
     raise ValueError(f"unknown backend {name!r}: available backends are {list(BACKENDS)}")

@@ -74,7 +74,10 @@ class CubicBSpline:
     def weights(self, fx):
         """Per-axis weights and derivatives (grid units) for offsets ``fx = xi - base`` in [1, 2)."""
         a, b = fx - 1.0, 2.0 - fx  # distances to the two middle nodes
-        w = np.stack([b**3 / 6.0, 0.5 * a**3 - a**2 + 2.0 / 3.0, 0.5 * b**3 - b**2 + 2.0 / 3.0, a**3 / 6.0], axis=-1)
+        # cubes as products, not ``**3``: NumPy's power may use a SIMD pow that differs from libm by an ulp,
+        # and PolyPIC's cubic modes amplify an ulp in a near-zero weight a billionfold (docs/conformance.md)
+        a3, b3 = a * a * a, b * b * b
+        w = np.stack([b3 / 6.0, 0.5 * a3 - a * a + 2.0 / 3.0, 0.5 * b3 - b * b + 2.0 / 3.0, a3 / 6.0], axis=-1)
         dw = np.stack([-0.5 * b**2, 1.5 * a**2 - 2.0 * a, -1.5 * b**2 + 2.0 * b, 0.5 * a**2], axis=-1)
         return w, dw
 

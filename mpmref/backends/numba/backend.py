@@ -1,0 +1,156 @@
+"""The Numba backend object: the reference's stages, compiled for one scene and run in parallel."""
+
+import numpy as np
+
+from ...physics.polypic import higher_modes
+from ...state import GridState
+from . import materials, transfers
+from .blocks import BLOCK, sort_into_blocks
+from .stencil import BASE_SHIFT, KERNEL_CODES
+
+WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
+
+
+def transfer_config(scene):
+    """The :class:`~.transfers.TransferConfig` a scene compiles into its kernels."""
+    method = scene.method
+    return transfers.TransferConfig(
+        dim=scene.dim, kernel=KERNEL_CODES[scene.kernel.name], support=scene.kernel.support,
+        affine=method.affine, polypic=method.polypic, flip=method.flip, mls=method.force == "mls",
+        tracks_F=scene.tracks("F"), tracks_J=scene.tracks("J"))
+
+
+class Blocks:
+    """Particles sorted into blocks of :data:`~.blocks.BLOCK` cells (see :mod:`.blocks`)."""
+
+    def __init__(self, order, block_start, colour_blocks, colour_start):
+        self.order, self.block_start = order, block_start
+        self.colour_blocks, self.colour_start = colour_blocks, colour_start
+
+
+class NumbaBackend:
+    """Optimised implementation of the reference stages for ``scene`` (same methods as ``NumpyBackend``).
+
+    Only what the scene declares is compiled: the transfer kernels for its dimension, kernel, scheme and
+    force (:func:`~.transfers.make_p2g`, :func:`~.transfers.make_g2p`), and the stress and return-map
+    kernels of its materials. Level-set colliders are applied with the backend-neutral
+    :meth:`mpmref.physics.colliders.Collider.apply` after the compiled wall projection.
+    """
+
+    name = "numba"
+
+    def __init__(self, scene):
+        self.scene = scene
+        grid = scene.grid
+        self.dtype = scene.dtype
+        self.cfg = transfer_config(scene)
+        self._p2g = transfers.make_p2g(self.cfg)
+        self._g2p = transfers.make_g2p(self.cfg)
+        self.origin = np.asarray(grid.origin, dtype=np.float64)
+        self.dx = float(grid.dx)
+        self.inertia = 0.0 if scene.kernel.inertia_factor is None else scene.kernel.inertia_factor * self.dx**2
+        self.strides = grid.strides
+        self.node_shape = np.array(grid.node_shape, dtype=np.int64)
+        modes = higher_modes(scene.dim, scene.kernel.support) if self.cfg.polypic else np.zeros((0, scene.dim))
+        self.mode_index = np.ascontiguousarray(modes, dtype=np.int64)
+        self.shift = BASE_SHIFT[scene.kernel.name]
+        self.blocks_per_axis = np.array([c // BLOCK + 1 for c in grid.cells], dtype=np.int64)
+        walls = [scene.boundary.walls[f"{'xyz'[a]}_{side}"] for a in range(scene.dim) for side in ("min", "max")]
+        self.wall_type = np.array([WALL_CODES[w.type] for w in walls], dtype=np.int64)
+        self.wall_friction = np.array([w.friction for w in walls], dtype=np.float64)
+        self.gravity = np.asarray(scene.gravity, dtype=np.float64)
+        self.node_x = grid.node_positions() if scene.colliders else None
+        self.material_kernels = [materials.KERNELS[type(m)] for m in scene.material_list]
+
+    # ------------------------------------------------------------------ helpers
+    def _empty(self, *shape):
+        return np.empty(shape, dtype=self.dtype)
+
+    def _indices(self, particles, mat_id):
+        if len(self.material_kernels) == 1:
+            return np.arange(particles.n, dtype=np.int64)
+        return np.flatnonzero(particles.material == mat_id)
+
+    def _or_empty(self, array, *shape):
+        return array if array is not None else self._empty(*shape)
+
+    # ------------------------------------------------------------------ stages
+    def prepare(self, particles):
+        """Sort the particles into blocks and colour classes (shared by P2G and G2P of one step)."""
+        return Blocks(*sort_into_blocks(particles.x, self.origin, self.dx, self.shift, BLOCK, self.blocks_per_axis))
+
+    def stress(self, particles):
+        """Kirchhoff stress (n, d, d) of every particle, material by material."""
+        n, d = particles.x.shape
+        tau = np.zeros((n, d, d), dtype=particles.x.dtype)
+        F = self._or_empty(particles.F, 0, d, d)
+        J = self._or_empty(particles.J, 0)
+        Jp = self._or_empty(particles.Jp, 0)
+        for mat_id, (material, (stress, _)) in enumerate(zip(self.scene.material_list, self.material_kernels)):
+            idx = self._indices(particles, mat_id)
+            if idx.size:
+                stress(material, F, J, Jp, idx, tau)
+        return tau
+
+    def return_map(self, particles):
+        """Plastic projection of every plastic material's particles (a new state; others untouched)."""
+        if particles.Jp is None:
+            return particles
+        F, Jp = particles.F.copy(), particles.Jp.copy()
+        for mat_id, (material, (_, return_map)) in enumerate(zip(self.scene.material_list, self.material_kernels)):
+            idx = self._indices(particles, mat_id)
+            if return_map is not None and idx.size:
+                return_map(material, F, Jp, idx)
+        return particles.with_(F=F, Jp=Jp)
+
+    def p2g(self, particles, prepared=None):
+        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent)."""
+        blocks = prepared or self.prepare(particles)
+        n, d = particles.x.shape
+        N = self.scene.grid.n_nodes
+        gs = GridState(mass=np.zeros(N, dtype=self.dtype), momentum=np.zeros((N, d), dtype=self.dtype),
+                       force=np.zeros((N, d), dtype=self.dtype))
+        self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
+                  self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, self.stress(particles),
+                  self.origin, self.dx, self.inertia, self.strides, self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks, blocks.colour_start,
+                  gs.mass, gs.momentum, gs.force)
+        return gs
+
+    def grid_update(self, grid_state, dt, time=0.0):
+        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)``."""
+        v = np.empty_like(grid_state.momentum)
+        v_tilde = np.empty_like(grid_state.momentum)
+        transfers.grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
+                                self.node_shape, self.strides, self.scene.boundary.width, self.wall_type,
+                                self.wall_friction, v, v_tilde)
+        if self.scene.colliders:
+            has_mass = grid_state.mass > 0
+            for collider in self.scene.colliders:
+                v = collider.apply(v, self.node_x, has_mass, time)
+        return v, v_tilde
+
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
+        """New particle state from the grid velocities (block-parallel gather)."""
+        blocks = prepared or self.prepare(particles)
+        n, d = particles.x.shape
+        x_new, v_new = self._empty(n, d), self._empty(n, d)
+        C_new = self._empty(n, d, d) if particles.C is not None else self._empty(0, d, d)
+        F_new = self._empty(n, d, d) if particles.F is not None else self._empty(0, d, d)
+        J_new = self._empty(n) if particles.J is not None else self._empty(0)
+        modes_new = np.empty_like(particles.modes) if particles.modes is not None else self._empty(0, 0, d)
+        self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+                  self.origin, self.dx, self.inertia, dt, self.scene.method.flip_alpha, self.strides,
+                  self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
+                  v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
+        changes = {"x": x_new, "v": v_new}
+        for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
+            if getattr(particles, name) is not None:
+                changes[name] = array
+        return particles.with_(**changes)
+
+    def step(self, particles, dt, time=0.0):
+        """One full MPM step from ``time`` (P2G, grid update, G2P, return map); returns new particles."""
+        blocks = self.prepare(particles)
+        grid_state = self.p2g(particles, blocks)
+        v_grid, v_tilde = self.grid_update(grid_state, dt, time)
+        return self.return_map(self.g2p(particles, v_grid, v_tilde, dt, blocks))

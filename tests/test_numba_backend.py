@@ -1,0 +1,113 @@
+"""The Numba backend against the reference: thread-count determinism, trajectories, float32.
+
+Stage-by-stage agreement for every combination is the conformance harness's job
+(``tests/test_conformance.py`` runs it on every backend); here are the properties it does not cover.
+"""
+
+import tomllib
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+
+from mpmref import Scene
+from mpmref.backends import make_backend
+from mpmref.bodies import sample_particles
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def example(name, **overrides):
+    data = tomllib.loads((EXAMPLES / f"{name}.toml").read_text())
+    data.update(overrides)
+    return Scene.from_dict(data)
+
+
+def run(backend, particles, steps, dt):
+    for k in range(steps):
+        particles = backend.step(particles, dt, k * dt)
+    return particles
+
+
+def with_threads(threads, fn):
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        return fn()
+    finally:
+        numba.set_num_threads(before)
+
+
+@pytest.mark.parametrize("scene", [
+    example("mpm88"),
+    example("snow88"),
+    Scene.from_dict({"dim": 3, "grid": {"size": 1.0, "cells": 16}, "method": {"scheme": "polypic", "kernel": "cubic"},
+                     "materials": {"m": {"type": "neo_hookean", "E": 1e3, "nu": 0.3, "rho": 1.0}},
+                     "bodies": [{"shape": "box", "material": "m", "lower": [0.3] * 3, "upper": [0.7] * 3, "ppc": 8,
+                                 "sampling": "jittered", "seed": 3, "velocity": [0.5, -0.2, 0.1]}],
+                     "gravity": [0.0, -9.8, 0.0], "time": {"dt": 1e-4, "steps": 10}}),
+], ids=["mpm88", "snow88", "3d-polypic-cubic"])
+def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene):
+    """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count."""
+    backend = make_backend("numba", scene)
+    particles = sample_particles(scene)
+    stirred = particles.v + 0.5 * np.random.default_rng(7).standard_normal(particles.v.shape)
+    particles = particles.with_(v=stirred.astype(particles.v.dtype))  # so that the state gets stressed
+    dt = 1e-4
+
+    def p2g_after_steps():
+        after = run(backend, particles, 10, dt)
+        return backend.p2g(after), after
+
+    one = with_threads(1, p2g_after_steps)
+    two = with_threads(2, p2g_after_steps)
+    for name in ("mass", "momentum", "force"):
+        assert np.array_equal(getattr(one[0], name), getattr(two[0], name)), name
+    for name, array in one[1].arrays().items():
+        assert np.array_equal(array, two[1].arrays()[name]), name
+    assert np.abs(one[0].force).max() > 0  # a stressed state: the force scatter is exercised too
+
+
+@pytest.mark.parametrize("name, dt, steps", [("mpm88", 2e-4, 200), ("jelly", 1e-4, 200)])
+def test_trajectory_stays_within_the_references_own_round_off_sensitivity(name, dt, steps):
+    """A multi-step trajectory on the Numba backend stays as close to the reference as the reference stays
+    to itself when its initial positions move by one ulp.
+
+    Justification of the tolerance: the two backends evaluate the same expressions with different summation
+    orders, so they differ by round-off at every stage; the flow then amplifies any round-off the way it
+    amplifies a one-ulp perturbation of the initial state. Running the reference from ``x (1 + 2^-52)``
+    measures that amplification independently; the Numba trajectory must stay within 10 times it (plus
+    8 ulp of the domain size, the floor of a comparison of positions near 1). A transfer bug of relative
+    size 1e-10 in any stage already exceeds the bound after one step.
+    """
+    scene = example(name)
+    particles = sample_particles(scene)
+    reference = run(make_backend("numpy", scene), particles, steps, dt)
+    perturbed = run(make_backend("numpy", scene), particles.with_(x=particles.x * (1.0 + 2.0**-52)), steps, dt)
+    numba_run = run(make_backend("numba", scene), particles, steps, dt)
+    for field in ("x", "v"):
+        sensitivity = np.abs(getattr(perturbed, field) - getattr(reference, field)).max()
+        floor = 8 * np.finfo(float).eps * np.abs(getattr(reference, field)).max()
+        difference = np.abs(getattr(numba_run, field) - getattr(reference, field)).max()
+        assert difference <= 10 * sensitivity + floor, (field, difference, sensitivity)
+
+
+def test_float32_step_matches_the_float32_reference_to_single_precision_round_off():
+    """In float32 the backends round differently (the reference sums the grid in float64, Numba in float32),
+    so one step agrees to a few hundred float32 ulps, not bitwise: bound 1e-4 (~800 eps32) relative to each
+    field's scale, for sums of up to 9 contributions per node followed by a division by the node mass. The
+    scale of C is that of a velocity gradient, max|v|/dx: a falling block has C = 0 in exact arithmetic."""
+    scene = example("jelly", dtype="float32")
+    particles = sample_particles(scene)
+    reference = make_backend("numpy", scene).step(particles, 1e-4)
+    fast = make_backend("numba", scene).step(particles, 1e-4)
+    for name, array in reference.arrays().items():
+        assert fast.arrays()[name].dtype == array.dtype, name
+        scale = np.abs(reference.v).max() / scene.grid.dx if name == "C" else np.abs(array).max()
+        assert np.abs(fast.arrays()[name] - array).max() <= 1e-4 * scale, name
+
+
+def test_unknown_backend_is_refused_with_the_list():
+    with pytest.raises(ValueError, match="numba"):
+        make_backend("cuda", example("mpm88"))
