@@ -1,0 +1,57 @@
+"""``mpmref conformance export DIR`` and ``mpmref conformance check --backend NAME``."""
+
+from pathlib import Path
+
+from ..backends import BACKENDS
+from .cases import DEFAULT_RTOL, make_cases
+from .report import check
+from .stages import STAGES
+from .vectors import export
+
+
+def _add_selection(parser):
+    parser.add_argument("--dim", type=int, nargs="+", choices=(2, 3), default=[2, 3],
+                        help="dimensions of the cases (default: 2 3)")
+    parser.add_argument("--stage", nargs="+", choices=STAGES, default=list(STAGES),
+                        help="stages to include (default: all)")
+    parser.add_argument("--dtype", choices=tuple(DEFAULT_RTOL), default="float64",
+                        help="floating-point type of the states (default: float64)")
+
+
+def _selected_cases(args):
+    return make_cases(dims=tuple(args.dim), stages=tuple(args.stage), dtype=args.dtype)
+
+
+def cmd_export(args):
+    """Write the selected cases as ``.npz`` files and ``manifest.json`` into ``args.dir``."""
+    cases = _selected_cases(args)
+    manifest = export(args.dir, cases)
+    print(f"wrote {len(cases)} cases to {args.dir} (index: {manifest.name})")
+    return 0
+
+
+def cmd_check(args):
+    """Check a backend against the reference; print the table; exit status 0 if every case passed, else 1."""
+    report = check(args.backend, _selected_cases(args), rtol=args.rtol)
+    print(report.table(verbose=args.verbose))
+    return 0 if report.passed else 1
+
+
+def add_parser(subparsers):
+    """Add the ``conformance`` command with its ``export`` and ``check`` subcommands to ``subparsers``."""
+    parser = subparsers.add_parser("conformance", help="check a backend stage by stage against the NumPy "
+                                   "reference, or export the test vectors for code in another language")
+    actions = parser.add_subparsers(dest="conformance_command", required=True)
+    export_parser = actions.add_parser("export", help="write one .npz per case and stage plus manifest.json")
+    export_parser.add_argument("dir", type=Path, help="output folder (created if missing)")
+    _add_selection(export_parser)
+    export_parser.set_defaults(func=cmd_export)
+    check_parser = actions.add_parser("check", help="run a backend on every case and print the error table")
+    check_parser.add_argument("--backend", required=True, choices=BACKENDS, help="backend to check")
+    check_parser.add_argument("--rtol", type=float, default=None,
+                              help="pass threshold on the relative error (default: "
+                              + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")
+    check_parser.add_argument("--verbose", action="store_true", help="list every case, not only the failed ones")
+    _add_selection(check_parser)
+    check_parser.set_defaults(func=cmd_check)
+    return parser

@@ -1,0 +1,201 @@
+"""Run a candidate backend on the conformance cases and compare each stage with the NumPy reference."""
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import partial
+
+import numpy as np
+
+from ..backends import make_backend
+from .cases import make_cases
+from .stages import STAGES, run_stage
+
+
+def relative_error(candidate, reference):
+    r"""Relative error of one output array: :math:`\max|a - r| / \max|r|`.
+
+    The maxima run over every entry of the array. Where the reference is all zero the denominator is 1,
+    so the error is :math:`\max|a|`. A shape mismatch or a non-finite difference counts as ``inf``.
+    """
+    a, r = np.asarray(candidate), np.asarray(reference)
+    if a.shape != r.shape:
+        return math.inf
+    diff = float(np.max(np.abs(a.astype(np.float64) - r.astype(np.float64)), initial=0.0))
+    scale = float(np.max(np.abs(r.astype(np.float64)), initial=0.0))
+    error = diff / scale if scale > 0.0 else diff
+    return error if math.isfinite(error) else math.inf
+
+
+def compare_outputs(got, expected):
+    """Per-output relative errors of ``got`` against ``expected`` and a note on missing or misshapen outputs."""
+    errors, problems = {}, []
+    for name, ref in expected.items():
+        value = got.get(name)
+        if value is None:
+            errors[name] = math.inf
+            problems.append(f"no output {name}")
+            continue
+        errors[name] = relative_error(value, ref)
+        if np.shape(value) != np.shape(ref):
+            problems.append(f"{name} has shape {np.shape(value)}, expected {np.shape(ref)}")
+    return errors, "; ".join(problems)
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    """The outcome of one case: the relative error of each output, the threshold and any problem met.
+
+    ``error`` is the largest output error (``inf`` when no output could be compared, e.g. the candidate
+    raised); the case passes when ``error <= rtol``.
+    """
+
+    case: object
+    errors: dict
+    rtol: float
+    note: str = ""
+
+    @property
+    def error(self):
+        return max(self.errors.values(), default=math.inf)
+
+    @property
+    def worst_output(self):
+        return max(self.errors, key=self.errors.get, default="")
+
+    @property
+    def passed(self):
+        return self.error <= self.rtol
+
+
+@dataclass
+class Report:
+    """Results of :func:`check`: one :class:`CaseResult` per case run, and the cases whose stage the
+    candidate does not provide (``skipped``)."""
+
+    results: list
+    skipped: list = field(default_factory=list)
+
+    @property
+    def passed(self):
+        """True when at least one case ran and every case that ran passed."""
+        return bool(self.results) and all(r.passed for r in self.results)
+
+    def failures(self):
+        return [r for r in self.results if not r.passed]
+
+    def failed_stages(self):
+        return {r.case.stage for r in self.failures()}
+
+    def worst(self):
+        """The result furthest from passing (largest ``error / rtol``), or ``None`` if nothing ran."""
+        return max(self.results, key=lambda r: r.error / r.rtol, default=None)
+
+    def stage_summary(self):
+        """Per stage that ran: ``{stage: (cases, failed, worst CaseResult)}`` in stage order."""
+        summary = {}
+        for stage in STAGES:
+            rows = [r for r in self.results if r.case.stage == stage]
+            if rows:
+                worst = max(rows, key=lambda r: r.error / r.rtol)
+                summary[stage] = (len(rows), sum(not r.passed for r in rows), worst)
+        return summary
+
+    def table(self, verbose=False):
+        """A readable text table: one line per stage, then the failed cases (every case if ``verbose``)."""
+        lines = [f"{'stage':<12} {'cases':>5} {'failed':>6} {'max rel. error':>14} {'rtol':>8}  worst case (output)"]
+        for stage, (count, failed, worst) in self.stage_summary().items():
+            lines.append(f"{stage:<12} {count:>5} {failed:>6} {worst.error:>14.3e} {worst.rtol:>8.0e}  "
+                         f"{worst.case.name} ({worst.worst_output})")
+        skipped = sorted({c.stage for c in self.skipped}, key=STAGES.index)
+        if skipped:
+            lines.append(f"not provided by the candidate (skipped): {', '.join(skipped)}")
+        rows = self.results if verbose else self.failures()
+        if rows:
+            lines.append("" if verbose else "failed cases:")
+            lines += [_case_line(r) for r in rows]
+        lines.append(f"{'PASSED' if self.passed else 'FAILED'}: {len(self.results) - len(self.failures())} of "
+                     f"{len(self.results)} cases within tolerance")
+        return "\n".join(lines)
+
+
+def _case_line(result):
+    status = "ok  " if result.passed else "FAIL"
+    note = f"  {result.note}" if result.note else ""
+    return f"  {status} {result.case.name:<40} {result.worst_output:<14} {result.error:.3e}{note}"
+
+
+# ------------------------------------------------------------------------------------------ candidates
+def _check_stage_names(mapping):
+    unknown = sorted(set(mapping) - set(STAGES))
+    if unknown:
+        raise TypeError(f"unknown stage names {unknown}: the stages are {list(STAGES)}")
+
+
+def _stage_callables(stages):
+    """``{stage: callable}`` of an object with stage methods or of a mapping of stage names to callables."""
+    if isinstance(stages, Mapping):
+        _check_stage_names(stages)
+        return dict(stages)
+    return {s: getattr(stages, s) for s in STAGES if callable(getattr(stages, s, None))}
+
+
+def stage_functions(candidate, scene):
+    """The candidate's stage callables for ``scene`` as ``{stage: callable}`` (see :mod:`mpmref.conformance`).
+
+    ``candidate`` is a backend name of :data:`mpmref.backends.BACKENDS`; a mapping of stage names to
+    callables that take the scene first; or a factory ``factory(scene)`` returning an object with stage
+    methods or a mapping of stage names to callables.
+    """
+    if isinstance(candidate, str):
+        return _stage_callables(make_backend(candidate, scene))
+    if isinstance(candidate, Mapping):
+        _check_stage_names(candidate)
+        return {stage: partial(fn, scene) for stage, fn in candidate.items()}
+    if callable(candidate):
+        return _stage_callables(candidate(scene))
+    raise TypeError(f"a candidate is a backend name, a mapping of stage callables or a factory(scene); "
+                    f"got {type(candidate).__name__}")
+
+
+def _run_case(fn, case, rtol):
+    inputs = case.inputs()
+    expected = case.reference(inputs)
+    try:
+        got = run_stage(case.stage, fn, inputs)
+    except Exception as exc:  # a candidate that raises is a failed case to report, not a crash of the harness
+        return CaseResult(case, {}, rtol, note=f"raised {type(exc).__name__}: {exc}")
+    errors, note = compare_outputs(got, expected)
+    return CaseResult(case, errors, rtol, note)
+
+
+def check(candidate, cases=None, rtol=None):
+    """Run ``candidate`` on ``cases`` (default: every float64 case) and compare each stage with the reference.
+
+    Parameters
+    ----------
+    candidate : str, mapping or callable
+        What to check; see :func:`stage_functions`. A factory is called once per distinct scene.
+    cases : iterable of :class:`~mpmref.conformance.cases.Case`, optional
+        Default :func:`~mpmref.conformance.cases.make_cases` ``()``.
+    rtol : float, optional
+        Pass threshold on each case's relative error (:func:`relative_error`, largest over its outputs).
+        Default: each case's own ``rtol``, 1e-12 in float64.
+
+    Returns
+    -------
+    Report
+    """
+    cases = make_cases() if cases is None else list(cases)
+    built, results, skipped = {}, [], []
+    for case in cases:
+        key = json.dumps(case.scene_dict, sort_keys=True)
+        if key not in built:
+            built[key] = stage_functions(candidate, case.scene())
+        fn = built[key].get(case.stage)
+        if fn is None:
+            skipped.append(case)
+        else:
+            results.append(_run_case(fn, case, case.rtol if rtol is None else rtol))
+    return Report(results, skipped)

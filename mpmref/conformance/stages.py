@@ -1,0 +1,73 @@
+"""The six stages a backend exposes, with their inputs and outputs as flat dicts of named arrays.
+
+A flat dict (``{"x": ..., "grid_mass": ..., "dt": ...}``) is the one form of a case's data: ``check``
+turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState` to call a stage, and
+``export`` writes it as the ``in_`` / ``out_`` arrays of a ``.npz`` file. Names:
+
+* particles: ``x (n,d)``, ``v (n,d)``, ``mass (n,)``, ``vol0 (n,)``, ``material (n,) int32`` and, where the
+  scene needs them, ``C (n,d,d)``, ``F (n,d,d)``, ``J (n,)``, ``Jp (n,)``, ``modes (n,M,d)``;
+* grid nodes (C order, see :mod:`mpmref.conformance`): ``grid_mass (N,)``, ``grid_momentum (N,d)``,
+  ``grid_force (N,d)``, ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
+* scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``.
+"""
+
+import numpy as np
+
+from ..state import GridState, Particles
+
+STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
+PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
+#: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
+EVOLVING_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
+
+
+def particles_from(flat):
+    """A fresh :class:`~mpmref.state.Particles` (copied arrays) from the particle entries of ``flat``."""
+    return Particles(**{k: np.array(flat[k]) for k in PARTICLE_FIELDS if k in flat})
+
+
+def particle_outputs(particles):
+    """The evolving fields of ``particles`` that are allocated, as a flat dict."""
+    return {k: getattr(particles, k) for k in EVOLVING_FIELDS if getattr(particles, k) is not None}
+
+
+def _stress(fn, flat):
+    return {"tau": fn(particles_from(flat))}
+
+
+def _particle_stage(fn, flat):
+    return particle_outputs(fn(particles_from(flat)))
+
+
+def _p2g(fn, flat):
+    gs = fn(particles_from(flat))
+    return {"grid_mass": gs.mass, "grid_momentum": gs.momentum, "grid_force": gs.force}
+
+
+def _grid_update(fn, flat):
+    gs = GridState(mass=np.array(flat["grid_mass"]), momentum=np.array(flat["grid_momentum"]),
+                   force=np.array(flat["grid_force"]))
+    v, v_tilde = fn(gs, float(flat["dt"]), float(flat["time"]))
+    return {"grid_v": v, "grid_v_tilde": v_tilde}
+
+
+def _g2p(fn, flat):
+    p = fn(particles_from(flat), np.array(flat["grid_v"]), np.array(flat["grid_v_tilde"]), float(flat["dt"]))
+    return particle_outputs(p)
+
+
+def _step(fn, flat):
+    return particle_outputs(fn(particles_from(flat), float(flat["dt"]), float(flat["time"])))
+
+
+_CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "grid_update": _grid_update,
+            "g2p": _g2p, "step": _step}
+
+
+def run_stage(stage, fn, flat):
+    """Call the stage function ``fn`` on copies of the inputs ``flat``; return its outputs as a flat dict.
+
+    ``fn`` has the backend signature of ``stage`` (see :mod:`mpmref.conformance`); the inputs are copied,
+    so a stage that writes into its arguments cannot change the case.
+    """
+    return _CALLERS[stage](fn, flat)

@@ -1,0 +1,115 @@
+"""Export the conformance cases as language-neutral test vectors: one ``.npz`` per case plus ``manifest.json``.
+
+Each ``.npz`` (uncompressed, no pickled objects) holds flat named arrays: the stage's inputs prefixed ``in_``
+and the reference's outputs prefixed ``out_`` (names of :mod:`mpmref.conformance.stages`; scalars as 0-d
+arrays). ``manifest.json`` describes every case: its file, stage, dtype, tolerance, array shapes, the scene as
+declared and as resolved (defaults filled in, Lamé parameters, wall table, PolyPIC mode order), and the
+conventions below. It is written last, so a folder with a manifest is complete. See ``docs/conformance.md``.
+"""
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_path, write_text_atomic
+from ..physics.polypic import higher_modes
+from .cases import make_cases
+
+FORMAT = "mpmref-conformance"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+CONVENTIONS = {
+    "nodes": "grid arrays have one row per node in C order: node (i_0, ..., i_{d-1}), 0 <= i_a <= cells_a, "
+             "is row sum_a i_a * stride_a with stride_a = prod_{b > a} (cells_b + 1); it sits at origin + i * dx",
+    "particles": "particle arrays have one row per particle, in the same order in inputs and outputs",
+    "material": "in_material is an index into resolved.materials",
+    "modes": "axis 1 of in_modes / out_modes follows resolved.polypic_modes (per-axis polynomial degrees)",
+    "error": "max|candidate - reference| / max|reference| over every entry of an output array (denominator 1 "
+             "where the reference is all zero); a case passes when its largest output error is <= rtol",
+}
+
+
+def _jsonable(value):
+    """``value`` with NumPy arrays and scalars turned into lists and Python numbers (recursively)."""
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    return value
+
+
+def _material_entry(name, declared, material):
+    lame = {"mu": material.mu, "lam": material.lam} if hasattr(material, "mu") else {}
+    return {"name": name, "type": declared["type"], **asdict(material), **lame}
+
+
+def _collider_entry(collider):
+    """A collider as a flat table: its shape's class name and parameters, type, friction and velocity."""
+    return {"shape": type(collider.shape).__name__.lower(), **_jsonable(asdict(collider.shape)),
+            "type": collider.type, "friction": collider.friction, "velocity": collider.velocity.tolist()}
+
+
+def resolved_scene(case):
+    """What an implementation needs of ``case``'s scene, every default filled in (JSON-serialisable)."""
+    scene = case.scene()
+    grid, kernel = scene.grid, scene.kernel
+    declared = case.scene_dict["materials"]
+    return {
+        "grid": {"origin": grid.origin.tolist(), "dx": grid.dx, "cells": list(grid.cells),
+                 "node_shape": list(grid.node_shape), "n_nodes": grid.n_nodes},
+        "method": asdict(scene.method),
+        "kernel": {"name": kernel.name, "support": kernel.support, "inertia_factor": kernel.inertia_factor},
+        "materials": [_material_entry(name, declared[name], m) for name, m in scene.materials.items()],
+        "gravity": scene.gravity.tolist(),
+        "boundary": {"width": scene.boundary.width,
+                     "walls": {name: asdict(w) for name, w in scene.boundary.walls.items()}},
+        "colliders": [_collider_entry(c) for c in scene.colliders],
+        "polypic_modes": higher_modes(scene.dim, kernel.support).tolist() if scene.method.polypic else None,
+    }
+
+
+def _write_npz(path, arrays):
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+
+def write_case(out_dir, case):
+    """Write ``case``'s inputs and reference outputs to ``out_dir/<name>.npz``; return its manifest entry."""
+    inputs = case.inputs()
+    outputs = case.reference(inputs)
+    arrays = {**{f"in_{k}": np.asarray(a) for k, a in inputs.items()},
+              **{f"out_{k}": np.asarray(a) for k, a in outputs.items()}}
+    file = f"{case.name}.npz"
+    _write_npz(Path(out_dir) / file, arrays)
+    return {"name": case.name, "file": file, "stage": case.stage, "dim": case.dim, "dtype": case.dtype,
+            "rtol": case.rtol, "seed": case.seed,
+            "arrays": {k: {"shape": list(a.shape), "dtype": a.dtype.name} for k, a in arrays.items()},
+            "scene": case.scene_dict, "resolved": resolved_scene(case)}
+
+
+def export(out_dir, cases=None):
+    """Write every case (default: all float64 cases) to ``out_dir`` as ``.npz`` files and ``manifest.json``.
+
+    Every file is written atomically (temporary name, then rename); the manifest comes last. Returns the
+    path of the manifest.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cases = make_cases() if cases is None else list(cases)
+    manifest = {"format": FORMAT, "version": FORMAT_VERSION, "conventions": CONVENTIONS,
+                "cases": [write_case(out_dir, case) for case in cases]}
+    write_text_atomic(out_dir / MANIFEST, json.dumps(manifest, indent=1))
+    return out_dir / MANIFEST
+
+
+def load_vectors(path):
+    """Read one exported case: ``(inputs, outputs)``, two flat dicts with the ``in_`` / ``out_`` prefixes removed."""
+    with np.load(path, allow_pickle=False) as data:
+        inputs = {k[len("in_"):]: data[k] for k in data.files if k.startswith("in_")}
+        outputs = {k[len("out_"):]: data[k] for k in data.files if k.startswith("out_")}
+    return inputs, outputs

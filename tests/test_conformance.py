@@ -1,0 +1,282 @@
+"""The conformance harness (mpmref.conformance): its cases cover every combination, every backend passes it,
+it catches a broken backend at the stage that is broken, and its exported vectors are the reference's."""
+
+import argparse
+import json
+import math
+
+import numpy as np
+import pytest
+
+from helpers import valid_methods
+from mpmref.backends import BACKENDS
+from mpmref.backends.numpy import NumpyBackend
+from mpmref.conformance import (STAGES, Case, add_parser, check, export, load_vectors, make_cases,
+                                relative_error)
+from mpmref.conformance.cases import DEFAULT_RTOL, EDGE_CELLS, MIN_WEIGHT
+from mpmref.physics.kernels import compute_stencil
+from mpmref.scene import COLLIDER_SHAPES, MATERIAL_TYPES, WALL_TYPES, Scene
+from mpmref.state import GridState
+
+ALL_CASES = make_cases()
+PLANE_CASES = make_cases(dims=(2,))  # enough to locate a broken stage, at half the cost
+AFFINE_SCHEMES = ("apic", "polypic", "mls")
+
+
+def cases_of(stage, cases=ALL_CASES):
+    return [c for c in cases if c.stage == stage]
+
+
+# -------------------------------------------------------------------------------------------- the cases
+def test_cases_cover_every_valid_combination():
+    """Transfers and steps: all 20 valid methods per dimension; stress and steps: every material type;
+    grid update: every wall type and every collider shape (2D has no cylinder)."""
+    methods = sorted(f"{m['scheme']}-{m['force']}-{m['kernel']}" for m in valid_methods())
+    assert len(methods) == 20
+    for dim in (2, 3):
+        for stage in ("p2g", "g2p", "step"):
+            variants = {c.variant for c in cases_of(stage) if c.dim == dim}
+            assert set(methods) <= variants, (stage, dim)
+        for stage in ("stress", "step"):
+            types = {m["type"] for c in cases_of(stage) if c.dim == dim for m in c.scene_dict["materials"].values()}
+            assert types == set(MATERIAL_TYPES)
+        scenes = [c.scene() for c in cases_of("grid_update") if c.dim == dim]
+        assert {w.type for s in scenes for w in s.boundary.walls.values()} == set(WALL_TYPES)
+        shapes = {type(k.shape).__name__ for s in scenes for k in s.colliders}
+        assert len(shapes) == len(COLLIDER_SHAPES) - 1 - (dim == 2)  # disk and sphere are one class
+    assert {c.stage for c in ALL_CASES} == set(STAGES)
+    assert len({c.name for c in ALL_CASES}) == len(ALL_CASES) == 162
+
+
+def test_states_are_seeded_and_physically_sensible():
+    for case in ALL_CASES:
+        first, again = case.inputs(), case.inputs()
+        assert first.keys() == again.keys() and all(np.array_equal(first[k], again[k]) for k in first)
+        if "x" not in first:
+            assert (first["grid_mass"] == 0).any() and (first["grid_mass"] > 0).any()
+            continue
+        scene = case.scene()
+        grid = scene.grid
+        cells = (first["x"] - grid.origin) / grid.dx
+        assert cells.min() >= EDGE_CELLS and cells.max() <= grid.cells[0] - EDGE_CELLS
+        assert compute_stencil(scene.kernel, first["x"], grid.origin, grid.dx).w.min() >= MIN_WEIGHT
+        assert np.all(first["mass"] > 0) and np.all(first["vol0"] > 0)
+        if "F" in first:
+            assert np.linalg.det(first["F"]).min() > 0.3
+        for key in ("J", "Jp"):
+            if key in first:
+                assert 0.5 < first[key].min() and first[key].max() < 1.5
+
+
+def test_reference_is_well_conditioned_on_the_cases(rng):
+    """A 1e-15 relative change of every input moves every reference output by < 1e-13: a correct backend,
+    rounding differently, can meet rtol = 1e-12 (this failed by 2.5e-7 before ``MIN_WEIGHT``)."""
+    for case in ALL_CASES:
+        inputs = case.inputs()
+        nudged = {k: a * (1.0 + 1e-15 * rng.standard_normal(a.shape)) if a.ndim and a.dtype.kind == "f" else a
+                  for k, a in inputs.items()}
+        reference, moved = case.reference(inputs), case.reference(nudged)
+        for name, ref in reference.items():
+            assert relative_error(moved[name], ref) < 1e-13, (case.name, name)
+
+
+def test_float32_reference_is_within_a_tenth_of_its_tolerance_of_float64():
+    """The float32 threshold leaves ten times the float32 reference's own error for the candidate."""
+    for case in make_cases(dtype="float32"):
+        wide = Case(case.stage, case.dim, case.variant, {**case.scene_dict, "dtype": "float64"})
+        inputs = case.inputs()
+        exact = wide.reference({k: a.astype(np.float64) if a.dtype == np.float32 else a for k, a in inputs.items()})
+        for name, value in case.reference(inputs).items():
+            assert value.dtype == np.float32
+            assert relative_error(value, exact[name]) < DEFAULT_RTOL["float32"] / 10, (case.name, name)
+
+
+def test_relative_error_definition():
+    ref = np.array([[1.0, -4.0], [2.0, 0.0]])
+    assert relative_error(ref + np.array([[0.0, 0.0], [0.0, 2e-3]]), ref) == pytest.approx(5e-4)
+    assert relative_error(np.array([0.0, 3e-7]), np.zeros(2)) == pytest.approx(3e-7)  # all-zero reference: absolute
+    assert relative_error(ref[:1], ref) == math.inf
+    assert relative_error(np.where(ref == 0.0, np.nan, ref), ref) == math.inf
+    assert relative_error(ref.astype(np.float32), ref) == 0.0
+
+
+# ---------------------------------------------------------------------------------------- the candidates
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_every_backend_conforms_at_1e_12(backend):
+    """Adding a name to mpmref.backends.BACKENDS is all it takes to check a backend here; the reference
+    itself reproduces its outputs exactly."""
+    report = check(backend, ALL_CASES, rtol=1e-12)
+    assert report.passed, report.table()
+    assert not report.skipped and len(report.results) == len(ALL_CASES)
+    if backend == "numpy":
+        assert report.worst().error == 0.0
+
+
+class PerturbedStress(NumpyBackend):
+    """The reference with every Kirchhoff stress 1e-9 too large (P2G and step use it too)."""
+
+    def stress(self, particles):
+        return super().stress(particles) * (1.0 + 1e-9)
+
+
+class AffineFreeP2G(NumpyBackend):
+    """The reference whose P2G drops APIC's affine momentum C_p (x_i - x_p) (step uses it too)."""
+
+    def p2g(self, particles, prepared=None):
+        if particles.C is not None:
+            particles = particles.with_(C=np.zeros_like(particles.C))
+        return super().p2g(particles, prepared)
+
+
+def test_perturbed_stress_fails_exactly_the_stages_that_use_the_stress():
+    report = check(PerturbedStress, PLANE_CASES)
+    assert report.failed_stages() == {"stress", "p2g", "step"}
+    assert len(report.failures()) == sum(len(cases_of(s, PLANE_CASES)) for s in ("stress", "p2g", "step"))
+    assert all(r.error == pytest.approx(1e-9, rel=1e-3) for r in report.results if r.case.stage == "stress")
+    assert "FAILED" in report.table()
+
+
+def test_dropping_the_affine_p2g_term_fails_only_affine_p2g_and_steps():
+    report = check(AffineFreeP2G, PLANE_CASES)
+    assert report.failed_stages() == {"p2g", "step"}
+    failed = {r.case.name for r in report.failures() if r.case.stage == "p2g"}
+    assert failed == {c.name for c in cases_of("p2g", PLANE_CASES) if c.variant.split("-")[0] in AFFINE_SCHEMES}
+    assert report.worst().worst_output in ("grid_momentum", "x", "v", "C", "F", "J", "modes")
+
+
+def test_mapping_candidate_skips_missing_stages_and_reports_exceptions():
+    def broken_p2g(scene, particles):
+        raise RuntimeError("not implemented for this scene")
+
+    candidate = {"stress": lambda scene, particles: NumpyBackend(scene).stress(particles), "p2g": broken_p2g}
+    report = check(candidate, ALL_CASES)
+    assert {c.stage for c in report.skipped} == set(STAGES) - {"stress", "p2g"}
+    assert all(r.passed for r in report.results if r.case.stage == "stress")
+    assert report.failed_stages() == {"p2g"}
+    assert all("RuntimeError: not implemented" in r.note for r in report.failures())
+    assert not report.passed and "skipped" in report.table()
+
+
+def test_factory_returning_a_mapping_and_missing_outputs():
+    """A factory may return a dict of stage callables; a G2P that forgets C fails with a note naming it."""
+    def factory(scene):
+        backend = NumpyBackend(scene)
+        return {"g2p": lambda *args: backend.g2p(*args).with_(C=None)}
+
+    report = check(factory, cases_of("g2p"))
+    affine = {c.name for c in cases_of("g2p") if c.variant.split("-")[0] in AFFINE_SCHEMES}
+    assert {r.case.name for r in report.failures()} == affine
+    assert all("no output C" in r.note for r in report.failures())
+
+
+def test_invalid_candidates_and_names_are_refused():
+    with pytest.raises(TypeError, match="factory"):
+        check(42, cases_of("stress")[:1])
+    with pytest.raises(TypeError, match="P2G"):
+        check({"P2G": print}, cases_of("stress")[:1])
+    with pytest.raises(ValueError, match="p2q"):
+        make_cases(stages=("p2q",))
+
+
+# ------------------------------------------------------------------------------------------- the export
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("vectors")
+    export(folder, ALL_CASES)
+    return folder
+
+
+def test_export_writes_the_inputs_and_a_complete_manifest(exported):
+    """The files hold each case's inputs and describe themselves; that their outputs are the reference's is
+    shown by the replay candidate below, which passes at zero error."""
+    manifest = json.loads((exported / "manifest.json").read_text())
+    assert manifest["format"] == "mpmref-conformance" and manifest["version"] == 1
+    assert {"nodes", "particles", "material", "modes", "error"} <= set(manifest["conventions"])
+    entries = {e["name"]: e for e in manifest["cases"]}
+    files = [e["file"] for e in entries.values()] + ["manifest.json"]
+    assert sorted(p.name for p in exported.iterdir()) == sorted(files)  # no temporary files left
+    for case in ALL_CASES:
+        entry = entries[case.name]
+        inputs, outputs = load_vectors(exported / entry["file"])
+        expected = case.inputs()
+        assert inputs.keys() == expected.keys() and all(np.array_equal(inputs[k], expected[k]) for k in inputs)
+        assert all(inputs[k].dtype == expected[k].dtype for k in inputs)
+        shapes = {**{f"in_{k}": a.shape for k, a in inputs.items()},
+                  **{f"out_{k}": a.shape for k, a in outputs.items()}}
+        assert {k: tuple(v["shape"]) for k, v in entry["arrays"].items()} == shapes
+        assert entry["stage"] == case.stage and entry["rtol"] == 1e-12
+        assert Scene.from_dict(entry["scene"]).dim == case.dim
+        n_nodes = entry["resolved"]["grid"]["n_nodes"]
+        assert n_nodes == (case.scene_dict["grid"]["cells"] + 1) ** case.dim
+        for name, array in {**inputs, **outputs}.items():
+            if name.startswith("grid_"):
+                assert array.shape[0] == n_nodes
+        if "modes" in inputs:
+            assert len(entry["resolved"]["polypic_modes"]) == inputs["modes"].shape[1]
+        if case.variant == "colliders":
+            shapes = {c["shape"] for c in entry["resolved"]["colliders"]}
+            assert shapes == {"plane", "ball", "box"} | ({"cylinder"} if case.dim == 3 else set())
+
+
+def replay_candidate(folder):
+    """A candidate that knows nothing but the exported files: each stage finds the case whose inputs are
+    its arguments (by stage and the bytes of the positions, or of the grid masses) and returns the stored
+    outputs."""
+    stored = {}
+    for entry in json.loads((folder / "manifest.json").read_text())["cases"]:
+        inputs, outputs = load_vectors(folder / entry["file"])
+        key = inputs["grid_mass"] if entry["stage"] == "grid_update" else inputs["x"]
+        stored[entry["stage"], key.tobytes()] = outputs
+
+    def out(stage, key):
+        return stored[stage, key.tobytes()]
+
+    def evolved(stage, particles):
+        return particles.with_(**out(stage, particles.x))
+
+    return {
+        "stress": lambda scene, p: out("stress", p.x)["tau"],
+        "return_map": lambda scene, p: evolved("return_map", p),
+        "p2g": lambda scene, p: GridState(**{k[5:]: v for k, v in out("p2g", p.x).items()}),
+        "grid_update": lambda scene, gs, dt, time: (out("grid_update", gs.mass)["grid_v"],
+                                                    out("grid_update", gs.mass)["grid_v_tilde"]),
+        "g2p": lambda scene, p, v, v_tilde, dt: evolved("g2p", p),
+        "step": lambda scene, p, dt, time: evolved("step", p),
+    }
+
+
+def test_a_candidate_built_from_the_exported_vectors_alone_passes(exported):
+    """Zero error on every case: the stored outputs are bit for bit the reference's on the same inputs."""
+    report = check(replay_candidate(exported), ALL_CASES)
+    assert report.passed and not report.skipped and len(report.results) == len(ALL_CASES)
+    assert report.worst().error == 0.0
+
+
+# ----------------------------------------------------------------------------------------------- the CLI
+def cli(argv):
+    parser = argparse.ArgumentParser(prog="mpmref")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_cli_check_prints_the_table_and_exits_0_or_1(capsys, monkeypatch):
+    assert cli(["conformance", "check", "--backend", "numpy", "--dim", "2", "--stage", "stress"]) == 0
+    out = capsys.readouterr().out
+    assert "PASSED: 6 of 6" in out and "stress-2d" in out
+    monkeypatch.setattr("mpmref.conformance.report.make_backend", lambda name, scene: PerturbedStress(scene))
+    assert cli(["conformance", "check", "--backend", "numpy", "--dim", "3", "--stage", "stress", "grid_update"]) == 1
+    out = capsys.readouterr().out
+    assert "FAILED: 6 of 12" in out and "stress-3d-snow" in out
+
+
+def test_cli_export_selects_dimension_stage_and_dtype(tmp_path, capsys):
+    assert cli(["conformance", "export", str(tmp_path / "v"), "--dim", "3", "--stage", "grid_update",
+                "--dtype", "float32"]) == 0
+    assert "wrote 6 cases" in capsys.readouterr().out
+    entries = json.loads((tmp_path / "v" / "manifest.json").read_text())["cases"]
+    assert len(entries) == 6
+    assert all(e["dim"] == 3 and e["stage"] == "grid_update" and e["name"].endswith("-f32") for e in entries)
+    assert all(e["rtol"] == DEFAULT_RTOL["float32"] for e in entries)
+    inputs, outputs = load_vectors(tmp_path / "v" / entries[0]["file"])
+    assert inputs["grid_mass"].dtype == np.float32 and outputs["grid_v"].dtype == np.float32
