@@ -1,0 +1,217 @@
+"""``mpmref bench``: Table 2 (P2G/G2P of MPM and MLS-MPM), whole-step throughput and a Taichi peer.
+
+Every figure is the median of ``repeats`` timed calls; the first call with each setting (which
+includes Numba's or Taichi's JIT compilation) is reported apart as ``first_call_s``. Results go to a
+JSON document (schema :data:`SCHEMA`, written atomically with ``--json``) and to readable tables.
+See ``docs/performance.md``.
+
+Sections of the JSON document (each ``null`` when not run):
+
+* ``table2``: ``setup``; ``timings`` (backend, threads, dtype, method ``mpm``/``mls``, stage
+  ``prepare``/``p2g``/``g2p``, ``first_call_s``, ``times_s``, ``median_s``); ``ratios`` (MPM over
+  MLS-MPM for ``p2g`` and ``g2p``); ``memory`` (:mod:`mpmref.bench.memory`).
+* ``throughput``: ``cases`` (case, dim, cells, particles, dt, steps) and ``results`` (case, backend,
+  threads, dtype, timing, ``particle_steps_per_s``, ``vs_numpy``).
+* ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``
+  (case, particles, threads, backend, ``mpmref`` and ``taichi`` timings, ``ratio``,
+  ``mean_position_difference``, ``bound``, ``free_flight``, ``agree``; :mod:`mpmref.bench.peer`).
+"""
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+from dataclasses import asdict, dataclass
+from importlib import metadata
+
+from ..backends import BACKENDS
+from ..io.atomic import write_text_atomic
+from .peer import run_peer
+from .report import RENDERERS
+from .scenes import peer_cases, table2_cells, throughput_cases
+from .table2 import run_table2
+from .throughput import run_throughput
+from .timing import check_threads
+
+SCHEMA = "mpmref-bench/1"
+DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
+               "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
+               "compilation is reported apart. See docs/performance.md.")
+SECTIONS = ("table2", "throughput", "peer")
+DEFAULT_PARTICLES = 1_000_000
+QUICK_PARTICLES = 4096
+FULL_CELLS = 100
+DTYPE_NAMES = {"f32": "float32", "f64": "float64", "float32": "float32", "float64": "float64"}
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """What ``mpmref bench`` runs.
+
+    Attributes
+    ----------
+    size : int            Table-2 particle count, rounded to ``8 n**3`` (``n`` cells per side)
+    full : bool           Table 2 at the paper's 100**3 cells (8 M particles), overriding ``size``
+    threads : tuple       thread counts (Numba and the peer; NumPy always runs on one)
+    dtypes : tuple        ``"float32"`` and/or ``"float64"``
+    backends : tuple      mpmref backends to time
+    sections : tuple      which of :data:`SECTIONS` to run
+    repeats : int         timed repeats per figure (the median is reported)
+    steps : int           steps per timed repeat in the throughput section
+    peer_steps : int      steps per timed repeat in the peer section
+    quick : bool          tiny throughput and peer cases (a smoke test: the figures mean nothing)
+    memory : bool         run the Table-2 peak-memory probe
+    """
+
+    size: int = DEFAULT_PARTICLES
+    full: bool = False
+    threads: tuple = (1, 2)
+    dtypes: tuple = ("float32", "float64")
+    backends: tuple = BACKENDS
+    sections: tuple = ("table2", "throughput")
+    repeats: int = 3
+    steps: int = 10
+    peer_steps: int = 100
+    quick: bool = False
+    memory: bool = True
+
+    @property
+    def table2_cells(self):
+        return FULL_CELLS if self.full else table2_cells(self.size)
+
+
+def _to_stderr(message):
+    print(message, file=sys.stderr, flush=True)
+
+
+def run_bench(options, log=print, progress=_to_stderr):
+    """Run the selected sections and return the JSON dict.
+
+    Each section's table goes to ``log`` as soon as it is complete; one line per measurement being
+    started goes to ``progress`` (standard error by default).
+    """
+    check_threads(options.backends, options.threads)
+    results = {"schema": SCHEMA, "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+               "environment": environment(), "options": asdict(options), **{name: None for name in SECTIONS}}
+    for name in options.sections:
+        results[name] = SECTION_RUNNERS[name](options, progress)
+        log(RENDERERS[name](results[name]) + "\n")
+    return results
+
+
+def _table2(o, log):
+    return run_table2(o.table2_cells, o.backends, o.threads, o.dtypes, o.repeats, o.memory, log)
+
+
+def _throughput(o, log):
+    return run_throughput(throughput_cases(o.quick), o.backends, o.threads, o.dtypes, o.repeats, o.steps, log)
+
+
+def _peer(o, log):
+    return run_peer(peer_cases(o.quick), o.backends, o.threads, o.repeats, o.peer_steps, log)
+
+
+SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "peer": _peer}
+
+
+def environment():
+    """Versions and machine facts that the figures depend on."""
+    versions = {}
+    for package in ("numpy", "numba", "taichi"):
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            versions[package] = None
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    return {"python": platform.python_version(), "platform": platform.platform(), "cpu": cpu_model(),
+            "cpu_count": os.cpu_count(), "usable_cpus": usable, **versions}
+
+
+def cpu_model():
+    """The CPU's model name from ``/proc/cpuinfo`` (Linux), else what :func:`platform.processor` says."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
+def write_json(results, path):
+    """Write the results as JSON atomically (temporary file, then rename)."""
+    write_text_atomic(path, json.dumps(results, indent=2) + "\n")
+
+
+# ------------------------------------------------------------------------------------ command line
+def _positive(text):
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not a positive integer")
+    return value
+
+
+def _thread_list(text):
+    return tuple(_positive(part) for part in text.split(","))
+
+
+def _dtype_list(text):
+    names = [part.strip() for part in text.split(",")]
+    unknown = [n for n in names if n not in DTYPE_NAMES]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown dtype(s) {unknown}; use f32, f64 or f32,f64")
+    return tuple(DTYPE_NAMES[n] for n in names)
+
+
+def _backend_list(text):
+    names = tuple(part.strip() for part in text.split(","))
+    unknown = [n for n in names if n not in BACKENDS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown backend(s) {unknown}; available: {list(BACKENDS)}")
+    return names
+
+
+def add_parser(subparsers):
+    """Add the ``bench`` subcommand to an argparse ``subparsers`` object (sets ``func``)."""
+    p = subparsers.add_parser("bench", help="time Table 2 (P2G/G2P), whole-step throughput and a Taichi peer",
+                              description=DESCRIPTION)
+    p.add_argument("--size", type=_positive, help=f"Table-2 particles (default {DEFAULT_PARTICLES:,}; "
+                   f"{QUICK_PARTICLES} with --quick), rounded to 8 n^3")
+    p.add_argument("--full", action="store_true", help="Table 2 at the paper's 100^3 cells (8 M particles)")
+    p.add_argument("--threads", type=_thread_list, default=(1, 2), help="thread counts, e.g. 1,2 (default)")
+    p.add_argument("--dtype", type=_dtype_list, default=("float32", "float64"), help="f32, f64 or f32,f64 (default)")
+    p.add_argument("--backends", type=_backend_list, default=BACKENDS,
+                   help=f"mpmref backends, comma separated (default: {','.join(BACKENDS)})")
+    p.add_argument("--vs", choices=("taichi",), help="also compare with a peer code on the same scenes")
+    p.add_argument("--only", choices=SECTIONS, help="run one section (peer implies --vs taichi)")
+    p.add_argument("--repeats", type=_positive, default=3, help="timed repeats per figure; the median is reported")
+    p.add_argument("--steps", type=_positive, default=10, help="steps per timed repeat, throughput (default 10)")
+    p.add_argument("--peer-steps", type=_positive, default=100, help="steps per timed repeat, peer (default 100)")
+    p.add_argument("--quick", action="store_true", help="tiny sizes: a smoke test whose figures mean nothing")
+    p.add_argument("--no-memory", action="store_true", help="skip the Table-2 peak-memory probe")
+    p.add_argument("--json", dest="json_path", help="write the results to this JSON file (atomically)")
+    p.set_defaults(func=cmd_bench)
+    return p
+
+
+def options_from_args(args):
+    """:class:`BenchOptions` from parsed command-line arguments."""
+    if args.only:
+        sections = (args.only,)
+    else:
+        sections = ("table2", "throughput") + (("peer",) if args.vs else ())
+    size = args.size or (QUICK_PARTICLES if args.quick else DEFAULT_PARTICLES)
+    return BenchOptions(size=size, full=args.full, threads=args.threads, dtypes=args.dtype, backends=args.backends,
+                        sections=sections, repeats=args.repeats, steps=args.steps, peer_steps=args.peer_steps,
+                        quick=args.quick, memory=not args.no_memory)
+
+
+def cmd_bench(args):
+    results = run_bench(options_from_args(args))
+    if args.json_path:
+        write_json(results, args.json_path)
+        print(f"results written to {args.json_path}")
+    return 0
