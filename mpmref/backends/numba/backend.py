@@ -44,7 +44,8 @@ class NumbaBackend:
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = transfer_config(scene)
-        self._p2g = transfers.make_p2g(self.cfg)
+        # P2G does not see FLIP or the tracked deformation: one compiled P2G serves those variants
+        self._p2g = transfers.make_p2g(self.cfg._replace(flip=False, tracks_F=False, tracks_J=False))
         self._g2p = transfers.make_g2p(self.cfg)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
