@@ -13,6 +13,7 @@ import pytest
 
 from mpmref import Scene
 from mpmref.backends import make_backend
+from mpmref.backends.numba import backend as numba_backend
 from mpmref.bodies import sample_particles
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -48,8 +49,9 @@ def with_threads(threads, fn):
                                  "sampling": "jittered", "seed": 3, "velocity": [0.5, -0.2, 0.1]}],
                      "gravity": [0.0, -9.8, 0.0], "time": {"dt": 1e-4, "steps": 10}}),
 ], ids=["mpm88", "snow88", "3d-polypic-cubic"])
-def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene):
+def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene, monkeypatch):
     """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count."""
+    monkeypatch.setattr(numba_backend, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     backend = make_backend("numba", scene)
     particles = sample_particles(scene)
     stirred = particles.v + 0.5 * np.random.default_rng(7).standard_normal(particles.v.shape)

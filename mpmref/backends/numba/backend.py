@@ -1,5 +1,8 @@
 """The Numba backend object: the reference's stages, compiled for one scene and run in parallel."""
 
+from contextlib import contextmanager
+
+import numba
 import numpy as np
 
 from ...physics.polypic import higher_modes
@@ -9,6 +12,25 @@ from .blocks import BLOCK, sort_into_blocks
 from .stencil import BASE_SHIFT, KERNEL_CODES
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
+
+#: below this many particles a step runs on one thread: each parallel region costs a fork and a join
+#: (tens of microseconds, far more on a busy machine), which small problems do not repay. The answer is the
+#: same bits either way (see :mod:`.blocks`).
+SERIAL_BELOW = 4096
+
+
+@contextmanager
+def threads_for(n_particles):
+    """Run the enclosed stages on one thread when ``n_particles < SERIAL_BELOW``."""
+    if n_particles >= SERIAL_BELOW:
+        yield
+        return
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
 
 
 def transfer_config(scene):
@@ -151,7 +173,8 @@ class NumbaBackend:
 
     def step(self, particles, dt, time=0.0):
         """One full MPM step from ``time`` (P2G, grid update, G2P, return map); returns new particles."""
-        blocks = self.prepare(particles)
-        grid_state = self.p2g(particles, blocks)
-        v_grid, v_tilde = self.grid_update(grid_state, dt, time)
-        return self.return_map(self.g2p(particles, v_grid, v_tilde, dt, blocks))
+        with threads_for(particles.n):
+            blocks = self.prepare(particles)
+            grid_state = self.p2g(particles, blocks)
+            v_grid, v_tilde = self.grid_update(grid_state, dt, time)
+            return self.return_map(self.g2p(particles, v_grid, v_tilde, dt, blocks))

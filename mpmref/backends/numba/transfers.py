@@ -83,6 +83,11 @@ def make_p2g(cfg):
                 fx_arr = np.empty(DIM)
                 for k in range(block_start[block], block_start[block + 1]):
                     p = order[k]
+                    m, vel, stress_volume = mass[p], row(v, p, DIM), matrix(tau, p, DIM, vol0[p])
+                    if AFFINE:
+                        Cp = matrix(C, p, DIM, 1.0)
+                    else:
+                        Cp = stress_volume  # unused
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                     b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                     if DIM == 2:
@@ -101,8 +106,8 @@ def make_p2g(cfg):
                                     g = (w * d0 / inertia, w * d1 / inertia)
                                 else:
                                     g = (dw0[i] / dx * w1[j], dw1[j] / dx * w0[i])
-                                p2g_node(base + i * strides[0] + j * strides[1], w, (d0, d1), g, (i, j), p, v, C,
-                                         modes, mass, vol0, tau, q, mode_index, grid_mass, grid_momentum,
+                                p2g_node(base + i * strides[0] + j * strides[1], w, (d0, d1), g, (i, j), m, vel, Cp,
+                                         stress_volume, p, modes, q, mode_index, grid_mass, grid_momentum,
                                          grid_force, AFFINE, POLY)
                     else:
                         b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
@@ -125,26 +130,45 @@ def make_p2g(cfg):
                                         g = (dw0[i] / dx * w1[j] * w2[l], dw1[j] / dx * w0[i] * w2[l],
                                              dw2[l] / dx * w0[i] * w1[j])
                                     p2g_node(base + i * strides[0] + j * strides[1] + l * strides[2], w,
-                                             (d0, d1, d2), g, (i, j, l), p, v, C, modes, mass, vol0, tau, q,
-                                             mode_index, grid_mass, grid_momentum, grid_force, AFFINE, POLY)
+                                             (d0, d1, d2), g, (i, j, l), m, vel, Cp, stress_volume, p, modes,
+                                             q, mode_index, grid_mass, grid_momentum, grid_force, AFFINE, POLY)
 
     return p2g
 
 
 @njit(cache=True, inline="always")
-def p2g_node(idx, w, d, g, ks, p, v, C, modes, mass, vol0, tau, q, mode_index, grid_mass, grid_momentum,
+def row(a, p, dim):
+    """``a[p]`` of an (n, d) array as a d-tuple (held in registers by the compiled loop)."""
+    if dim == 2:
+        return (a[p, 0], a[p, 1])
+    return (a[p, 0], a[p, 1], a[p, 2])
+
+
+@njit(cache=True, inline="always")
+def matrix(a, p, dim, scale):
+    """``scale * a[p]`` of an (n, d, d) array as a d-tuple of d-tuples."""
+    if dim == 2:
+        return ((scale * a[p, 0, 0], scale * a[p, 0, 1]), (scale * a[p, 1, 0], scale * a[p, 1, 1]))
+    return ((scale * a[p, 0, 0], scale * a[p, 0, 1], scale * a[p, 0, 2]),
+            (scale * a[p, 1, 0], scale * a[p, 1, 1], scale * a[p, 1, 2]),
+            (scale * a[p, 2, 0], scale * a[p, 2, 1], scale * a[p, 2, 2]))
+
+
+@njit(cache=True, inline="always")
+def p2g_node(idx, w, d, g, ks, m, vel, Cp, stress_volume, p, modes, q, mode_index, grid_mass, grid_momentum,
              grid_force, affine, poly):
-    r"""P2G scatter of particle ``p`` to one node: :math:`w_{ip} m_p`, :math:`w_{ip} m_p (v_p + C_p (x_i - x_p)
+    r"""P2G scatter of one particle to one node: :math:`w_{ip} m_p`, :math:`w_{ip} m_p (v_p + C_p (x_i - x_p)
     + \sum_r c_{pr} s_r(x_i))` and :math:`-V_p^0 \tau_p g_{ip}` (``d`` = :math:`x_i - x_p`, ``g`` = :math:`g_{ip}`,
-    ``ks`` the node's per-axis stencil index)."""
+    ``ks`` the node's per-axis stencil index; ``vel``, ``Cp``, ``stress_volume`` = :math:`V_p^0\tau_p` are the
+    particle's values as tuples)."""
     dim = len(d)
-    wm = w * mass[p]
+    wm = w * m
     grid_mass[idx] += wm
     for a in range(dim):
-        mom = v[p, a]
+        mom = vel[a]
         if affine:
             for b in range(dim):
-                mom += C[p, a, b] * d[b]
+                mom += Cp[a][b] * d[b]
         if poly:
             for r in range(mode_index.shape[0]):
                 s = 1.0
@@ -154,7 +178,7 @@ def p2g_node(idx, w, d, g, ks, p, v, C, modes, mass, vol0, tau, q, mode_index, g
         grid_momentum[idx, a] += wm * mom
         f = 0.0
         for b in range(dim):
-            f += (vol0[p] * tau[p, a, b]) * g[b]
+            f += stress_volume[a][b] * g[b]
         grid_force[idx, a] -= f
 
 
