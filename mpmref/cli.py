@@ -9,7 +9,7 @@ from .backends import BACKENDS
 from .errors import MpmrefError, SceneError
 
 #: modules that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
-COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
+COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench", "verification.cli")
 
 
 def _parser():

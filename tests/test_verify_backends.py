@@ -1,0 +1,52 @@
+"""The backends case (verification/backends.py): NumPy against Numba, one step and a trajectory."""
+
+from dataclasses import replace
+
+import pytest
+
+from mpmref.backends import BACKENDS
+from verification import backends as case
+from verification import momentum
+
+pytestmark = pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")
+
+
+@pytest.fixture(scope="module")
+def result():
+    return case.run(case.Params.quick())
+
+
+def test_every_check_of_the_quick_preset_holds(result):
+    failed = [c.line() for c in case.checks(result) if not c.passed]
+    assert not failed, "\n".join(failed)
+
+
+def test_every_scheme_and_material_is_compared(result):
+    assert {r["key"] for r in result["runs"]} == {v.key for v in momentum.VARIANTS}
+    for r in result["runs"]:
+        assert set(r["history"][0]) == set(case.MATERIALS)
+        assert {"x", "v", "F"} <= set(r["history"][0]["fixed_corotated"]) and "J" in r["history"][0]["fluid"]
+        assert "Jp" in r["history"][0]["snow"] and ("modes" in r["history"][0]["sand"]) == (r["key"] == "polypic")
+
+
+def test_a_candidate_off_by_1e_10_fails_the_one_step_check(monkeypatch):
+    from mpmref.backends.numba import backend as numba_backend
+
+    original = numba_backend.NumbaBackend.g2p
+
+    def g2p_off(self, *args, **kwargs):
+        new = original(self, *args, **kwargs)
+        return new.with_(v=new.v * (1.0 + 1e-10))
+
+    monkeypatch.setattr(numba_backend.NumbaBackend, "g2p", g2p_off)
+    broken = case.checks(case.run(replace(case.Params.quick(), variants=("mls",), steps=2)))
+    one_step = next(c for c in broken if "one step" in c.name)
+    assert not one_step.passed and one_step.value > 50 * one_step.bound
+
+
+def test_report_writes_plot_vtk_series_and_table(result, tmp_path):
+    paths = case.report(result, tmp_path)
+    assert all(p.exists() for p in paths)
+    assert (tmp_path / "vtk" / "2d_quadratic_mls" / "particles.pvd").exists()
+    text = (tmp_path / "backends.md").read_text()
+    assert text.count("| 2 | quadratic |") == len(momentum.VARIANTS) and "FAIL" not in text

@@ -1,0 +1,106 @@
+"""The verification framework: the case registry and ``mpmref verify`` (verification/cli.py)."""
+
+import argparse
+import html
+import os
+import re
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mpmref.backends.numpy import backend as numpy_backend
+from verification import momentum, registry
+from verification.cli import add_parser
+
+
+def verify(argv):
+    parser = argparse.ArgumentParser(prog="mpmref")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["verify", *argv])
+    return args.func(args)
+
+
+def small_momentum_quick(monkeypatch, **changes):
+    """Make momentum's quick preset smaller for CLI tests (the full quick preset has its own tests)."""
+    small = replace(momentum.Params.quick(), cells=24, steps=60, frames=3, **changes)
+    monkeypatch.setattr(momentum.Params, "quick", classmethod(lambda cls: small))
+
+
+def test_registry_lists_and_loads_the_cases():
+    names = registry.available()
+    assert {"momentum", "energy", "transfer_energy"} <= set(names)
+    for name in names:
+        module = registry.load(name)
+        for preset in registry.PRESETS:
+            assert isinstance(registry.preset_params(module, preset), module.Params)
+    with pytest.raises(KeyError, match="available: momentum"):
+        registry.load("nonsense")
+
+
+@pytest.fixture(scope="module")
+def report_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("verify")
+    stale = out / "momentum" / "vtk" / "from_an_earlier_run" / "particles.pvd"
+    stale.parent.mkdir(parents=True)
+    stale.write_text("old")
+    os.utime(stale, (time.time() - 3600, time.time() - 3600))
+    with pytest.MonkeyPatch.context() as mp:
+        small_momentum_quick(mp)
+        code = verify(["momentum", "transfer_energy", "--quick", "--workers", "1", "--out", str(out)])
+    return out, code
+
+
+def test_cli_passes_and_writes_every_report_file(report_dir):
+    out, code = report_dir
+    assert code == 0
+    for name in ("report.md", "index.html", "momentum/report.md", "momentum/momentum.md",
+                 "momentum/momentum_drift.png", "momentum/vtk/mls/particles.pvd", "momentum/vtk/mls/particles_0003.vtu",
+                 "transfer_energy/report.md", "transfer_energy/transfer_energy.md"):
+        assert (out / name).is_file(), name
+    case_md = (out / "momentum" / "report.md").read_text()
+    assert "![momentum_drift](momentum_drift.png)" in case_md and "vtk/pic/particles.pvd" in case_md
+    assert "from_an_earlier_run" not in case_md  # files older than the run are not reported
+
+
+def test_index_lists_every_check_with_figure_bound_and_verdict(report_dir):
+    out, _ = report_dir
+    index, page = (out / "report.md").read_text(), (out / "index.html").read_text()
+    for case in ("momentum", "transfer_energy"):
+        assert f"| {case} |" in index and f"{case}/report.md" in page
+    cells = [re.split(r"(?<!\\)\|", line)[1:-1] for line in index.splitlines()]
+    checks = [[c.strip() for c in row] for row in cells if len(row) == 6 and row[0].strip() == "momentum"]
+    assert len(checks) == 2 * len(momentum.VARIANTS)  # linear + angular per scheme
+    for name, figure, bound, verdict, _ in (row[1:] for row in checks):
+        assert float(figure) >= 0.0 and bound.split()[0] in ("<=", ">=", ">") and verdict == "pass"
+        assert html.escape(name) in page
+    assert "Machine: host" in index and "total wall time" in index
+
+
+def test_a_broken_transfer_makes_verify_exit_1(monkeypatch, tmp_path, capsys):
+    original = numpy_backend.NumpyBackend.p2g
+
+    def p2g_without_affine(self, particles, prepared=None):
+        return original(self, particles.with_(C=np.zeros_like(particles.C)), prepared)
+
+    monkeypatch.setattr(numpy_backend.NumpyBackend, "p2g", p2g_without_affine)
+    small_momentum_quick(monkeypatch, variants=("mls",))
+    assert verify(["momentum", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 1
+    assert "FAIL MLS-MPM (APIC, MLS force): angular momentum drift" in capsys.readouterr().out
+    assert "| FAIL |" in (tmp_path / "report.md").read_text()
+
+
+def test_a_case_that_raises_is_reported_and_fails(monkeypatch, tmp_path):
+    def explode(params, backend="numpy", executor=None):
+        raise RuntimeError("deliberate failure inside the case")
+
+    monkeypatch.setattr(momentum, "run", explode)
+    assert verify(["momentum", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 1
+    assert "deliberate failure inside the case" in (tmp_path / "momentum" / "report.md").read_text()
+    assert "| momentum | 0 | ERROR |" in (tmp_path / "report.md").read_text()
+
+
+def test_an_unknown_case_exits_2(tmp_path, capsys):
+    assert verify(["nonsense", "--out", str(tmp_path)]) == 2
+    assert "unknown case(s) nonsense" in capsys.readouterr().err

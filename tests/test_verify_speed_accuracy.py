@@ -1,0 +1,51 @@
+"""The speed-vs-accuracy case (verification/speed_accuracy.py): its quick preset and its Pareto front."""
+
+import pytest
+
+from mpmref.backends import BACKENDS
+from verification import speed_accuracy as case
+
+pytestmark = pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")
+
+
+@pytest.fixture(scope="module")
+def result():
+    return case.run(case.Params.quick())
+
+
+def test_every_check_of_the_quick_preset_holds(result):
+    failed = [c.line() for c in case.checks(result) if not c.passed]
+    assert not failed, "\n".join(failed)
+
+
+def test_sweep_covers_scheme_kernel_resolution_and_backend(result):
+    params = case.Params.quick()
+    keys = {(p["series"].scheme, p["series"].kernel, p["cells"], p["backend"]) for p in result["points"]}
+    assert len(keys) == len(case.SCHEMES) * len(params.kernels) * len(params.cells) * len(params.backends)
+
+
+def test_pareto_front_is_exactly_the_undominated_runs(result):
+    """On the front: no faster run is as accurate (errors equal to round-off count as equal)."""
+    points = result["points"]
+    for p in points:
+        dominated = any(q is not p and (q["wall_s"], q["error_u"]) < (p["wall_s"], p["error_u"])
+                        and p["error_u"] >= q["error_u"] * (1.0 - case.SAME_ERROR) for q in points)
+        assert p["pareto"] == (not dominated)
+    assert any(p["pareto"] for p in points)
+
+
+def test_pic_made_second_order_fails_the_ordering_check(result):
+    """If PIC's errors were those of APIC (a PIC that kept C), the first-order check must fail."""
+    apic = {(p["cells"], p["backend"]): p["error_u"] for p in result["points"] if p["series"].scheme == "apic"}
+    points = [{**p, "error_u": apic[(p["cells"], p["backend"])]} if p["series"].scheme == "pic" else p
+              for p in result["points"]]
+    broken = case.checks({**result, "points": points})
+    assert not next(c for c in broken if "PIC's error" in c.name).passed
+
+
+def test_report_writes_plot_tables_and_vtk(result, tmp_path):
+    paths = case.report(result, tmp_path)
+    assert all(p.exists() for p in paths)
+    text = (tmp_path / "speed_accuracy.md").read_text()
+    assert "Pareto front:" in text and "| yes |" in text and "FAIL" not in text
+    assert (tmp_path / "vtk" / "most_accurate" / "particles.pvd").exists()

@@ -1,0 +1,312 @@
+r"""Momentum conservation: a spinning, drifting elastic disk without gravity or walls, for every scheme.
+
+Set-up: a fixed-corotated disk of radius :math:`R` centred on the origin spins at :math:`\omega` and
+drifts at a constant velocity, in an open domain large enough that it never reaches the edge. No external
+force acts, so the exact linear momentum :math:`P` and angular momentum :math:`L` (about the origin,
+affine part included, :mod:`mpmref.diagnostics`) are constant. The step :math:`\Delta t` is fixed from the
+CFL number and the initial wave and particle speeds.
+
+Theory and bounds
+-----------------
+* **Linear momentum**, every scheme: P2G, the grid update without external forces (the internal forces sum
+  to zero since :math:`\sum_i \nabla w_{ip} = 0`) and G2P each conserve :math:`P` in exact arithmetic
+  (Jiang et al. 2015; FLIP adds grid *increments*, which sum to the grid's momentum change, zero).
+* **Angular momentum**, APIC (with either force), MLS-MPM and PolyPIC: conserved in exact arithmetic
+  through the whole step, the affine term included (Jiang et al. 2015 §5.3; Fu et al. 2017; Hu et al.
+  2018). Both bounds are round-off (:func:`roundoff_bound`).
+* **PIC and FLIP(α)** lose angular momentum: G2P keeps only :math:`\sum_i w_{ip} v_i` and drops the
+  particle's affine spin :math:`m_p D_p (C_{yx} - C_{xy})` that APIC would keep. For a rigid spin
+  :math:`C_p` is the rotation generator, :math:`C_{yx} - C_{xy} = 2\omega`, so each PIC step removes the
+  fraction :func:`spin_loss_rate` :math:`\lambda = 2 D M / I` of :math:`L = I\omega`; FLIP(α) blends
+  :math:`1-\alpha` of PIC into the particle velocity and loses :math:`(1-\alpha)\lambda` per step. The check
+  asserts a measured decay rate of at least half of that prediction (a lower bound on the loss: the physics
+  the case shows). FLIP(α = 1) drops no PIC part but has no affine mode either; its angular momentum changes
+  (by about 1 % here), which is asserted to exceed round-off.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+from time import perf_counter
+
+import numpy as np
+
+from mpmref import SceneBuilder, Simulation
+from mpmref.diagnostics import angular_momentum
+from mpmref.io.atomic import write_text_atomic
+
+from .common import Check, checks_table
+from .executor import Executor
+from .report import pyplot, save_figure, snapshot, write_series
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One scheme/force combination of the comparison; ``options`` are extra ``method`` keys."""
+
+    key: str
+    label: str
+    scheme: str
+    options: tuple = ()
+
+    @property
+    def method(self):
+        return dict(self.options)
+
+    @property
+    def conserves_angular_momentum(self):
+        return self.scheme in ("apic", "polypic", "mls")
+
+    @property
+    def pic_fraction(self):
+        r"""The fraction :math:`1 - \alpha` of the PIC velocity in G2P (1 for PIC, 0 for affine schemes)."""
+        if self.scheme == "pic":
+            return 1.0
+        return 1.0 - self.method["flip_alpha"] if self.scheme == "flip" else 0.0
+
+
+#: the compared schemes; ``scheme = "apic"`` with the default MLS force is MLS-MPM, so it is listed once
+VARIANTS = (
+    Variant("pic", "PIC", "pic"),
+    Variant("flip", "FLIP(α=0.95)", "flip", (("flip_alpha", 0.95),)),
+    Variant("flip1", "FLIP(α=1)", "flip", (("flip_alpha", 1.0),)),
+    Variant("apic_classic", "APIC (classic ∇w force)", "apic", (("force", "classic"),)),
+    Variant("mls", "MLS-MPM (APIC, MLS force)", "mls"),
+    Variant("polypic", "PolyPIC", "polypic"),
+)
+VARIANT = {v.key: v for v in VARIANTS}
+
+
+@dataclass(frozen=True)
+class Params:
+    cells: int = 48  # across the unit domain [-1/2, 1/2]^2
+    ppc: int = 4
+    kernel: str = "quadratic"
+    radius: float = 0.2
+    omega: float = 2.0  # rad/s
+    velocity: tuple = (0.1, 0.05)
+    E: float = 1e3
+    nu: float = 0.3
+    rho: float = 1.0
+    cfl: float = 0.25
+    steps: int = 1000
+    frames: int = 10  # VTK frames per run
+    variants: tuple = tuple(v.key for v in VARIANTS)
+
+    @classmethod
+    def quick(cls):
+        return cls(cells=32, steps=400)
+
+    @classmethod
+    def full(cls):
+        return cls(cells=64, steps=4000)
+
+
+# ------------------------------------------------------------------------------------------ theory
+def roundoff_bound(steps, n_particles, ppc, support, dim, eps=np.finfo(np.float64).eps):
+    r"""Worst-case relative drift of a sum that one MPM step conserves in exact arithmetic.
+
+    .. math::
+
+        \frac{|Q_n - Q_0|}{S} \le (k\,n + N)\,u, \qquad k = 4\,\mathrm{ppc}\,s^d, \qquad u = \varepsilon/2,
+
+    A computed sum or inner product of :math:`k` terms errs by at most
+    :math:`\gamma_k \sum|\text{terms}|`, :math:`\gamma_k = k u/(1 - k u) \approx k u` (Higham, *Accuracy
+    and Stability of Numerical Algorithms*, 2nd ed. 2002, §3.1 and §4.2). In one step the longest chain
+    per particle is a node sum over the :math:`\mathrm{ppc}\, s^d` particles in a node's support (mass,
+    momentum, force), the grid division and update, and the :math:`s^d`-node G2P sums; :math:`k` counts it
+    generously as four node sums. Errors add at most linearly over :math:`n` steps, and measuring
+    :math:`Q` sums :math:`N` particle terms once more. :math:`S` is the sum of the terms' magnitudes
+    (:math:`\sum_p m_p |v_p|` for :math:`P`; :math:`\sum_p m_p (|x_p| |v_p| + D |C_p|)` for :math:`L`).
+
+    Parameters
+    ----------
+    steps : int                  :math:`n`, steps taken
+    n_particles : int            :math:`N`
+    ppc : int                    particles per cell
+    support : int                kernel support :math:`s` in cells (3 quadratic, 4 cubic)
+    dim : int                    :math:`d`
+    eps : float                  machine epsilon :math:`\varepsilon` of the arithmetic
+    """
+    return (4 * ppc * support**dim * steps + n_particles) * eps / 2
+
+
+def spin_loss_rate(mass, x, center, inertia):
+    r"""Fraction of a rigid spin's angular momentum one PIC G2P drops: :math:`\lambda = 2 D M / I`.
+
+    PIC's G2P keeps :math:`v_p = \sum_i w_{ip} v_i` and discards the affine part APIC keeps; for a rigid
+    spin that part carries :math:`m_p D (C_{yx} - C_{xy}) = 2\omega\, m_p D` per particle (Jiang et al.
+    2015 §5.3, the angular momentum of the affine term), out of :math:`L = I\omega`,
+    :math:`I = \sum_p m_p |x_p - x_c|^2`, :math:`M = \sum_p m_p`.
+
+    Parameters
+    ----------
+    mass : (n,) array;  x : (n, 2) array;  center : (2,) spin centre
+    inertia : float     the kernel's :math:`D = k\,\Delta x^2` (:math:`k = 1/4` quadratic, :math:`1/3` cubic)
+    """
+    moment = float(np.sum(mass * np.sum((x - center) ** 2, axis=1)))
+    return 2.0 * inertia * float(mass.sum()) / moment
+
+
+def decay_rate(L_rel, floor=1e-2):
+    r"""Mean loss rate per step :math:`-\ln(L_k/L_0)/k`, up to the first step where :math:`L/L_0 <` ``floor``.
+
+    Stopping there keeps the rate out of the noise once the spin is gone.
+    """
+    below = np.nonzero(L_rel[1:] < floor)[0]
+    k = int(below[0]) + 1 if below.size else len(L_rel) - 1
+    return float(-np.log(L_rel[k]) / k)
+
+
+# ------------------------------------------------------------------------------------------- runs
+def _scene(params, variant):
+    return (SceneBuilder(dim=2, name=f"momentum_{variant.key}")
+            .grid(size=1.0, cells=params.cells, origin=[-0.5, -0.5])
+            .method(variant.scheme, kernel=params.kernel, **variant.method)
+            .material("disk", "fixed_corotated", E=params.E, nu=params.nu, rho=params.rho)
+            .ball("disk", center=[0.0, 0.0], radius=params.radius, ppc=params.ppc, angular_velocity=params.omega,
+                  velocity=list(params.velocity))
+            .walls("open").time(dt=1.0, steps=params.steps).build())  # Δt: time_step()
+
+
+def time_step(params, scene):
+    r""":math:`\Delta t = C\,\Delta x / (c + \omega R + |v|)` with the material's wave speed :math:`c`."""
+    speed = scene.max_wave_speed() + params.omega * params.radius + float(np.linalg.norm(params.velocity))
+    return params.cfl * scene.grid.dx / speed
+
+
+def _measure(sim, inertia):
+    """Time, P, L (about the origin, affine part included) and their magnitude scales S_P and S_L."""
+    m, x, v = sim.mass, sim.x, sim.v
+    speed = np.linalg.norm(v, axis=1)
+    affine = 0.0 if sim.C is None else inertia * np.sum(m * (np.abs(sim.C[:, 0, 1]) + np.abs(sim.C[:, 1, 0])))
+    P = m @ v
+    return (sim.time, P[0], P[1], float(angular_momentum(sim.particles, inertia)), float(m @ speed),
+            float(m @ (np.linalg.norm(x, axis=1) * speed)) + affine)
+
+
+def run_variant(job):
+    """Run one variant ``job = (params, key, backend)``: momenta every step, VTK frames, timings."""
+    params, key, backend = job
+    scene = _scene(params, VARIANT[key])
+    sim = Simulation(scene, backend=backend)
+    inertia = scene.kernel.inertia_factor * scene.grid.dx**2
+    dt, every = time_step(params, scene), max(1, params.steps // params.frames)
+    rows, frames = [_measure(sim, inertia)], [snapshot(sim)]
+    start = perf_counter()
+    for n in range(1, params.steps + 1):
+        sim.step(dt)
+        rows.append(_measure(sim, inertia))
+        if n % every == 0 or n == params.steps:
+            frames.append(snapshot(sim))
+    wall = perf_counter() - start
+    a = np.array(rows)
+    rate = spin_loss_rate(sim.mass, frames[0][1], np.zeros(2), inertia)
+    return {"t": a[:, 0], "P": a[:, 1:3], "L": a[:, 3], "scale_P": float(a[:, 4].max()),
+            "scale_L": float(a[:, 5].max()), "dt": dt, "n_particles": sim.n_particles, "spin_loss_rate": rate,
+            "support": scene.kernel.support, "wall_s": wall, "frames": frames}
+
+
+def run(params=Params(), backend="numpy", executor=None):
+    """Run every variant of ``params.variants`` (through ``executor``; default: in this process)."""
+    executor = executor or Executor(workers=1)
+    runs = executor.map(run_variant, [(params, key, backend) for key in params.variants])
+    return {"params": params, "backend": backend, "runs": dict(zip(params.variants, runs))}
+
+
+# ----------------------------------------------------------------------------------------- figures
+def drifts(r):
+    """Relative linear and angular momentum drift against time: :math:`|P-P_0|/S_P`, :math:`|L-L_0|/S_L`."""
+    return (np.linalg.norm(r["P"] - r["P"][0], axis=1) / r["scale_P"], np.abs(r["L"] - r["L"][0]) / r["scale_L"])
+
+
+def bound_curve(params, r):
+    """:func:`roundoff_bound` after each step of run ``r``."""
+    return roundoff_bound(np.arange(len(r["t"])), r["n_particles"], params.ppc, r["support"], 2)
+
+
+def _angular_check(v, r, drift, bound):
+    """Round-off for the affine schemes; the predicted loss for PIC and FLIP(α < 1); a change for FLIP(1)."""
+    name = f"{v.label}: angular momentum"
+    if v.conserves_angular_momentum:
+        return Check(f"{name} drift ‖L-L0‖ / Σ m(‖x‖‖v‖ + D‖C‖)", drift, "<=", bound,
+                     "conserved exactly with the affine term; round-off (k n + N) u")
+    if v.pic_fraction > 0:
+        predicted = v.pic_fraction * r["spin_loss_rate"]
+        return Check(f"{name} loss per step", decay_rate(r["L"] / r["L"][0]), ">=", 0.5 * predicted,
+                     f"half the predicted (1-α)·2DM/I = {predicted:.3g} per step")
+    return Check(f"{name} change ‖L-L0‖ / Σ m(‖x‖‖v‖ + D‖C‖)", drift, ">", bound,
+                 "no affine mode carries the spin: not conserved (exceeds round-off)")
+
+
+def checks(result):
+    """Linear momentum for all; angular momentum to round-off, or its loss for PIC and FLIP (module docstring)."""
+    out = []
+    for key, r in result["runs"].items():
+        v, (dp, dl) = VARIANT[key], drifts(r)
+        bound = float(bound_curve(result["params"], r)[-1])
+        out.append(Check(f"{v.label}: linear momentum drift ‖P-P0‖ / Σ m‖v‖", float(dp.max()), "<=", bound,
+                         "conserved exactly by every transfer; round-off (k n + N) u"))
+        out.append(_angular_check(v, r, float(dl.max()), bound))
+    return out
+
+
+def table(result):
+    head = ["| scheme | steps | particles | Δt | max linear drift | max angular drift | L_end/L_0 | "
+            "loss per step (measured) | loss per step (predicted) | wall time [s] |", "|---" * 10 + "|"]
+    body = []
+    for key, r in result["runs"].items():
+        v, (dp, dl) = VARIANT[key], drifts(r)
+        measured = decay_rate(r["L"] / r["L"][0]) if not v.conserves_angular_momentum else 0.0
+        body.append(f"| {v.label} | {len(r['t']) - 1} | {r['n_particles']} | {r['dt']:.3g} | {dp.max():.2e} | "
+                    f"{dl.max():.2e} | {r['L'][-1] / r['L'][0]:.6f} | {measured:.3g} | "
+                    f"{v.pic_fraction * r['spin_loss_rate']:.3g} | {r['wall_s']:.2f} |")
+    return "\n".join(head + body)
+
+
+def plot_drifts(result, path):
+    """Two log panels: linear and angular momentum drift against time per scheme, with the round-off bound."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharex=True)
+    floor = np.finfo(np.float64).eps / 8  # exact zeros are drawn at this floor
+    for key, r in result["runs"].items():
+        for ax, drift in zip(axes, drifts(r)):
+            ax.semilogy(r["t"], np.maximum(drift, floor), label=VARIANT[key].label)
+    first = next(iter(result["runs"].values()))
+    for ax, what in zip(axes, ("|P - P0| / Σ m|v|", "|L - L0| / Σ m(|x||v| + D|C|)")):
+        ax.semilogy(first["t"], bound_curve(result["params"], first), "k--", label="round-off bound (k n + N) u")
+        ax.set(xlabel="time [s]", ylabel=what)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_title("linear momentum drift")
+    axes[1].set_title("angular momentum drift")
+    axes[1].legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+def plot_angular_momentum(result, path):
+    """L(t)/L0 per scheme, with the predicted exponential decay for PIC and FLIP(α)."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for key, r in result["runs"].items():
+        v = VARIANT[key]
+        line, = ax.plot(r["t"], r["L"] / r["L"][0], label=v.label)
+        if v.pic_fraction > 0:
+            n = np.arange(len(r["t"]))
+            ax.plot(r["t"], np.exp(-v.pic_fraction * r["spin_loss_rate"] * n), ":", color=line.get_color(),
+                    label=f"{v.label}: exp(-(1-α) 2DM/I n)")
+    ax.set(xlabel="time [s]", ylabel="L / L0", title="angular momentum of the spinning disk")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+def report(result, out_dir):
+    """Write the drift plots, each variant's VTK series (``vtk/KEY/particles.pvd``) and ``momentum.md``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [plot_drifts(result, out / "momentum_drift.png"),
+             plot_angular_momentum(result, out / "angular_momentum.png")]
+    paths += [write_series(out / "vtk" / key, r["frames"]) for key, r in result["runs"].items()]
+    text = (f"# Momentum of a spinning elastic disk\n\n{table(result)}\n\n{checks_table(checks(result))}\n\n"
+            "![drift](momentum_drift.png)\n\n![angular momentum](angular_momentum.png)\n")
+    write_text_atomic(out / "momentum.md", text)
+    return paths + [out / "momentum.md"]

@@ -1,0 +1,102 @@
+"""The verification cases by name, imported lazily, and one way to run any of them.
+
+A case module exposes ``Params`` (a frozen dataclass whose defaults are the standard preset, with the
+classmethods ``quick()`` and ``full()``), ``run(params, backend="numpy", executor=None)``,
+``checks(result) -> [Check]`` and ``report(result, out_dir)``. A case whose ``run`` takes no ``executor``
+runs as it is.
+"""
+
+import importlib
+import importlib.util
+import inspect
+import time
+import traceback
+from dataclasses import dataclass, field
+
+#: case name -> module; imported only when the case is run
+CASES = {
+    "momentum": "verification.momentum",
+    "energy": "verification.energy",
+    "transfer_energy": "verification.transfer_energy",
+    "convergence": "verification.convergence",
+    "extremes": "verification.extremes",
+    "backends": "verification.backends",
+    "speed_accuracy": "verification.speed_accuracy",
+}
+
+PRESETS = ("quick", "default", "full")
+
+
+def available():
+    """Names of the registered cases whose module is present, in registration order."""
+    return [name for name, module in CASES.items() if importlib.util.find_spec(module) is not None]
+
+
+def load(name):
+    """The module of case ``name``; ``KeyError`` names the available cases."""
+    if name not in CASES:
+        raise KeyError(f"unknown verification case {name!r}; available: {', '.join(available())}")
+    return importlib.import_module(CASES[name])
+
+
+def preset_params(module, preset):
+    """``Params()`` for ``"default"``, else ``Params.quick()`` / ``Params.full()``."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
+    return module.Params() if preset == "default" else getattr(module.Params, preset)()
+
+
+@dataclass
+class Outcome:
+    """What running one case gave: its checks, timing, and the error if it stopped."""
+
+    name: str
+    title: str
+    preset: str
+    backend: str
+    params: object = None
+    result: object = None
+    checks: list = field(default_factory=list)
+    wall_s: float = 0.0
+    error: str | None = None
+    started: float = 0.0  # epoch seconds: the report lists only files written since
+
+    @property
+    def passed(self):
+        """True when the case ran and has checks, all of which pass."""
+        return self.error is None and bool(self.checks) and all(c.passed for c in self.checks)
+
+    @property
+    def verdict(self):
+        if self.error is not None:
+            return "ERROR"
+        failed = sum(not c.passed for c in self.checks)
+        return "pass" if self.passed else f"FAIL ({failed} of {len(self.checks)})"
+
+
+def _title(module):
+    doc = (module.__doc__ or "").strip()
+    return doc.splitlines()[0] if doc else module.__name__
+
+
+def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None, params=None):
+    """Run case ``name`` and evaluate its checks; with ``out_dir`` also write its report files.
+
+    An exception inside the case is caught and kept (with its traceback) in ``Outcome.error`` so that a
+    long verification run still reports every other case; such a case counts as failed.
+    """
+    module = load(name)
+    params = preset_params(module, preset) if params is None else params
+    outcome = Outcome(name=name, title=_title(module), preset=preset, backend=backend, params=params,
+                      started=time.time())
+    start = time.perf_counter()
+    try:
+        kwargs = {"executor": executor} if "executor" in inspect.signature(module.run).parameters else {}
+        outcome.result = module.run(params, backend=backend, **kwargs)
+        outcome.checks = list(module.checks(outcome.result))
+        if out_dir is not None:
+            module.report(outcome.result, out_dir)
+    except Exception:  # reported in the case's report.md and the index; the case fails
+        outcome.error = traceback.format_exc()
+    outcome.wall_s = time.perf_counter() - start
+    return outcome

@@ -1,0 +1,191 @@
+r"""Speed against accuracy: wall time and error across scheme × kernel × resolution × backend, and the Pareto front.
+
+Set-up: the refinement runs of :mod:`verification.convergence` (the axially vibrating bar; with the full
+preset also the manufactured solution), each run by :func:`verification.convergence.run_level`, which
+steps the problem to its end time and returns the displacement error :math:`e_u` at :math:`T/4` and the
+wall time of the stepping loop. Every (problem, scheme, kernel, backend) runs its coarsest level once
+first, untimed, so that a compiled backend's compile or cache-load time is not counted.
+
+A run is on the **Pareto front** of its problem when no other run is both faster and more accurate:
+those are the only runs worth choosing, whatever the accuracy wanted. Timings are reported, never
+asserted (they depend on the machine and its load); the checks concern the errors only:
+
+* **The backends agree on the error.** The backends compute the same trajectory up to round-off, so
+  :math:`|e_u^{a} - e_u^{r}| \le \max_p|x^a_p - x^r_p| / U \le n\cdot 10^{-12}\, X / U`, with :math:`n`
+  steps, the trajectory bound of :mod:`verification.backends`, :math:`X` the largest coordinate of the
+  domain and :math:`U` the displacement amplitude.
+* **Resolution does not buy PIC second-order accuracy.** PIC's transfer error is first order in
+  :math:`\Delta x` (:func:`verification.convergence.pic_bound_constant`), so on PIC's finest grid its error
+  is still larger than that of every second-order scheme on the coarsest grid.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mpmref.io.atomic import write_text_atomic
+
+from .backends import trajectory_bound
+from .common import Check, checks_table
+from .convergence import LevelRun, Series, run_level
+from .executor import Executor
+from .report import pyplot, save_figure, write_series
+
+#: (scheme, force) pairs the convergence case names
+SCHEMES = (("pic", "classic"), ("apic", "classic"), ("mls", "mls"))
+#: relative difference below which two errors are the same accuracy (far above backend round-off)
+SAME_ERROR = 1e-9
+
+
+@dataclass(frozen=True)
+class Params:
+    problems: tuple = ("bar",)
+    kernels: tuple = ("quadratic", "cubic")
+    cells: tuple = (16, 32, 64, 128, 256)
+    backends: tuple = ("numpy", "numba")
+    cfl: float = 0.4
+    ppa: int = 2  # particles per cell per axis
+    frames: int = 8  # VTK frames of the representative run (the sweep's most accurate)
+
+    @classmethod
+    def quick(cls):
+        return cls(kernels=("quadratic",), cells=(16, 32))
+
+    @classmethod
+    def full(cls):
+        return cls(problems=("bar", "mms"), cells=(16, 32, 64, 128, 256, 512))
+
+
+def _series(problem, scheme, force, kernel):
+    return Series(problem, scheme, force, kernel, expected_rate=1.0 if scheme == "pic" else 2.0)
+
+
+def run_group(job):
+    """One (series, backend) on every grid, after an untimed warm-up on the coarsest."""
+    series, backend, cells, cfl, ppa = job
+    run_level(LevelRun(series, cells[0], cfl, ppa, backend))
+    return [run_level(LevelRun(series, c, cfl, ppa, backend)) for c in cells]
+
+
+def position_scale(series, cells, ppa):
+    """:math:`X`: the largest coordinate magnitude of the problem's grid."""
+    grid = series.build_problem().scene(cells, series.method(), ppa).grid
+    return float(np.max(np.abs([grid.origin, grid.origin + np.array(grid.cells) * grid.dx])))
+
+
+def run(params=Params(), backend="numpy", executor=None):
+    """Every problem × scheme × kernel × backend × grid (through ``executor``; default: in this process).
+
+    With ``backend`` other than the reference the backends compared are ``("numpy", backend)``.
+    """
+    executor = executor or Executor(workers=1)
+    backends = params.backends if backend == "numpy" else ("numpy", backend)
+    jobs = [(_series(p, s, f, k), b, params.cells, params.cfl, params.ppa) for p in params.problems
+            for s, f in SCHEMES for k in params.kernels if not (p == "mms" and s == "pic") for b in backends]
+    groups = executor.map(run_group, jobs)
+    points = []
+    for (series, b, *_), levels in zip(jobs, groups):
+        for lv in levels:
+            lv.pop("frames")
+            points.append({"series": series, "backend": b, **lv})
+    for problem in params.problems:
+        mark_pareto([p for p in points if p["series"].problem == problem])
+    best = min((p for p in points if p["series"].problem == params.problems[0]), key=lambda p: p["error_u"])
+    frames = run_level(LevelRun(best["series"], best["cells"], params.cfl, params.ppa, best["backend"],
+                                params.frames))["frames"]
+    return {"params": params, "backends": backends, "points": points, "representative": (best, frames)}
+
+
+def mark_pareto(points):
+    """Set ``pareto`` on each point: true when no faster point is as accurate.
+
+    Errors within the relative :data:`SAME_ERROR` of each other count as equal, so that the backends'
+    round-off differences (about 1e-15 on errors of 1e-4) do not put the slower of two identical runs on
+    the front.
+    """
+    best_error = np.inf
+    for p in sorted(points, key=lambda p: (p["wall_s"], p["error_u"])):
+        p["pareto"] = p["error_u"] < best_error * (1.0 - SAME_ERROR)
+        best_error = min(best_error, p["error_u"])
+
+
+# ------------------------------------------------------------------------------------------ checks
+def _label(series):
+    return f"{series.problem}: {series.label}"
+
+
+def checks(result):
+    """Backends agree on every error; PIC's finest error exceeds every second-order scheme's coarsest."""
+    params, points, out = result["params"], result["points"], []
+    ref = {(p["series"], p["cells"]): p["error_u"] for p in points if p["backend"] == "numpy"}
+    for p in (p for p in points if p["backend"] != "numpy"):
+        s = p["series"]
+        bound = trajectory_bound(p["steps"]) * position_scale(s, p["cells"], params.ppa) \
+            / s.build_problem().displacement_scale()
+        out.append(Check(f"{_label(s)} {p['cells']} cells: |e_u({p['backend']}) - e_u(numpy)|",
+                         abs(p["error_u"] - ref[(s, p["cells"])]), "<=", bound,
+                         "same trajectory to n·1e-12: n·1e-12·X/U"))
+    for problem in params.problems:
+        mine = [p for p in points if p["series"].problem == problem]
+        pic = [p["error_u"] for p in mine if p["series"].scheme == "pic" and p["cells"] == params.cells[-1]]
+        second = [p["error_u"] for p in mine if p["series"].scheme != "pic" and p["cells"] == params.cells[0]]
+        if pic and second:
+            out.append(Check(f"{problem}: PIC's error on {params.cells[-1]} cells over the worst second-order "
+                             f"error on {params.cells[0]} cells", min(pic) / max(second), ">", 1.0,
+                             "PIC is first order in Δx, the others second order"))
+    return out
+
+
+def table(result, problem, front_only=False):
+    head = ["| scheme | kernel | backend | cells | particles | steps | wall time [s] | e_u | Pareto |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    rows = sorted((p for p in result["points"] if p["series"].problem == problem and (p["pareto"] or not front_only)),
+                  key=lambda p: p["wall_s"])
+    body = [f"| {p['series'].label.split(' ')[0]} | {p['series'].kernel} | {p['backend']} | {p['cells']} | "
+            f"{p['particles']} | {p['steps']} | {p['wall_s']:.3g} | {p['error_u']:.3e} | "
+            f"{'yes' if p['pareto'] else ''} |"
+            for p in rows]
+    return "\n".join(head + body)
+
+
+# ------------------------------------------------------------------------------------------ figures
+def plot(result, problem, path):
+    """Error against wall time per (scheme, kernel, backend) with the Pareto front."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    mine = [p for p in result["points"] if p["series"].problem == problem]
+    labels = list(dict.fromkeys(p["series"].label for p in mine))
+    markers = dict(zip(result["backends"], "os^v"))
+    for i, label in enumerate(labels):
+        for b in result["backends"]:
+            line = sorted((p for p in mine if p["series"].label == label and p["backend"] == b),
+                          key=lambda p: p["cells"])
+            ax.loglog([p["wall_s"] for p in line], [p["error_u"] for p in line], marker=markers[b], color=f"C{i}",
+                      mfc="none" if b != "numpy" else f"C{i}", label=f"{label} ({b})")
+    front = sorted((p for p in mine if p["pareto"]), key=lambda p: p["wall_s"])
+    ax.step([p["wall_s"] for p in front], [p["error_u"] for p in front], "k--", where="post", label="Pareto front")
+    ax.set(xlabel="wall time of the run [s]", ylabel="displacement error e_u", title=f"{problem}: speed vs accuracy")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return save_figure(fig, path)
+
+
+def report(result, out_dir):
+    """Write one plot per problem, the representative run's VTK series and ``speed_accuracy.md``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    best, frames = result["representative"]
+    vtk = [(f["time"], f["x"], {"velocity": f["velocity"], "displacement": f["displacement"],
+                                "displacement_error": f["displacement"] - f["displacement_exact"]}) for f in frames]
+    paths = [write_series(out / "vtk" / "most_accurate", vtk)]
+    parts = ["# Speed against accuracy", "", f"Backends {', '.join(result['backends'])}; timings exclude a warm-up "
+             "run. Representative run (the most accurate): "
+             f"{best['series'].label}, {best['backend']}, {best['cells']} cells (`vtk/most_accurate`).", ""]
+    for problem in result["params"].problems:
+        paths.append(plot(result, problem, out / f"speed_accuracy_{problem}.png"))
+        parts += [f"## {problem}", "", f"![{problem}](speed_accuracy_{problem}.png)", "", "Pareto front:", "",
+                  table(result, problem, front_only=True), "", "Every run:", "", table(result, problem), ""]
+    parts += ["## Checks", "", checks_table(checks(result)), ""]
+    write_text_atomic(out / "speed_accuracy.md", "\n".join(parts))
+    return paths + [out / "speed_accuracy.md"]
