@@ -129,26 +129,16 @@ def resolve(qualname):
     raise ImportError(qualname)
 
 
-def missing_optional_dependency(qualname):
-    """The module of ``qualname`` exists but needs a package that is not installed (e.g. taichi, the
-    optional ``bench`` extra): return that module's name, else ``None``."""
+def lacks_optional_dependency(module):
+    """``module`` exists but imports a package that is not installed (e.g. taichi, the optional ``bench``
+    extra)."""
     import importlib
-    import importlib.util
 
-    parts = qualname.split(".")
-    for cut in range(len(parts), 0, -1):
-        module = ".".join(parts[:cut])
-        try:
-            if importlib.util.find_spec(module) is None:
-                continue
-            importlib.import_module(module)
-            return None
-        except ModuleNotFoundError as exc:
-            if exc.name and not module.startswith(exc.name):
-                return module
-        except ImportError:
-            continue
-    return None
+    try:
+        importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        return bool(exc.name) and not module.startswith(exc.name)
+    return False
 
 
 def defined_at_top_level(path, qualname):
@@ -168,10 +158,12 @@ def test_code_links_name_objects_defined_in_the_linked_file(page):
         m = QUALNAME.match(text)
         if not m or not target.endswith(".py"):
             continue
-        module = missing_optional_dependency(m.group(1))
-        if module is not None:  # checked from the source text, without importing the optional package
+        path = (page.parent / target).resolve()
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        if m.group(1).startswith(module + ".") and lacks_optional_dependency(module):
+            # checked from the source text, without importing the optional package
             rest = m.group(1)[len(module) + 1:]
-            assert rest and defined_at_top_level(page.parent / target, rest), f"{m.group(1)} not in {target}"
+            assert defined_at_top_level(path, rest), f"{m.group(1)} not in {target}"
             checked += 1
             continue
         obj = resolve(m.group(1))
