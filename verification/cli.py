@@ -13,6 +13,7 @@ from pathlib import Path
 from mpmref.backends import BACKENDS
 
 from . import registry
+from .common import failed
 from .executor import Executor
 from .report import machine, write_case_report, write_index
 
@@ -59,9 +60,9 @@ def cmd_verify(args):
             "wall_s": time.perf_counter() - start, "machine": machine()}
     md, page = write_index(args.out, outcomes, meta)
     total = sum(len(o.checks) for o in outcomes)
-    failed = sum(not c.passed for o in outcomes for c in o.checks)
+    n_failed = sum(len(failed(o.checks)) for o in outcomes)
     errors = sum(o.error is not None for o in outcomes)
-    print(f"{total - failed} of {total} checks pass, {errors} case(s) stopped with an error, "
+    print(f"{total - n_failed} of {total} checks pass, {errors} case(s) stopped with an error, "
           f"{meta['wall_s']:.1f} s; report: {md} and {page}")
     return 0 if all(o.passed for o in outcomes) else 1
 

@@ -29,3 +29,8 @@ class Check:
 def checks_table(checks):
     head = ["| check | value | bound | verdict | why this bound |", "|---|---|---|---|---|"]
     return "\n".join(head + [c.line() for c in checks])
+
+
+def failed(checks):
+    """The checks of ``checks`` that do not hold, in order."""
+    return [c for c in checks if not c.passed]

@@ -13,6 +13,8 @@ import time
 import traceback
 from dataclasses import dataclass, field
 
+from .common import failed
+
 #: case name -> module; imported only when the case is run
 CASES = {
     "momentum": "verification.momentum",
@@ -70,8 +72,8 @@ class Outcome:
     def verdict(self):
         if self.error is not None:
             return "ERROR"
-        failed = sum(not c.passed for c in self.checks)
-        return "pass" if self.passed else f"FAIL ({failed} of {len(self.checks)})"
+        n_failed = len(failed(self.checks))
+        return "pass" if self.passed else f"FAIL ({n_failed} of {len(self.checks)})"
 
 
 def _title(module):
