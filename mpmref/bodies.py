@@ -145,11 +145,11 @@ def sample_particles(scene):
     return Particles(
         x=cat["x"].astype(dtype), v=cat["v"].astype(dtype), mass=cat["mass"].astype(dtype),
         vol0=cat["vol0"].astype(dtype), material=cat["material"],
-        C=cat["C"].astype(dtype) if scene.method.affine else None,
+        C=cat["C"].astype(dtype) if scene.transfer.affine else None,
         F=np.broadcast_to(eye, (n, dim, dim)).copy() if scene.tracks("F") else None,
         J=np.ones(n, dtype=dtype) if scene.tracks("J") else None,
         Jp=np.ones(n, dtype=dtype) if scene.tracks("Jp") else None,
-        modes=_zero_modes(scene, n) if scene.method.polypic else None,
+        modes=_zero_modes(scene, n) if scene.transfer.polypic else None,
     )
 
 

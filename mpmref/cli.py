@@ -3,13 +3,16 @@
 import argparse
 import importlib
 import sys
+from importlib.metadata import entry_points
 from pathlib import Path
 
 from .backends import BACKENDS
 from .errors import MpmrefError, SceneError
 
-#: modules that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
-COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench", "verification.cli")
+#: modules of this package that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
+COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
+#: entry-point group through which other installed packages add subcommands (``verification`` adds ``verify``)
+COMMAND_GROUP = "mpmref.commands"
 
 
 def _parser():
@@ -27,6 +30,8 @@ def _parser():
     run.set_defaults(func=cmd_run)
     for module in COMMAND_MODULES:
         importlib.import_module(module).add_parser(sub)
+    for plugin in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
+        plugin.load()(sub)
     return parser
 
 

@@ -52,3 +52,21 @@ class DomainExitError(MpmrefError):
             f"(first: index {particles[0]} at {positions[0].tolist()}); "
             f"set 'boundary.domain_exit' to 'clamp' or 'delete' to continue instead{where}"
         )
+
+
+class AsyncCensusError(MpmrefError):
+    """Asynchronous stepping lost or duplicated a particle id (checked at every synchronised time)."""
+
+    def __init__(self, tick, lost, duplicated):
+        self.tick, self.lost, self.duplicated = tick, lost, duplicated
+        super().__init__(f"particle census failed at tick {tick}: {len(lost)} id(s) lost (first {list(lost[:5])}), "
+                         f"{len(duplicated)} duplicated (first {list(duplicated[:5])})")
+
+
+class TickTooLongError(MpmrefError):
+    """A block's stability limit is shorter than one tick of asynchronous stepping."""
+
+    def __init__(self, tick, particle, limit_s):
+        self.tick, self.particle, self.limit_s = tick, particle, limit_s
+        super().__init__(f"particle {particle} needs steps of at most {limit_s:.3g} s at tick {tick}, shorter than "
+                         "one tick: lower 'time.tick'")

@@ -9,6 +9,7 @@ import json
 import math
 import tomllib
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,9 @@ from .errors import SceneError
 from .physics.boundary import BOUNDARY_TYPES
 from .physics.colliders import Ball, Box, Collider, Cylinder, Plane
 from .physics.kernels import KERNELS, get_kernel
-from .physics.materials import MATERIAL_TYPES as ELASTIC_TYPES
+from .physics.catalogue import MATERIALS as MATERIAL_TYPES
 from .physics.materials import lame_parameters
-from .physics.plasticity import DruckerPragerSand, SnowPlasticity
+from .physics.scheme import resolve
 from .state import Grid
 
 SCHEMES = ("pic", "flip", "apic", "polypic", "mls")
@@ -31,7 +32,7 @@ SHAPES = ("box", "disk", "sphere", "points", "mesh")
 SAMPLINGS = ("regular", "jittered", "random")
 OUTPUT_FIELDS = ("velocity", "mass", "volume", "J", "stress", "pressure", "material")
 AXES = "xyz"
-MATERIAL_TYPES = {**ELASTIC_TYPES, "snow": SnowPlasticity, "sand": DruckerPragerSand}
+STEPPINGS = ("sync", "async")
 
 TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "colliders", "gravity", "boundary", "time",
             "output", "name"}
@@ -133,25 +134,12 @@ def _vector(data, key, path, dim, default=None, required=False, positive=False):
 # ------------------------------------------------------------------------------------------ specs
 @dataclass(frozen=True)
 class MethodSpec:
-    """Transfer scheme, force discretisation and kernel (see docs/mpm_cycle.md)."""
+    """The declared transfer scheme, force discretisation and kernel (``Scene.transfer`` resolves them)."""
 
     scheme: str
     force: str
     kernel: str
     flip_alpha: float
-
-    @property
-    def affine(self):
-        """Whether particles carry the affine matrix ``C`` through P2G (APIC, PolyPIC and MLS-MPM)."""
-        return self.scheme in ("apic", "polypic", "mls")
-
-    @property
-    def polypic(self):
-        return self.scheme == "polypic"
-
-    @property
-    def flip(self):
-        return self.scheme == "flip"
 
 
 @dataclass(frozen=True)
@@ -169,10 +157,18 @@ class BoundarySpec:
 
 @dataclass(frozen=True)
 class TimeSpec:
+    """Time stepping. ``stepping = "async"`` uses ``tick`` (seconds per integer time unit), ``levels``
+    (block steps are ``2^k`` ticks, ``k = 0 .. levels``), ``cfl`` (the strength multiplier) and
+    ``advection_cfl`` (cells a particle may cross per step); see docs/async.md."""
+
     dt: float | None
     cfl: float | None
     steps: int | None
     t_end: float | None
+    stepping: str = "sync"
+    tick: float | None = None
+    levels: int | None = None
+    advection_cfl: float | None = None
 
 
 @dataclass(frozen=True)
@@ -210,6 +206,11 @@ class Scene:
     source: dict = field(repr=False)
     base_dir: Path = field(default_factory=Path.cwd, repr=False)
 
+    @cached_property
+    def transfer(self):
+        """The resolved :class:`~mpmref.physics.scheme.TransferSpec` (scheme, force, kernel, tracked state)."""
+        return resolve(self.method, self.dim, self.material_list)
+
     # --------------------------------------------------------------------------- construction
     @classmethod
     def from_toml(cls, path):
@@ -232,8 +233,8 @@ class Scene:
         _section(data, "", TOP_KEYS)
         dim = _integer(data, "dim", "", lo=2, hi=3, required=True)
         dtype = np.dtype(_choice(data, "dtype", "", DTYPES, default="float64"))
-        grid = _parse_grid(data.get("grid", {}), dim)
         method = _parse_method(data.get("method", {}))
+        grid = _parse_grid(data.get("grid", {}), dim, get_kernel(method.kernel).support)
         materials = _parse_materials(data.get("materials"))
         bodies = _parse_bodies(data.get("bodies"), dim, materials)
         colliders = _parse_colliders(data.get("colliders", []), dim)
@@ -259,11 +260,10 @@ class Scene:
 
     def tracks(self, kind):
         """Whether any material of the scene tracks ``kind`` (``"F"``, ``"J"`` or ``"Jp"``)."""
-        if kind == "Jp":
-            return any(getattr(m, "plastic", False) for m in self.materials.values())
-        return any(m.tracks == kind for m in self.materials.values())
+        return getattr(self.transfer, f"tracks_{kind}")
 
     def max_wave_speed(self):
+        """The largest rest-state wave speed of the scene's materials (for set-up; steps use the current one)."""
         return max(m.wave_speed() for m in self.materials.values())
 
     def valid_region(self):
@@ -279,8 +279,8 @@ class Scene:
 
 
 # ----------------------------------------------------------------------------------- sections
-def _parse_grid(g, dim):
-    _section(g, "grid", {"origin", "size", "dx", "cells"})
+def _parse_grid(g, dim, support):
+    _section(g, "grid", {"origin", "size", "dx", "cells", "block"})
     origin = _vector(g, "origin", "grid", dim, default=[0.0] * dim)
     size = _vector(g, "size", "grid", dim, required=True, positive=True)
     if ("dx" in g) == ("cells" in g):
@@ -293,7 +293,10 @@ def _parse_grid(g, dim):
     cells = np.rint(cells_f).astype(int)
     if np.any(np.abs(cells_f - cells) > 1e-9 * cells_f) or np.any(cells < 4):
         _fail("grid.size", size.tolist(), f"a whole number (>= 4) of cells of dx = {dx} along every axis")
-    return Grid(origin=origin, dx=float(dx), cells=tuple(int(c) for c in cells))
+    block = _integer(g, "block", "grid", default=4, lo=1, hi=256)
+    if block & (block - 1) or block < support:
+        _fail("grid.block", block, f"a power of two >= {support} (the kernel support in nodes)")
+    return Grid(origin=origin, dx=float(dx), cells=tuple(int(c) for c in cells), block=block)
 
 
 def _parse_method(m):
@@ -314,7 +317,7 @@ def _check_combination(spec):
     if spec.scheme == "mls" and spec.force == "classic":
         _fail("method.force", "classic", "'mls' with method.scheme = 'mls' (MLS-MPM is the APIC transfer with "
               "the MLS force; for APIC with the classic force use scheme = 'apic', force = 'classic')")
-    if spec.kernel == "linear" and spec.affine:
+    if spec.kernel == "linear" and spec.scheme in ("apic", "polypic", "mls"):
         _fail("method.kernel", "linear", f"'quadratic' or 'cubic' with method.scheme = '{spec.scheme}' (an affine "
               "scheme needs a constant inertia D_p, which the linear hat does not have)")
     if spec.kernel == "linear" and spec.force == "mls":
@@ -481,8 +484,19 @@ def _parse_boundary(bd, dim, grid):
     return BoundarySpec(width=width, walls=walls, domain_exit=exit_policy)
 
 
+ASYNC_TIME_KEYS = ("tick", "levels", "advection_cfl")
+
+
 def _parse_time(t):
-    _section(t, "time", {"dt", "cfl", "steps", "t_end"})
+    _section(t, "time", {"dt", "cfl", "steps", "t_end", "stepping", *ASYNC_TIME_KEYS})
+    stepping = _choice(t, "stepping", "time", STEPPINGS, default="sync")
+    if stepping == "sync":
+        for key in ASYNC_TIME_KEYS:
+            if key in t:
+                _fail(f"time.{key}", t[key], "only with time.stepping = 'async'")
+    elif "dt" in t:
+        _fail("time.dt", t["dt"], "absent with time.stepping = 'async' (each block's step comes from time.cfl; "
+              "time.levels = 0 with time.tick = dt gives one fixed step)")
     if ("dt" in t) == ("cfl" in t):
         _fail("time.dt", t.get("dt"), "exactly one of 'time.dt' (fixed step) or 'time.cfl' (CFL number)")
     dt = _number(t, "dt", "time", lo=0.0, lo_open=True)
@@ -491,7 +505,12 @@ def _parse_time(t):
         _fail("time.steps", t["steps"], "either 'time.steps' or 'time.t_end', not both")
     steps = _integer(t, "steps", "time", lo=0)
     t_end = _number(t, "t_end", "time", lo=0.0)
-    return TimeSpec(dt=dt, cfl=cfl, steps=steps, t_end=t_end)
+    if stepping == "sync":
+        return TimeSpec(dt=dt, cfl=cfl, steps=steps, t_end=t_end)
+    return TimeSpec(dt=None, cfl=cfl, steps=steps, t_end=t_end, stepping="async",
+                    tick=_number(t, "tick", "time", default=1e-6, lo=0.0, lo_open=True),
+                    levels=_integer(t, "levels", "time", default=13, lo=0, hi=30),
+                    advection_cfl=_number(t, "advection_cfl", "time", default=1.0, lo=0.0, hi=10.0, lo_open=True))
 
 
 def _parse_output(o):
@@ -522,9 +541,10 @@ class SceneBuilder:
     def __init__(self, dim, name="scene", dtype="float64"):
         self._data = {"dim": dim, "name": name, "dtype": dtype, "materials": {}, "bodies": []}
 
-    def grid(self, size, dx=None, cells=None, origin=None):
+    def grid(self, size, dx=None, cells=None, origin=None, block=None):
         g = {"size": size}
-        g.update({k: v for k, v in (("dx", dx), ("cells", cells), ("origin", origin)) if v is not None})
+        g.update({k: v for k, v in (("dx", dx), ("cells", cells), ("origin", origin), ("block", block))
+                  if v is not None})
         self._data["grid"] = g
         return self
 

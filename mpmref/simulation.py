@@ -9,7 +9,7 @@ from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
 from .errors import DomainExitError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
-from .steppers import SynchronousStepper
+from .steppers import make_stepper
 
 
 class Simulation:
@@ -18,27 +18,54 @@ class Simulation:
     Parameters
     ----------
     scene : Scene
-    backend : str            ``"numpy"`` (the reference)
+    backend : str            ``"numpy"`` (the reference) or ``"numba"``
     out_dir : path or None   where VTK series, ``diagnostics.csv`` and checkpoints go; None writes nothing
     particles : Particles    initial state (default: sampled from the scene's bodies)
+    hooks : Hooks            additions to the step (:class:`mpmref.steppers.Hooks`; default none)
 
-    The particle arrays are readable and settable as ``sim.x``, ``sim.v``, ``sim.C``, ``sim.F``,
-    ``sim.J``, ``sim.mass``, ``sim.vol0``. Each step builds a new state; the current one is replaced only
-    when the new one is finite and inside the domain, so after an error ``sim`` holds the last good state.
+    ``sim.state`` is the whole :class:`~mpmref.state.State` (particles with stable ids, clock, stepper
+    state). The particle arrays are readable and settable as ``sim.x``, ``sim.v``, ``sim.C``, ``sim.F``,
+    ``sim.J``, ``sim.mass``, ``sim.vol0``; ``sim.id`` is each particle's stable identity. A step (a
+    synchronous step, or one synchronised interval of asynchronous stepping) builds a new state; the
+    current one is replaced only when the new one is finite and inside the domain, so after an error
+    ``sim`` holds the last good state.
     """
 
-    def __init__(self, scene, backend="numpy", out_dir=None, particles=None):
+    def __init__(self, scene, backend="numpy", out_dir=None, particles=None, hooks=None):
         self.scene = scene
         self.backend = make_backend(backend, scene)
-        self.stepper = SynchronousStepper(scene, self.backend)
-        self.particles = particles if particles is not None else sample_particles(scene)
+        self.stepper = make_stepper(scene, self.backend, hooks)
+        self.state = self.stepper.initial_state(particles if particles is not None else sample_particles(scene))
         self.output = RunOutput(out_dir, scene) if out_dir is not None else None
-        self.step_count = 0
-        self.time = 0.0
-        self.deleted = 0
         self.last_dt = None
+        self.last_updates = 0
 
     # ------------------------------------------------------------------------ state access
+    @property
+    def particles(self):
+        return self.state.particles
+
+    @particles.setter
+    def particles(self, value):
+        self.state.particles = value
+
+    @property
+    def step_count(self):
+        return self.state.step
+
+    @property
+    def time(self):
+        return self.state.time
+
+    @property
+    def deleted(self):
+        return self.state.deleted
+
+    @property
+    def id(self):
+        """Stable integer identity of each particle (kept through deletion, reordering and restarts)."""
+        return self.state.particles.id
+
     def _particle_field(name):  # noqa: N805 - class-body helper building properties
         def getter(self):
             return getattr(self.particles, name)
@@ -73,18 +100,24 @@ class Simulation:
         inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
         norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
         d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, inertia, norms)
-        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted}
+        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted,
+                **self.stepper.diagnostics(self.state)}
 
     # --------------------------------------------------------------------------- stepping
-    def step(self, dt=None):
-        """Advance one time step of ``dt`` (default: the scene's fixed or CFL step); returns the Δt used."""
-        dt = self.stepper.time_step(self.particles) if dt is None else dt
-        new = self.stepper.advance(self.particles, dt, self.time)
-        self._check_finite(new, dt)
-        new = self._apply_domain_policy(new)
-        self.particles = new
-        self.step_count += 1
-        self.time += dt
+    def step(self, dt=None, t_end=None):
+        """Advance one step and return the Δt used.
+
+        Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
+        ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
+        again); ``dt`` must be ``None``.
+        """
+        new = self.stepper.advance(self.state, dt=dt, t_end=t_end)
+        dt = new.time - self.state.time
+        self.last_updates = self.stepper.updates(self.state, new)
+        self._check_finite(new.particles, dt)
+        new.particles, deleted = self._apply_domain_policy(new.particles)
+        new.deleted += deleted
+        self.state = new
         self.last_dt = dt
         return dt
 
@@ -92,7 +125,7 @@ class Simulation:
         for name, arr in new.arrays().items():
             bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
             if bad.any():
-                raise NonFiniteError(step=self.step_count + 1, particle=int(np.argmax(bad)), quantity=name,
+                raise NonFiniteError(step=self.step_count + 1, particle=int(new.id[np.argmax(bad)]), quantity=name,
                                      cfl=self.stepper.cfl_number(self.particles, dt),
                                      checkpoint=self._save_last_good("nonfinite"))
 
@@ -100,22 +133,22 @@ class Simulation:
         lo, hi = self.scene.valid_region()
         outside = np.any((new.x < lo) | (new.x >= hi), axis=1)
         if not outside.any():
-            return new
+            return new, 0
         policy = self.scene.boundary.domain_exit
         if policy == "error":
             idx = np.nonzero(outside)[0]
-            raise DomainExitError(self.step_count + 1, idx, new.x[idx], checkpoint=self._save_last_good("domain_exit"))
+            raise DomainExitError(self.step_count + 1, new.id[idx], new.x[idx],
+                                  checkpoint=self._save_last_good("domain_exit"))
         if policy == "clamp":
             span = hi - lo
             eps = np.asarray(1e-6 * span, dtype=new.x.dtype)
-            return new.with_(x=np.clip(new.x, lo + eps, hi - eps).astype(new.x.dtype))
-        self.deleted += int(outside.sum())
-        return new.select(~outside)
+            return new.with_(x=np.clip(new.x, lo + eps, hi - eps).astype(new.x.dtype)), 0
+        return new.select(~outside), int(outside.sum())
 
     def _save_last_good(self, reason):
         if self.output is None:
             return None
-        return self.output.save_checkpoint(self.particles, self._meta(reason),
+        return self.output.save_checkpoint(self.state, self._meta(reason),
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
@@ -133,10 +166,9 @@ class Simulation:
         start, done, particle_steps = _time.perf_counter(), 0, 0
         try:
             while not self._finished(done, steps, t_end):
-                n = self.n_particles
                 dt = self.step_clipped(t_end)
                 done += 1
-                particle_steps += n
+                particle_steps += self.last_updates
                 bar.update(1 if steps is not None else dt)
                 if self.output is not None and self.step_count % self.scene.output.every == 0:
                     self.write_output()
@@ -145,14 +177,11 @@ class Simulation:
         wall = _time.perf_counter() - start
         if self.output is not None and self.step_count % self.scene.output.every != 0:
             self.write_output()
-        return _summary(first, self.diagnostics(), done, wall, particle_steps)
+        return _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self.state))
 
     def step_clipped(self, t_end):
-        """One step, shortened if needed so as not to pass ``t_end``."""
-        if t_end is None:
-            return self.step()
-        dt = self.stepper.time_step(self.particles)
-        return self.step(min(dt, t_end - self.time))
+        """One step, shortened if the stepper can so as not to pass ``t_end``."""
+        return self.step(t_end=t_end)
 
     def _resolve_stop(self, steps, t_end):
         if steps is None and t_end is None:
@@ -218,11 +247,10 @@ class Simulation:
                         self.grid_data() if self.scene.output.grid else None)
         out.write_diagnostics(self.diagnostics())
         if self.scene.output.checkpoint:
-            out.save_checkpoint(self.particles, self._meta("output"))
+            out.save_checkpoint(self.state, self._meta("output"))
 
     def _meta(self, reason):
-        return {"step": self.step_count, "time": self.time, "deleted": self.deleted, "reason": reason,
-                "scene": self.scene.fingerprint()}
+        return {"reason": reason, "scene": self.scene.fingerprint()}
 
     @classmethod
     def resume(cls, scene, out_dir, backend="numpy"):
@@ -231,11 +259,10 @@ class Simulation:
         path = sim.output.checkpoint_path
         if not path.exists():
             raise MpmrefError(f"no checkpoint to resume from: {path} does not exist")
-        particles, meta = sim.output.load_checkpoint()
+        state, meta = sim.output.load_checkpoint()
         if meta["scene"] != scene.fingerprint():
             raise MpmrefError(f"checkpoint {path} was written by a different scene; refusing to resume")
-        sim.particles = particles
-        sim.step_count, sim.time, sim.deleted = meta["step"], meta["time"], meta["deleted"]
+        sim.state = state
         sim.output.restore(meta["output"])
         return sim
 
@@ -249,7 +276,7 @@ def _progress(steps, t_end, t0, enabled):
                 bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
 
 
-def _summary(first, last, steps, wall, particle_steps):
+def _summary(first, last, steps, wall, particle_steps, stepper_summary):
     def rel(key):
         a, b = first.get(key), last.get(key)
         if a is None:
@@ -265,5 +292,5 @@ def _summary(first, last, steps, wall, particle_steps):
         "steps": steps, "wall_s": wall, "particle_steps_per_s": particle_steps / wall if wall > 0 else float("nan"),
         "mass_drift_rel": rel("mass"),
         "momentum_drift_rel": float(np.linalg.norm(p1 - p0) / ref),
-        "energy_drift_rel": rel("total_energy"), "final": last,
+        "energy_drift_rel": rel("total_energy"), "final": last, **stepper_summary,
     }

@@ -5,7 +5,7 @@ for PolyPIC, ``F`` for materials that track the deformation gradient, ``J`` for 
 the volume ratio, ``Jp`` for plastic materials.
 """
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -25,6 +25,10 @@ class Particles:
     J : (n,)             volume ratio (fluid only) or ``None``
     Jp : (n,)            plastic volume ratio (plastic materials only) or ``None``
     modes : (n, M, d)    PolyPIC coefficients of the modes beyond constant and linear, or ``None``
+    id : (n,) int64      stable particle identity: kept through deletion, reordering and checkpoints
+                         (default ``0 .. n-1``)
+    level : (n,) int64   asynchronous stepping only: the exponent ``k`` of the particle's last step of
+                         ``2^k`` ticks, or ``None``
     """
 
     x: np.ndarray
@@ -37,6 +41,12 @@ class Particles:
     J: np.ndarray | None = None
     Jp: np.ndarray | None = None
     modes: np.ndarray | None = None
+    id: np.ndarray | None = None
+    level: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.id is None:
+            self.id = np.arange(self.x.shape[0], dtype=np.int64)
 
     @property
     def n(self):
@@ -54,8 +64,19 @@ class Particles:
         return Particles(**{k: a.copy() for k, a in self.arrays().items()})
 
     def select(self, keep):
-        """The particles where the boolean mask ``keep`` is true (a new object)."""
+        """The particles at ``keep`` (a boolean mask or an index array), as a new object."""
         return Particles(**{k: a[keep] for k, a in self.arrays().items()})
+
+    def assign(self, where, other):
+        """Write the rows of ``other`` into the rows ``where`` of this object (in place)."""
+        for k, a in self.arrays().items():
+            a[where] = getattr(other, k)
+
+    @staticmethod
+    def concatenate(parts):
+        """One object holding the rows of every object in ``parts`` (same fields), in order."""
+        names = parts[0].arrays().keys()
+        return Particles(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in names})
 
     def with_(self, **changes):
         """A shallow copy with some arrays replaced."""
@@ -64,11 +85,38 @@ class Particles:
 
 @dataclass(frozen=True)
 class Grid:
-    """A regular grid of ``cells`` cells per axis, nodes at ``origin + i * dx`` (``i = 0 .. cells``)."""
+    """A regular grid of ``cells`` cells per axis, nodes at ``origin + i * dx`` (``i = 0 .. cells``).
+
+    The nodes are grouped into cubic **blocks** of ``block`` cells per edge (a power of two, at least the
+    kernel support). A particle's *owner block* is the block that holds its stencil's base node. Blocks
+    are the unit of the Numba backend's coloured parallel P2G and of asynchronous time stepping.
+    """
 
     origin: np.ndarray
     dx: float
     cells: tuple
+    block: int = 4
+
+    @property
+    def blocks_per_axis(self):
+        """Number of blocks along each axis (the base nodes ``0 .. cells`` are covered)."""
+        return np.array([c // self.block + 1 for c in self.cells], dtype=np.int64)
+
+    @property
+    def n_blocks(self):
+        return int(np.prod(self.blocks_per_axis))
+
+    def owner_blocks(self, base):
+        """Linear index (C order) of the block of each base node; ``base`` is (n, d) integer node indices."""
+        coords = np.asarray(base, dtype=np.int64) // self.block
+        strides = np.cumprod(self.blocks_per_axis[::-1])[::-1]
+        strides = np.append(strides[1:], 1)
+        return coords @ strides
+
+    def block_coordinates(self):
+        """Integer coordinates (n_blocks, d) of every block, C order."""
+        grids = np.meshgrid(*[np.arange(b) for b in self.blocks_per_axis], indexing="ij")
+        return np.stack([g.ravel() for g in grids], axis=1)
 
     @property
     def dim(self):
@@ -104,3 +152,33 @@ class GridState:
     mass: np.ndarray
     momentum: np.ndarray
     force: np.ndarray
+
+
+@dataclass
+class State:
+    """Everything a run needs to continue: the particles, the clock, and the stepper's own state.
+
+    Attributes
+    ----------
+    particles : Particles   the authoritative particle state (each with its stable ``id``)
+    step : int              steps taken (synchronous) or synchronised intervals completed (asynchronous)
+    time : float            simulated time of ``particles``
+    tick : int              integer clock, in units of ``tick_length`` (asynchronous stepping counts every
+                            block's step in ticks; the synchronous stepper counts one tick per step)
+    tick_length : float or None   seconds per tick (``None`` when synchronous steps have no fixed length)
+    deleted : int           particles removed at the domain edge so far
+    stepper : dict          the stepper's own arrays (e.g. block levels), saved with checkpoints
+    """
+
+    particles: Particles
+    step: int = 0
+    time: float = 0.0
+    tick: int = 0
+    tick_length: float | None = None
+    deleted: int = 0
+    stepper: dict = field(default_factory=dict)
+
+    def clock(self):
+        """The scalar fields as a JSON-ready dict (what a checkpoint stores besides arrays)."""
+        return {"step": self.step, "time": self.time, "tick": self.tick, "tick_length": self.tick_length,
+                "deleted": self.deleted}

@@ -32,12 +32,12 @@ def random_particles(scene, n, rng, affine_scale=1.0):
     return Particles(
         x=x, v=rng.standard_normal((n, d)), mass=0.5 + rng.random(n), vol0=(0.5 + rng.random(n)) * 1e-3,
         material=np.zeros(n, dtype=np.int32),
-        C=affine_scale * rng.standard_normal((n, d, d)) if scene.method.affine else None,
+        C=affine_scale * rng.standard_normal((n, d, d)) if scene.transfer.affine else None,
         F=eye + 0.1 * rng.standard_normal((n, d, d)) if scene.tracks("F") else None,
         J=1.0 + 0.1 * rng.random(n) if scene.tracks("J") else None,
         Jp=1.0 + 0.1 * rng.random(n) if scene.tracks("Jp") else None,
         modes=affine_scale * rng.standard_normal((n, len(higher_modes(d, scene.kernel.support)), d))
-        if scene.method.polypic else None,
+        if scene.transfer.polypic else None,
     )
 
 

@@ -13,7 +13,7 @@ from mpmref.physics.materials import NeoHookean
 from verification import convergence as case
 from verification.common import failed
 from verification._conv_problems import AxisAlignedMMS, VibratingBar
-from verification._conv_stepping import step
+from verification._conv_stepping import advance
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_the_mirror_treatment_is_the_doubled_bar_run_by_the_engine():
     scene, X, particles = _bar_start(bar, cells, method, dt)
     backend = make_backend("numpy", scene)
     for n in range(steps):
-        particles = step(backend, particles, dt, n * dt, bar.planes(cells), "mirror")
+        particles = advance(backend, particles, dt, n * dt, bar.planes(cells), "mirror")
 
     dx = bar.length / cells
     doubled = (SceneBuilder(dim=2).grid(size=[2 * bar.length + 8 * dx, 4 * dx], dx=dx,
@@ -79,7 +79,7 @@ def test_the_strip_stays_one_dimensional():
     scene, X, particles = _bar_start(bar, cells, {"scheme": "mls", "kernel": "cubic"}, dt)
     backend = make_backend("numpy", scene)
     for n in range(20):
-        particles = step(backend, particles, dt, n * dt, bar.planes(cells), "mirror")
+        particles = advance(backend, particles, dt, n * dt, bar.planes(cells), "mirror")
     assert np.max(np.abs(particles.v[:, 1])) < 1e-14
     rows = [np.isclose(X[:, 1], y) for y in np.unique(X[:, 1])]
     assert len(rows) == 2

@@ -1,12 +1,12 @@
-r"""The convergence case's own stepping loop: the backend's stages with a boundary treatment and a body force.
+r"""The convergence case's step: the stepper's one pipeline with a boundary treatment and a body force as hooks.
 
 The engine's walls project node velocities (sticky, slip, separate); none of them expresses a
 *symmetry plane*, which the fixed end of the vibrating bar and the faces of the manufactured solution
-need for second-order accuracy. So the case steps the backend's stages itself::
+need for second-order accuracy. So the case adds them through :class:`mpmref.steppers.Hooks`::
 
-    P2G  ->  add the body force  ->  boundary treatment on (m_i, (mv)_i, f_i)  ->  grid update  ->  G2P
+    P2G  ->  body force (hook)  ->  boundary treatment on (m_i, (mv)_i, f_i) (grid folds)  ->  grid update  ->  G2P
 
-and leaves the engine files untouched. Two boundary treatments:
+Two boundary treatments:
 
 ``mirror`` (the odd ghost treatment)
     Every particle has a mirror image across the plane: position reflected, the normal components of
@@ -31,10 +31,11 @@ and leaves the engine files untouched. Two boundary treatments:
     boundary, and drops the convergence rate to one.
 """
 
+from functools import partial
+
 import numpy as np
 
-from mpmref.backends.numpy.transfers import node_index, scatter
-from mpmref.physics.kernels import compute_stencil
+from mpmref.steppers import Hooks, substep
 
 TREATMENTS = ("mirror", "zero")
 
@@ -85,32 +86,23 @@ def zero_beyond(gs, grid, plane):
 BOUNDARY = {"mirror": mirror, "zero": zero_beyond}
 
 
-def body_force_on_grid(particles, grid, kernel, b):
-    r"""External node force :math:`f^{ext}_i = \sum_p w_{ip}\, m_p\, b_p` of a body force per unit mass ``b`` (n, d).
+def hooks(planes, treatment, body_force=None):
+    """The :class:`~mpmref.steppers.Hooks` of the boundary ``treatment`` on ``planes`` and a body force.
 
-    The usual particle-carried external force of MPM (Sulsky, Chen & Schreyer 1994 §3), as Uintah's MMS
-    tests apply it: :math:`b_p = b(X_p, t^n)` at the particle's material point.
+    ``body_force`` is ``None`` or ``body_force(particles, time) -> (n, d)``, force per unit mass.
     """
-    st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
-    f = np.zeros((grid.n_nodes, grid.dim))
-    mb = particles.mass[:, None] * b
-    for offset in st.offsets:
-        f += scatter(node_index(st, offset, grid), st.node_weight(offset)[:, None] * mb, grid.n_nodes)
-    return f
+    folds = tuple(partial(_fold, BOUNDARY[treatment], plane) for plane in planes)
+    return Hooks(body_force=body_force, grid_folds=folds)
 
 
-def step(backend, particles, dt, time, planes, treatment, body_force=None):
-    """One symplectic-Euler MPM step from ``time`` with the boundary ``treatment`` on ``planes``.
+def _fold(treatment, plane, gs, grid):
+    treatment(gs, grid, plane)
 
-    ``body_force`` is ``None`` or the body force per unit mass (n, d) of each particle at ``time``.
-    Uses only the backend's stages (``p2g``, ``grid_update``, ``g2p``, ``return_map``), so any backend
-    with the reference's stage interface runs it. Returns the new particles.
+
+def advance(backend, particles, dt, time, planes, treatment, body_force=None):
+    """One MPM step from ``time`` with the boundary ``treatment`` on ``planes`` (see :func:`hooks`).
+
+    Uses only the backend's stages through :func:`mpmref.steppers.substep`, so any backend runs it.
+    Returns the new particles.
     """
-    grid = backend.scene.grid
-    gs = backend.p2g(particles)
-    if body_force is not None:
-        gs.force += body_force_on_grid(particles, grid, backend.scene.kernel, body_force).astype(gs.force.dtype)
-    for plane in planes:
-        BOUNDARY[treatment](gs, grid, plane)
-    v_grid, v_tilde = backend.grid_update(gs, dt, time)
-    return backend.return_map(backend.g2p(particles, v_grid, v_tilde, dt))
+    return substep(backend, particles, dt, time, hooks(planes, treatment, body_force))

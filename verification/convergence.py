@@ -34,10 +34,10 @@ import numpy as np
 
 from mpmref.backends import make_backend
 from mpmref.bodies import sample_particles
-from mpmref.steppers.synchronous import cfl_time_step
+from mpmref.steppers.limits import cfl_time_step
 
 from ._conv_problems import PROBLEMS
-from ._conv_stepping import TREATMENTS, step
+from ._conv_stepping import TREATMENTS, advance
 from .common import Check, checks_table
 from .executor import Executor
 
@@ -173,7 +173,7 @@ class LevelRun:
 
 def time_step(problem, scene, cfl):
     """The CFL step, shortened so that a whole number of steps ends exactly at the problem's end time."""
-    dt_cfl = cfl_time_step(cfl, scene.grid.dx, scene.max_wave_speed(), problem.max_speed)
+    dt_cfl = cfl_time_step(cfl, scene.grid.dx, scene.max_wave_speed() + problem.max_speed)
     n = math.ceil(problem.end_time() / dt_cfl)
     return problem.end_time() / n, n
 
@@ -214,13 +214,15 @@ def run_level(item):
     X = particles.x.copy()
     particles = initial_particles(problem, particles, dt)
     planes = problem.planes(item.cells)
+    force = problem.body_force  # of the reference position X, looked up by particle id
+    body_force = None if problem.body_force(X, 0.0) is None else (lambda p, t: force(X[p.id], t))
     frame_steps = set(np.linspace(0, n_steps, item.frames + 1).round().astype(int)) if item.frames else set()
     frames, t = [], 0.0
     start = _time.perf_counter()
     for n in range(n_steps):
         if n in frame_steps:
             frames.append(_snapshot(problem, particles, X, t))
-        particles = step(backend, particles, dt, t, planes, series.fixed_end, problem.body_force(X, t))
+        particles = advance(backend, particles, dt, t, planes, series.fixed_end, body_force)
         t = (n + 1) * dt
     wall = _time.perf_counter() - start
     if n_steps in frame_steps:

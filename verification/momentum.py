@@ -33,6 +33,9 @@ import numpy as np
 from mpmref import SceneBuilder, Simulation
 from mpmref.diagnostics import angular_momentum
 from mpmref.io.atomic import write_text_atomic
+from mpmref.physics.materials import FixedCorotated
+from mpmref.physics.scheme import resolve
+from mpmref.scene import MethodSpec
 
 from .common import Check, checks_table
 from .executor import Executor
@@ -53,15 +56,24 @@ class Variant:
         return dict(self.options)
 
     @property
+    def transfer(self):
+        """The resolved :class:`~mpmref.physics.scheme.TransferSpec` (2D, one elastic material)."""
+        method = MethodSpec(scheme=self.scheme, force=self.method.get("force", "mls"), kernel="quadratic",
+                            flip_alpha=self.method.get("flip_alpha", 0.0))
+        return resolve(method, 2, [FixedCorotated(E=1.0, nu=0.3, rho=1.0)])
+
+    @property
     def conserves_angular_momentum(self):
-        return self.scheme in ("apic", "polypic", "mls")
+        """Whether particles carry the affine mode that keeps a rigid spin (APIC, PolyPIC, MLS-MPM)."""
+        return self.transfer.affine
 
     @property
     def pic_fraction(self):
         r"""The fraction :math:`1 - \alpha` of the PIC velocity in G2P (1 for PIC, 0 for affine schemes)."""
-        if self.scheme == "pic":
-            return 1.0
-        return 1.0 - self.method["flip_alpha"] if self.scheme == "flip" else 0.0
+        spec = self.transfer
+        if spec.affine:
+            return 0.0
+        return 1.0 - spec.flip_alpha if spec.flip else 1.0
 
 
 #: the compared schemes; ``scheme = "apic"`` with the default MLS force is MLS-MPM, so it is listed once

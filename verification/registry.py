@@ -24,6 +24,7 @@ CASES = {
     "extremes": "verification.extremes",
     "backends": "verification.backends",
     "speed_accuracy": "verification.speed_accuracy",
+    "sync_vs_async": "verification.sync_vs_async",
 }
 
 PRESETS = ("quick", "default", "full")

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..backends import make_backend
 from ..errors import MpmrefError
+from ..steppers import substep
 from .scenes import table2_particles, table2_scene
 from .timing import set_threads
 
@@ -56,14 +57,14 @@ def probe_step(backend, cells, dtype, threads):
     set_threads(backend, threads)
     scene = table2_scene(cells, "mls", dtype)
     particles = table2_particles(scene)
-    stepper = make_backend(backend, scene)
+    stages = make_backend(backend, scene)
     dt = scene.time.dt
-    stepper.step(particles.select(np.arange(particles.n) < WARM_UP_PARTICLES), dt)
+    substep(stages, particles.select(np.arange(particles.n) < WARM_UP_PARTICLES), dt, 0.0)
     gc.collect()
     resettable = _reset_peak()
     before = _status_bytes("VmRSS") if resettable else None
     tracemalloc.start()
-    stepper.step(particles, dt)
+    substep(stages, particles, dt, 0.0)
     traced_peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     growth = _status_bytes("VmHWM") - before if resettable else None

@@ -1,4 +1,4 @@
-"""Throughput: particle-steps per second of whole steps (``backend.step``, no outputs or checks).
+"""Throughput: particle-steps per second of whole steps (:func:`mpmref.steppers.substep`, no outputs or checks).
 
 Every repeat starts from a copy of the same sampled particles and runs ``steps`` steps; the first call
 (one step, including JIT compilation) is reported apart. The NumPy reference runs in float64 on one
@@ -6,6 +6,7 @@ thread and is the denominator of ``vs_numpy``.
 """
 
 from ..backends import make_backend
+from ..steppers import substep
 from ..bodies import sample_particles
 from .timing import measure, set_threads, thread_counts
 
@@ -15,7 +16,7 @@ REFERENCE = ("numpy", "float64")
 def run_steps(backend, particles, dt, steps):
     """Advance ``particles`` by ``steps`` steps of ``backend``; returns the final particles."""
     for i in range(steps):
-        particles = backend.step(particles, dt, i * dt)
+        particles = substep(backend, particles, dt, i * dt)
     return particles
 
 
@@ -27,7 +28,7 @@ def time_steps(backend_name, scene, particles, threads, repeats, steps):
     for k in threads:
         set_threads(backend_name, k)
         rec, final = measure(lambda p: run_steps(backend, p, dt, steps), repeats, setup=lambda: (particles.copy(),),
-                             first=lambda p: backend.step(p, dt))
+                             first=lambda p: substep(backend, p, dt, 0.0))
         rate = particles.n * steps / rec["median_s"]
         records.append({"backend": backend_name, "threads": k, "dtype": str(scene.dtype), **rec,
                         "particle_steps_per_s": rate})

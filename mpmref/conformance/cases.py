@@ -8,6 +8,7 @@ Why each stage varies only some axes is explained in :mod:`mpmref.conformance`.
 
 import zlib
 from dataclasses import dataclass, field
+from functools import partial
 from itertools import product
 
 import numpy as np
@@ -17,7 +18,7 @@ from ..errors import SceneError
 from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
 from ..scene import FORCES, SCHEMES, Scene
-from .stages import STAGES, particles_from, run_stage
+from .stages import STAGES, composed_step, particles_from, run_stage
 
 CELLS = 8
 #: particles stay at least this many cells away from every face of the domain
@@ -170,7 +171,7 @@ def random_particles(scene, rng):
     rho = np.array([m.rho for m in scene.material_list])[material]
     flat = {"x": random_positions(scene, rng, n), "v": rng.standard_normal((n, dim)), "mass": rho * vol0,
             "vol0": vol0, "material": material}
-    if scene.method.affine:
+    if scene.transfer.affine:
         flat["C"] = 4.0 * rng.standard_normal((n, dim, dim))
     if scene.tracks("F"):
         flat["F"] = random_deformation_gradients(rng, n, dim)
@@ -178,7 +179,7 @@ def random_particles(scene, rng):
         flat["J"] = rng.uniform(0.9, 1.1, n)
     if scene.tracks("Jp"):
         flat["Jp"] = rng.uniform(0.7, 1.2, n)
-    if scene.method.polypic:
+    if scene.transfer.polypic:
         flat["modes"] = random_modes(rng, n, dim, scene.kernel.support, grid.dx)
     return flat
 
@@ -260,7 +261,8 @@ class Case:
     def reference(self, inputs=None):
         """The NumPy reference's outputs of the stage on ``inputs`` (default: :meth:`inputs`), a flat dict."""
         backend = make_backend("numpy", self.scene())
-        return run_stage(self.stage, getattr(backend, self.stage), self.inputs() if inputs is None else inputs)
+        fn = partial(composed_step, backend) if self.stage == "step" else getattr(backend, self.stage)
+        return run_stage(self.stage, fn, self.inputs() if inputs is None else inputs)
 
 
 def _material_cases(stage, dim, dtype, set_names):

@@ -9,8 +9,9 @@ from functools import partial
 import numpy as np
 
 from ..backends import make_backend
+from ..backends.base import STAGES as BACKEND_STAGES
 from .cases import make_cases
-from .stages import STAGES, run_stage
+from .stages import STAGES, composed_step, run_stage
 
 
 def relative_error(candidate, reference):
@@ -134,11 +135,18 @@ def _check_stage_names(mapping):
 
 
 def _stage_callables(stages):
-    """``{stage: callable}`` of an object with stage methods or of a mapping of stage names to callables."""
+    """``{stage: callable}`` of an object with stage methods or of a mapping of stage names to callables.
+
+    An object with the six backend stages (:mod:`mpmref.backends.base`) is also checked on whole steps:
+    its ``step`` is the stepper's one pipeline (:func:`mpmref.steppers.substep`) over its stages.
+    """
     if isinstance(stages, Mapping):
         _check_stage_names(stages)
         return dict(stages)
-    return {s: getattr(stages, s) for s in STAGES if callable(getattr(stages, s, None))}
+    found = {s: getattr(stages, s) for s in STAGES if callable(getattr(stages, s, None))}
+    if "step" not in found and all(callable(getattr(stages, s, None)) for s in BACKEND_STAGES):
+        found["step"] = partial(composed_step, stages)
+    return found
 
 
 def stage_functions(candidate, scene):

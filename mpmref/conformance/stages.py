@@ -11,6 +11,8 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``.
 """
 
+from contextlib import nullcontext
+
 import numpy as np
 
 from ..state import GridState, Particles
@@ -62,6 +64,33 @@ def _step(fn, flat):
 
 _CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "grid_update": _grid_update,
             "g2p": _g2p, "step": _step}
+
+
+def composed_step(stages, particles, dt, time):
+    """A whole step of an object with the six backend stages: the steppers' one pipeline over them.
+
+    Objects without a ``running`` context (see :mod:`mpmref.backends.base`) run their stages as they are.
+    """
+    from ..steppers.pipeline import substep
+
+    if not callable(getattr(stages, "running", None)):
+        stages = _WithRunning(stages)
+    return substep(stages, particles, dt, time)
+
+
+class _WithRunning:
+    """A stage object given the trivial ``running`` context."""
+
+    def __init__(self, stages):
+        self._stages = stages
+        self.scene = getattr(stages, "scene", None)
+
+    def __getattr__(self, name):
+        return getattr(self._stages, name)
+
+    @staticmethod
+    def running(n_particles):
+        return nullcontext()
 
 
 def run_stage(stage, fn, flat):

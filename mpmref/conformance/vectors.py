@@ -68,7 +68,7 @@ def resolved_scene(case):
         "boundary": {"width": scene.boundary.width,
                      "walls": {name: asdict(w) for name, w in scene.boundary.walls.items()}},
         "colliders": [_collider_entry(c) for c in scene.colliders],
-        "polypic_modes": higher_modes(scene.dim, kernel.support).tolist() if scene.method.polypic else None,
+        "polypic_modes": higher_modes(scene.dim, kernel.support).tolist() if scene.transfer.polypic else None,
     }
 
 

@@ -54,9 +54,9 @@ class RunOutput:
         self.grid_series = [tuple(e) for e in book["grid_series"]]
         self.rows = list(book["rows"])
 
-    def save_checkpoint(self, particles, meta, path=None):
+    def save_checkpoint(self, state, meta, path=None):
         path = path or self.checkpoint_path
-        save_checkpoint(path, particles, {**meta, "output": self.bookkeeping()})
+        save_checkpoint(path, state, {**meta, "output": self.bookkeeping()})
         return path
 
     def load_checkpoint(self):

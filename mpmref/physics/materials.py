@@ -64,8 +64,13 @@ class ElasticSolid(LameParameters):
     tracks = "F"
 
     def wave_speed(self):
-        r"""Dilatational (P-)wave speed :math:`c = \sqrt{(\lambda + 2\mu)/\rho}` used by the CFL rule."""
+        r"""Dilatational (P-)wave speed at rest, :math:`c = \sqrt{(\lambda + 2\mu)/\rho}`."""
         return float(np.sqrt((self.lam + 2.0 * self.mu) / self.rho))
+
+    def wave_speeds(self, F):
+        r"""P-wave speed of each particle in its current state (the CFL rule's :math:`c_p`); see
+        :func:`elastic_wave_speeds`."""
+        return elastic_wave_speeds(self.mu, self.lam, self.rho, np.linalg.det(F))
 
     def first_piola(self, F):
         r"""First Piola–Kirchhoff stress :math:`P = \tau F^{-T}`."""
@@ -159,12 +164,34 @@ class WeaklyCompressibleFluid:
         r"""Sound speed at rest, :math:`c = \sqrt{\gamma K / \rho}` (bulk modulus :math:`-J\,dp/dJ = \gamma K` at J = 1)."""
         return float(np.sqrt(self.gamma * self.K / self.rho))
 
+    def wave_speeds(self, J):
+        r"""Sound speed of each particle at its volume ratio :math:`J`.
 
-MATERIAL_TYPES = {
-    "fixed_corotated": FixedCorotated,
-    "neo_hookean": NeoHookean,
-    "fluid": WeaklyCompressibleFluid,
-}
+        .. math:: c_p^2 = \frac{B(J_p)}{\rho_0 / J_p} = \frac{\gamma K}{\rho_0\, J_p^{\gamma - 1}}
+
+        :math:`B = -J\,\mathrm dp/\mathrm dJ = \gamma K J^{-\gamma}` is the bulk modulus of the Tait law
+        above and :math:`\rho_0/J` the current density (the water rule of Fang et al. 2018's regional
+        time stepping). Compression (:math:`J < 1`, :math:`\gamma > 1`) makes sound faster.
+        """
+        return np.sqrt(self.gamma * self.K / (self.rho * np.maximum(J, 1e-6) ** (self.gamma - 1.0)))
+
+
+def elastic_wave_speeds(mu, lam, rho, J):
+    r"""Dilatational wave speed of elastic particles at volume ratio :math:`J` (Lamé parameters may be arrays).
+
+    .. math:: c_p^2 = \frac{4\mu}{3\rho_p} + \frac{K\,(1 - \ln J_p)}{\rho_0}, \qquad
+              K = \tfrac23\mu + \lambda, \qquad \rho_p = \rho_0 / J_p
+
+    the rule of Fang et al. 2018's regional time stepping for elastic solids and sand: the shear part at
+    the current density and the bulk part stiffened logarithmically under compression. At rest
+    (:math:`J = 1`) it is the P-wave speed :math:`\sqrt{(\lambda + 2\mu)/\rho_0}`. :math:`\mu, \lambda`:
+    Lamé parameters; :math:`\rho_0`: rest density. Negative :math:`c^2` (only for :math:`J > e^{1+4\mu/3K}`,
+    torn material) is clipped to the shear part; :math:`J < 10^{-6}` (including inverted particles) is
+    taken as :math:`10^{-6}`, the stiffest state the rule can express.
+    """
+    J = np.maximum(J, 1e-6)
+    shear = 4.0 * mu * J / (3.0 * rho)
+    return np.sqrt(np.maximum(shear + (2.0 * mu / 3.0 + lam) * (1.0 - np.log(J)) / rho, shear))
 
 
 def state_args(material, particles, sel):
@@ -174,6 +201,11 @@ def state_args(material, particles, sel):
     if getattr(material, "plastic", False):
         return (particles.F[sel], particles.Jp[sel])
     return (particles.F[sel],)
+
+
+def wave_speed_of(material, particles, sel):
+    """Current wave speed (m,) of the selected particles of ``material`` (the CFL rule's :math:`c_p`)."""
+    return material.wave_speeds(*state_args(material, particles, sel))
 
 
 def kirchhoff_stress_of(material, particles, sel):

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import FixedCorotated, LameParameters, signed_svd
+from .materials import FixedCorotated, LameParameters, elastic_wave_speeds, signed_svd
 
 SIGMA_FLOOR = 1.0e-6
 """Smallest singular value the Hencky strain :math:`\\ln\\sigma` is taken of (sand): a compression of a
@@ -114,6 +114,16 @@ class SnowPlasticity(LameParameters):
         """
         return math.sqrt((self.lam + 2.0 * self.mu) * math.exp(self.hardening * (1.0 - self.Jp_min)) / self.rho)
 
+    def wave_speeds(self, F, Jp):
+        r"""P-wave speed of each particle with its hardened Lamé parameters and current density.
+
+        .. math:: c_p = \sqrt{(\lambda(J_P) + 2\mu(J_P))\, J / \rho_0}, \qquad J = \det F_E\, J_P
+
+        (the snow rule of Fang et al. 2018's regional time stepping; :math:`\rho_0/J` is the current density).
+        """
+        J = np.maximum(np.linalg.det(F) * Jp, 1e-6)
+        return np.sqrt((self.lam + 2.0 * self.mu) * self.hardening_factor(Jp) * J / self.rho)
+
 
 @dataclass(frozen=True)
 class DruckerPragerSand(LameParameters):
@@ -203,5 +213,10 @@ class DruckerPragerSand(LameParameters):
         return F_new, Jp * np.exp(np.sum(eps, axis=1) - np.sum(eps_new, axis=1))
 
     def wave_speed(self):
-        r"""Dilatational (P-)wave speed :math:`c = \sqrt{(\lambda + 2\mu)/\rho}` used by the CFL rule."""
+        r"""Dilatational (P-)wave speed at rest, :math:`c = \sqrt{(\lambda + 2\mu)/\rho}`."""
         return math.sqrt((self.lam + 2.0 * self.mu) / self.rho)
+
+    def wave_speeds(self, F, Jp):
+        r"""Current wave speed of each particle: the elastic rule (:func:`~.materials.elastic_wave_speeds`)
+        at the elastic volume ratio :math:`\det F_E`."""
+        return elastic_wave_speeds(self.mu, self.lam, self.rho, np.linalg.det(F))

@@ -1,5 +1,17 @@
-"""Time steppers: how the step size is chosen and how a step is applied."""
+"""Time steppers: they own the MPM step (:mod:`.pipeline`) and decide who advances, by how much, when.
 
+* :class:`SynchronousStepper`: every particle, one Δt (fixed or CFL);
+* :class:`AsynchronousStepper`: regional power-of-two steps per block (Fang et al. 2018).
+"""
+
+from .asynchronous import AsynchronousStepper
+from .pipeline import NO_HOOKS, Hooks, substep
 from .synchronous import SynchronousStepper
 
-__all__ = ["SynchronousStepper"]
+__all__ = ["AsynchronousStepper", "Hooks", "NO_HOOKS", "SynchronousStepper", "make_stepper", "substep"]
+
+
+def make_stepper(scene, backend, hooks=None):
+    """The stepper ``scene.time.stepping`` asks for, composing ``backend``'s stages."""
+    cls = AsynchronousStepper if scene.time.stepping == "async" else SynchronousStepper
+    return cls(scene, backend, hooks or NO_HOOKS)

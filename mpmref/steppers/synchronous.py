@@ -1,36 +1,54 @@
 """Synchronous stepping: every particle advances with the same Δt (fixed, or from a CFL number)."""
 
-import numpy as np
+from dataclasses import replace
 
-
-def cfl_time_step(cfl, dx, wave_speed, v_max):
-    r"""CFL time step :math:`\Delta t = C\,\Delta x / (c + |v|_{max})`.
-
-    :math:`C` is the CFL number, :math:`c` the largest material wave speed (elastic P-wave or fluid sound
-    speed), :math:`|v|_{max}` the largest particle speed (Courant, Friedrichs & Lewy 1928; its use for MPM time steps: Fang et al. 2018 §3).
-    """
-    return cfl * dx / (wave_speed + v_max)
+from ..state import State
+from .limits import cfl_time_step, signal_speeds
+from .pipeline import NO_HOOKS, substep
 
 
 class SynchronousStepper:
-    """Chooses Δt for the whole domain and applies one backend step (symplectic Euler)."""
+    """Chooses one Δt for the whole domain and applies :func:`~.pipeline.substep` to every particle.
 
-    def __init__(self, scene, backend):
-        self.scene, self.backend = scene, backend
-        self.wave_speed = scene.max_wave_speed()
+    The clock counts one tick per step; ``tick_length`` is the fixed Δt (``None`` with a CFL step).
+    """
 
-    def max_speed(self, particles):
-        return float(np.sqrt(np.max(np.sum(particles.v.astype(np.float64) ** 2, axis=1), initial=0.0)))
+    name = "sync"
+
+    def __init__(self, scene, backend, hooks=NO_HOOKS):
+        self.scene, self.backend, self.hooks = scene, backend, hooks
+
+    def initial_state(self, particles):
+        return State(particles=particles, tick_length=self.scene.time.dt)
 
     def time_step(self, particles):
         t = self.scene.time
         if t.dt is not None:
             return t.dt
-        return cfl_time_step(t.cfl, self.scene.grid.dx, self.wave_speed, self.max_speed(particles))
+        return cfl_time_step(t.cfl, self.scene.grid.dx, signal_speeds(self.scene.material_list, particles))
 
     def cfl_number(self, particles, dt):
-        """The CFL number ``dt (c + |v|max) / dx`` of a step of size ``dt`` from ``particles``."""
-        return dt * (self.wave_speed + self.max_speed(particles)) / self.scene.grid.dx
+        """The CFL number ``dt max_p(c_p + |v_p|) / dx`` of a step of size ``dt`` from ``particles``."""
+        speed = signal_speeds(self.scene.material_list, particles)
+        return dt * float(speed.max(initial=0.0)) / self.scene.grid.dx
 
-    def advance(self, particles, dt, time):
-        return self.backend.step(particles, dt, time)
+    def advance(self, state, dt=None, t_end=None):
+        """The state one step later (``dt``: default the scene's; shortened so as not to pass ``t_end``)."""
+        if dt is None:
+            dt = self.time_step(state.particles)
+            if t_end is not None:
+                dt = min(dt, t_end - state.time)
+        particles = substep(self.backend, state.particles, dt, state.time, self.hooks)
+        return replace(state, particles=particles, step=state.step + 1, time=state.time + dt, tick=state.tick + 1)
+
+    def updates(self, old, new):
+        """Particle updates made between two states: every particle once per step."""
+        return old.particles.n * (new.step - old.step)
+
+    def diagnostics(self, state):
+        """Stepper columns of ``diagnostics.csv`` (none for synchronous stepping)."""
+        return {}
+
+    def summary(self, state):
+        """Stepper figures for the run summary (none for synchronous stepping)."""
+        return {}

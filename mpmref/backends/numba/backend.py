@@ -7,9 +7,10 @@ import numpy as np
 
 from ...physics.polypic import higher_modes
 from ...state import GridState
+from ..base import MaterialTable
 from . import materials, transfers
-from .blocks import BLOCK, sort_into_blocks
-from .stencil import BASE_SHIFT, KERNEL_CODES
+from .blocks import sort_into_blocks
+from .stencil import BASE_SHIFT
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
 
@@ -33,17 +34,26 @@ def threads_for(n_particles):
         numba.set_num_threads(before)
 
 
-def transfer_config(scene):
-    """The :class:`~.transfers.TransferConfig` a scene compiles into its kernels."""
-    method = scene.method
-    return transfers.TransferConfig(
-        dim=scene.dim, kernel=KERNEL_CODES[scene.kernel.name], support=scene.kernel.support,
-        affine=method.affine, polypic=method.polypic, flip=method.flip, mls=method.force == "mls",
-        tracks_F=scene.tracks("F"), tracks_J=scene.tracks("J"))
+def _or_empty(array, dtype, *shape):
+    return array if array is not None else np.empty(shape, dtype=dtype)
+
+
+def _stress_adapter(kernel):
+    """A :class:`~mpmref.backends.base.MaterialTable` stress kernel from one of :data:`.materials.KERNELS`."""
+    def stress(material, particles, idx, tau):
+        n, d = particles.x.shape
+        dtype = particles.x.dtype
+        kernel(material, _or_empty(particles.F, dtype, 0, d, d), _or_empty(particles.J, dtype, 0),
+               _or_empty(particles.Jp, dtype, 0), idx, tau)
+    return stress
+
+
+#: the Numba material kernels in the shape of :class:`~mpmref.backends.base.MaterialTable`
+KERNELS = {cls: (_stress_adapter(stress), return_map) for cls, (stress, return_map) in materials.KERNELS.items()}
 
 
 class Blocks:
-    """Particles sorted into blocks of :data:`~.blocks.BLOCK` cells (see :mod:`.blocks`)."""
+    """Particles sorted into the grid's blocks (see :mod:`.blocks`)."""
 
     def __init__(self, order, block_start, colour_blocks, colour_start):
         self.order, self.block_start = order, block_start
@@ -65,9 +75,8 @@ class NumbaBackend:
         self.scene = scene
         grid = scene.grid
         self.dtype = scene.dtype
-        self.cfg = transfer_config(scene)
-        # P2G does not see FLIP or the tracked deformation: one compiled P2G serves those variants
-        self._p2g = transfers.make_p2g(self.cfg._replace(flip=False, tracks_F=False, tracks_J=False))
+        self.cfg = scene.transfer
+        self._p2g = transfers.make_p2g(self.cfg)
         self._g2p = transfers.make_g2p(self.cfg)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
@@ -77,54 +86,37 @@ class NumbaBackend:
         modes = higher_modes(scene.dim, scene.kernel.support) if self.cfg.polypic else np.zeros((0, scene.dim))
         self.mode_index = np.ascontiguousarray(modes, dtype=np.int64)
         self.shift = BASE_SHIFT[scene.kernel.name]
-        self.blocks_per_axis = np.array([c // BLOCK + 1 for c in grid.cells], dtype=np.int64)
+        self.block = grid.block
+        self.blocks_per_axis = grid.blocks_per_axis
         walls = [scene.boundary.walls[f"{'xyz'[a]}_{side}"] for a in range(scene.dim) for side in ("min", "max")]
         self.wall_type = np.array([WALL_CODES[w.type] for w in walls], dtype=np.int64)
         self.wall_friction = np.array([w.friction for w in walls], dtype=np.float64)
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.node_x = grid.node_positions() if scene.colliders else None
-        self.material_kernels = [materials.KERNELS[type(m)] for m in scene.material_list]
+        self.materials = MaterialTable(scene.material_list, KERNELS)
+
+    running = staticmethod(threads_for)
 
     # ------------------------------------------------------------------ helpers
     def _empty(self, *shape):
         return np.empty(shape, dtype=self.dtype)
 
-    def _indices(self, particles, mat_id):
-        if len(self.material_kernels) == 1:
-            return np.arange(particles.n, dtype=np.int64)
-        return np.flatnonzero(particles.material == mat_id)
-
     def _or_empty(self, array, *shape):
-        return array if array is not None else self._empty(*shape)
+        return _or_empty(array, self.dtype, *shape)
 
     # ------------------------------------------------------------------ stages
     def prepare(self, particles):
-        """Sort the particles into blocks and colour classes (shared by P2G and G2P of one step)."""
-        return Blocks(*sort_into_blocks(particles.x, self.origin, self.dx, self.shift, BLOCK, self.blocks_per_axis))
+        """Sort the particles into the grid's blocks and colour classes (shared by P2G and G2P of one step)."""
+        return Blocks(*sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
+                                        self.blocks_per_axis))
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
-        n, d = particles.x.shape
-        tau = np.zeros((n, d, d), dtype=particles.x.dtype)
-        F = self._or_empty(particles.F, 0, d, d)
-        J = self._or_empty(particles.J, 0)
-        Jp = self._or_empty(particles.Jp, 0)
-        for mat_id, (material, (stress, _)) in enumerate(zip(self.scene.material_list, self.material_kernels)):
-            idx = self._indices(particles, mat_id)
-            if idx.size:
-                stress(material, F, J, Jp, idx, tau)
-        return tau
+        return self.materials.stress(particles)
 
     def return_map(self, particles):
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
-        if particles.Jp is None:
-            return particles
-        F, Jp = particles.F.copy(), particles.Jp.copy()
-        for mat_id, (material, (_, return_map)) in enumerate(zip(self.scene.material_list, self.material_kernels)):
-            idx = self._indices(particles, mat_id)
-            if return_map is not None and idx.size:
-                return_map(material, F, Jp, idx)
-        return particles.with_(F=F, Jp=Jp)
+        return self.materials.return_map(particles)
 
     def p2g(self, particles, prepared=None):
         """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent)."""
@@ -162,7 +154,7 @@ class NumbaBackend:
         J_new = self._empty(n) if particles.J is not None else self._empty(0)
         modes_new = np.empty_like(particles.modes) if particles.modes is not None else self._empty(0, 0, d)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.origin, self.dx, self.inertia, dt, self.scene.method.flip_alpha, self.strides,
+                  self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, self.strides,
                   self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
                   v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
@@ -170,11 +162,3 @@ class NumbaBackend:
             if getattr(particles, name) is not None:
                 changes[name] = array
         return particles.with_(**changes)
-
-    def step(self, particles, dt, time=0.0):
-        """One full MPM step from ``time`` (P2G, grid update, G2P, return map); returns new particles."""
-        with threads_for(particles.n):
-            blocks = self.prepare(particles)
-            grid_state = self.p2g(particles, blocks)
-            v_grid, v_tilde = self.grid_update(grid_state, dt, time)
-            return self.return_map(self.g2p(particles, v_grid, v_tilde, dt, blocks))

@@ -1,7 +1,7 @@
 r"""Sorting particles into blocks of cells, and the colouring that makes parallel P2G race-free.
 
 A particle belongs to the block that holds its stencil's base node: block coordinate
-``b_a = base_a // B`` per axis (``B`` = :data:`BLOCK` cells). The particles of one block write only to
+``b_a = base_a // B`` per axis (``B`` = the grid's ``block`` cells, :class:`mpmref.state.Grid`). The particles of one block write only to
 nodes ``b_a B .. b_a B + B + S - 2`` per axis (``S`` the kernel support), so two blocks whose coordinates
 differ by at least 2 on some axis never write the same node when ``B >= S - 1``. Colouring blocks by the
 parities of their coordinates (:math:`2^d` colours) therefore gives colour classes whose blocks can
@@ -16,10 +16,6 @@ for any thread count.
 
 import numpy as np
 from numba import njit
-
-#: cells per block edge; must be at least ``S - 1`` for the widest kernel (cubic, S = 4)
-BLOCK = 4
-
 
 @njit(cache=True)
 def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):

@@ -1,7 +1,7 @@
 r"""P2G, grid update and G2P of the Numba backend: the equations of
 :mod:`mpmref.backends.numpy.transfers`, one particle at a time with the stencil inside.
 
-Each kernel is built for one scene configuration (:class:`TransferConfig`): dimension, kernel, scheme
+Each kernel is built for one scene configuration (a :class:`~mpmref.physics.scheme.TransferSpec`): dimension, kernel, scheme
 features (affine matrix, PolyPIC modes, FLIP), force discretisation and the tracked deformation (F or J).
 These are closure constants, so Numba compiles only the branches the scene uses, and each configuration is
 cached on disk like any other ``cache=True`` function: Numba keys a closure's cache entry on the pickled
@@ -15,12 +15,11 @@ thread count); G2P gathers, so it runs block-parallel over all blocks at once.
 import hashlib
 from functools import lru_cache
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
-from .stencil import kernel_axis, polypic_axis_basis
+from .stencil import KERNEL_CODES, kernel_axis, polypic_axis_basis
 
 
 def _source_digest():
@@ -39,23 +38,21 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-class TransferConfig(NamedTuple):
-    """What a scene compiles into its transfer kernels (all plain values, the closure constants)."""
+def make_p2g(spec):
+    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` (FLIP and the tracked deformation are
+    invisible to P2G, so those variants share one compiled kernel); see :func:`p2g_kernel`."""
+    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls)
 
-    dim: int
-    kernel: int  # code of .stencil.KERNEL_CODES
-    support: int
-    affine: bool  # P2G carries C_p (x_i - x_p); G2P stores C_p
-    polypic: bool  # higher PolyPIC modes
-    flip: bool
-    mls: bool  # MLS force (else classic grad-w)
-    tracks_F: bool
-    tracks_J: bool
+
+def make_g2p(spec):
+    """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec`; see :func:`g2p_kernel`."""
+    return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
+                      spec.mls, spec.tracks_F, spec.tracks_J)
 
 
 @lru_cache(maxsize=None)
-def make_p2g(cfg):
-    r"""P2G kernel for ``cfg``: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
+    r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, tau, origin, dx, inertia, strides, mode_index,
@@ -64,8 +61,6 @@ def make_p2g(cfg):
     the per-axis weights in registers; :math:`x_i - x_p`, :math:`w_{ip}` and the gradient weight
     :math:`g_{ip}` are formed per node and handed to :func:`p2g_node`, which scatters.
     """
-    DIM, KERNEL, S = cfg.dim, cfg.kernel, cfg.support
-    AFFINE, POLY, MLS = cfg.affine, cfg.polypic, cfg.mls
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
@@ -183,17 +178,14 @@ def p2g_node(idx, w, d, g, ks, m, vel, Cp, stress_volume, p, modes, q, mode_inde
 
 
 @lru_cache(maxsize=None)
-def make_g2p(cfg):
-    r"""G2P kernel for ``cfg``: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
+def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
+    r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
     The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, order,
     block_start, blocks, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new
     particle arrays. The stencil loops are those of :func:`make_p2g`; :func:`g2p_node` gathers.
     """
-    DIM, KERNEL, S = cfg.dim, cfg.kernel, cfg.support
-    AFFINE, POLY, FLIP, MLS = cfg.affine, cfg.polypic, cfg.flip, cfg.mls
-    TRACKS_F, TRACKS_J = cfg.tracks_F, cfg.tracks_J
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
 

@@ -48,17 +48,17 @@ def classic_gradient_weight(stencil, w, dpos, offset):
 GRADIENT_WEIGHTS = {"mls": mls_gradient_weight, "classic": classic_gradient_weight}
 
 
-def prepare(particles, grid, kernel, method):
+def prepare(particles, grid, kernel, spec):
     """Kernel stencil of the particles (and PolyPIC's basis): what P2G and G2P of one step share.
 
     Particles do not move between P2G and G2P, so one step computes this once and passes it to both.
     Returns ``(stencil, basis)``; ``basis`` is ``None`` unless the scheme is PolyPIC.
     """
     st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
-    return st, (polypic_basis(st, grid) if method.polypic else None)
+    return st, (polypic_basis(st, grid) if spec.polypic else None)
 
 
-def p2g(particles, tau, grid, kernel, method, prepared=None):
+def p2g(particles, tau, grid, kernel, spec, prepared=None):
     r"""Particle to grid: node mass, momentum and internal force.
 
     .. math::
@@ -78,11 +78,11 @@ def p2g(particles, tau, grid, kernel, method, prepared=None):
     tau : (n, d, d) array   Kirchhoff stress of each particle
     grid : Grid
     kernel : kernel object  (``mpmref.physics.kernels``)
-    method : MethodSpec
+    spec : TransferSpec    the resolved scheme (:mod:`mpmref.physics.scheme`)
     prepared : output of :func:`prepare` for these particles (computed here if ``None``)
     """
-    st, basis = prepared or prepare(particles, grid, kernel, method)
-    gradient_weight = GRADIENT_WEIGHTS[method.force]
+    st, basis = prepared or prepare(particles, grid, kernel, spec)
+    gradient_weight = GRADIENT_WEIGHTS[spec.force]
     m, n_nodes = particles.mass, grid.n_nodes
     stress_volume = particles.vol0[:, None, None] * tau
     mass = np.zeros(n_nodes)
@@ -93,7 +93,7 @@ def p2g(particles, tau, grid, kernel, method, prepared=None):
         w = st.node_weight(offset)
         dpos = st.node_offset_vector(offset)
         p_mom = particles.v
-        if method.affine:
+        if spec.affine:
             p_mom = p_mom + np.einsum("nab,nb->na", particles.C, dpos)
         if basis is not None:
             p_mom = p_mom + np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]), particles.modes)
@@ -157,7 +157,7 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     return v, v_tilde
 
 
-def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt, prepared=None):
+def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None):
     r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
     .. math::
@@ -178,14 +178,14 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt, prepared=None):
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). Returns new
     :class:`~mpmref.state.Particles`; the input is not modified.
     """
-    st, basis = prepared or prepare(particles, grid, kernel, method)
+    st, basis = prepared or prepare(particles, grid, kernel, spec)
     n, d = particles.x.shape
     dtype = v_grid.dtype
-    need_B = method.affine or method.force == "mls"
+    need_B = spec.affine or spec.force == "mls"
     v_pic = np.zeros((n, d), dtype=dtype)
     B = np.zeros((n, d, d), dtype=dtype) if need_B else None
-    grad_v = np.zeros((n, d, d), dtype=dtype) if method.force == "classic" else None
-    dv_flip = np.zeros((n, d), dtype=dtype) if method.flip else None
+    grad_v = np.zeros((n, d, d), dtype=dtype) if spec.force == "classic" else None
+    dv_flip = np.zeros((n, d), dtype=dtype) if spec.flip else None
     modes = np.zeros_like(particles.modes) if basis is not None else None
     for offset in st.offsets:
         idx = node_index(st, offset, grid)
@@ -196,17 +196,17 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, method, dt, prepared=None):
             B += np.einsum("na,nb->nab", w[:, None] * vi, st.node_offset_vector(offset))
         if grad_v is not None:
             grad_v += np.einsum("na,nb->nab", vi, st.node_gradient(offset))
-        if method.flip:
+        if spec.flip:
             dv_flip += w[:, None] * (vi - v_tilde[idx])
         if basis is not None:
             modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
     C = B / st.inertia if need_B else None
-    grad_v = C if method.force == "mls" else grad_v
+    grad_v = C if spec.force == "mls" else grad_v
     v_new = v_pic
-    if method.flip:
-        v_new = method.flip_alpha * (particles.v + dv_flip) + (1.0 - method.flip_alpha) * v_pic
+    if spec.flip:
+        v_new = spec.flip_alpha * (particles.v + dv_flip) + (1.0 - spec.flip_alpha) * v_pic
     changes = {"x": particles.x + dt * v_pic, "v": v_new}
-    if method.affine:
+    if spec.affine:
         changes["C"] = C
     if basis is not None:
         norms = mode_norms(basis[2], basis[1])[..., None]

@@ -1,0 +1,77 @@
+"""Asynchronous (regional) time stepping: level rules, validation and restart.
+
+The schedule, the census, free fall and agreement with sync are the ``sync_vs_async`` verification case
+(``tests/test_verify_sync_vs_async.py``).
+"""
+
+import numpy as np
+import pytest
+
+from mpmref import SceneBuilder, Simulation
+from mpmref.errors import SceneError, TickTooLongError
+from mpmref.steppers.asynchronous import alignment, relevel
+from verification.sync_vs_async import two_bodies
+
+from test_scene_validation import check_refused
+
+# ----------------------------------------------------------------------------------------- level rules
+def test_quantisation_of_the_advection_limit():
+    """Spec acceptance 2: dx = 1/256, |v| = 2, advection CFL 1, strength not binding: C = 1953 -> 1024 ticks."""
+    scene = (SceneBuilder(dim=2).grid(size=1.0, cells=256).material("m", "fixed_corotated", E=1e-6, rho=1.0)
+             .box("m", lower=[0.5, 0.5], upper=[0.51, 0.51], velocity=[2.0, 0.0])
+             .time(stepping="async", cfl=10.0, tick=1e-6, levels=13, advection_cfl=1.0, steps=1).build())
+    sim = Simulation(scene)
+    limit = sim.stepper.particle_limits(sim.particles)
+    assert np.all(limit == 1953)
+    sim.step()
+    assert set(sim.particles.level.tolist()) == {10}  # 2^10 = 1024 ticks
+
+
+def test_doubling_waits_for_alignment_and_halving_is_immediate():
+    """Spec acceptance 3: at dt = 4 with L = 16 the step is 4 at t = 4, 8 at t = 8 and 16 at t = 16; L = 3 halves to 2."""
+    dt = np.array([4])
+    assert relevel(dt, np.array([16]), 4)[0] == 4
+    assert relevel(dt, np.array([16]), 8)[0] == 8
+    assert relevel(np.array([8]), np.array([16]), 16)[0] == 16
+    assert relevel(dt, np.array([3]), 4)[0] == 2
+    assert [alignment(t, 64) for t in (0, 1, 6, 8, 96)] == [64, 1, 2, 8, 32]
+
+
+def test_a_tick_longer_than_the_stability_limit_is_refused_at_the_step():
+    scene = two_bodies(cfl=0.5, tick=1e-2, levels=3, steps=1)
+    with pytest.raises(TickTooLongError, match="lower 'time.tick'"):
+        Simulation(scene).step()
+
+
+@pytest.mark.parametrize("field, value, allowed", [
+    (("time", "tick"), 0.0, "(0.0, inf]"), (("time", "tick"), -1e-6, "(0.0, inf]"),
+    (("time", "levels"), -1, "[0, 30]"), (("grid", "block"), 6, "power of two"),
+    (("grid", "block"), 2, "power of two >= 3")])
+def test_bad_async_values_are_refused_with_the_field_named(field, value, allowed):
+    d = SceneBuilder(dim=2).grid(size=1.0, cells=16).material("m", "fixed_corotated", E=1e3).box(
+        "m", lower=[0.4, 0.4], upper=[0.6, 0.6]).time(stepping="async", cfl=0.5, steps=1).as_dict()
+    d[field[0]][field[1]] = value
+    check_refused(d, f"{field[0]}.{field[1]}", allowed)
+
+
+def test_dt_with_async_and_async_keys_with_sync_are_refused():
+    base = SceneBuilder(dim=2).grid(size=1.0, cells=16).material("m", "fixed_corotated", E=1e3).box(
+        "m", lower=[0.4, 0.4], upper=[0.6, 0.6])
+    check_refused(base.time(stepping="async", dt=1e-4, steps=1).as_dict(), "time.dt", "absent")
+    check_refused(base.time(dt=1e-4, tick=1e-6, steps=1).as_dict(), "time.tick", "stepping = 'async'")
+
+
+# -------------------------------------------------------------------------------------------- restart
+def test_async_resume_is_bit_identical(tmp_path):
+    scene = two_bodies(cfl=0.4, tick=1e-5, levels=6, steps=6)
+    full = Simulation(scene, out_dir=tmp_path / "full")
+    full.run()
+    first = Simulation(scene, out_dir=tmp_path / "half")
+    first.run(steps=3)
+    resumed = Simulation.resume(scene, tmp_path / "half")
+    resumed.run()
+    assert resumed.state.tick == full.state.tick and resumed.step_count == 6
+    for name, arr in full.particles.arrays().items():
+        assert np.array_equal(arr, getattr(resumed.particles, name)), name
+    for key in ("block_dt", "updates", "sync_updates"):
+        assert np.array_equal(full.state.stepper[key], resumed.state.stepper[key]), key
