@@ -47,6 +47,10 @@ def _format_summary(summary, out_dir):
         f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + gravitational)",
         f"outputs          {out_dir} (open particles.pvd in ParaView)",
     ]
+    if "particle_updates" in summary:
+        lines.insert(3, f"particle updates {summary['particle_updates']} ({summary['ghost_updates']} of them ghosts); "
+                        f"updates saved against sync: {summary['updates_saved']:.2f}x (sync at the finest step, "
+                        f"{summary['finest_dt_ticks']} ticks)")
     return "\n".join(lines)
 
 

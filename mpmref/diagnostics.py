@@ -13,7 +13,7 @@ The affine kinetic energy :math:`\tfrac12 m_p \operatorname{tr}(C_p D_p C_p^T)` 
 import numpy as np
 
 from .physics.kernels import compute_stencil
-from .physics.materials import state_args
+from .physics.materials import material_groups, state_args
 from .physics import polypic
 
 
@@ -44,12 +44,9 @@ def angular_momentum(particles, inertia):
 def elastic_energy(particles, materials):
     r"""Total stored energy :math:`\sum_p V_p^0 \Psi(F_p)` (or :math:`\Psi(J_p)` for fluids)."""
     total = 0.0
-    for mat_id, material in enumerate(materials):
-        sel = particles.material == mat_id
-        if not sel.any():
-            continue
-        args = [a.astype(np.float64) for a in state_args(material, particles, sel)]
-        total += float(np.sum(particles.vol0[sel] * material.energy_density(*args)))
+    for material, idx in material_groups(materials, particles):
+        args = [a.astype(np.float64) for a in state_args(material, particles, idx)]
+        total += float(np.sum(particles.vol0[idx] * material.energy_density(*args)))
     return total
 
 

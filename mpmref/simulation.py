@@ -9,6 +9,7 @@ from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
 from .errors import DomainExitError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
+from .physics.materials import material_groups
 from .steppers import make_stepper
 
 
@@ -210,28 +211,29 @@ class Simulation:
             sigma = self.backend.stress(p) / self.elastic_volume_ratio()[:, None, None]
             data["stress"] = sigma
             data["pressure"] = -np.trace(sigma, axis1=1, axis2=2) / p.dim
-        return {k: data[k] for k in fields}
+        out = {k: data[k] for k in fields}
+        if p.level is not None:  # asynchronous stepping: log2 of each particle's last step in ticks
+            out["dt_level"] = p.level.astype(np.int32)
+        return out
 
     def volume_ratio(self):
         """:math:`J = V/V^0` per particle: ``det F`` for elastic solids, ``det F_E * J_P`` for plastic
         ones (F holds the elastic part), the tracked ``J`` for fluids."""
         p = self.particles
         J = np.ones(p.n, dtype=p.x.dtype)
-        for mat_id, material in enumerate(self.scene.material_list):
-            sel = p.material == mat_id
+        for material, idx in material_groups(self.scene.material_list, p):
             if material.tracks == "J":
-                J[sel] = p.J[sel]
+                J[idx] = p.J[idx]
             else:
-                J[sel] = np.linalg.det(p.F[sel]) * (p.Jp[sel] if getattr(material, "plastic", False) else 1.0)
+                J[idx] = np.linalg.det(p.F[idx]) * (p.Jp[idx] if getattr(material, "plastic", False) else 1.0)
         return J
 
     def elastic_volume_ratio(self):
         r""":math:`J_E`, relating Kirchhoff and Cauchy stress (:math:`\sigma = \tau / J_E`): ``det F`` or the fluid's ``J``."""
         p = self.particles
         J = np.ones(p.n, dtype=p.x.dtype)
-        for mat_id, material in enumerate(self.scene.material_list):
-            sel = p.material == mat_id
-            J[sel] = p.J[sel] if material.tracks == "J" else np.linalg.det(p.F[sel])
+        for material, idx in material_groups(self.scene.material_list, p):
+            J[idx] = p.J[idx] if material.tracks == "J" else np.linalg.det(p.F[idx])
         return J
 
     def grid_data(self):

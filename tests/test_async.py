@@ -12,6 +12,8 @@ from mpmref.errors import SceneError, TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
 from verification.sync_vs_async import two_bodies
 
+from helpers import valid_methods
+
 from test_scene_validation import check_refused
 
 # ----------------------------------------------------------------------------------------- level rules
@@ -75,3 +77,36 @@ def test_async_resume_is_bit_identical(tmp_path):
         assert np.array_equal(arr, getattr(resumed.particles, name)), name
     for key in ("block_dt", "updates", "sync_updates"):
         assert np.array_equal(full.state.stepper[key], resumed.state.stepper[key]), key
+
+
+# ------------------------------------------------------------------------------- every method and material
+def _two_level_scene(dim, method, material):
+    """A stiff and a soft block of ``material`` touching (two levels), in ``dim`` D, briefly."""
+    b = SceneBuilder(dim=dim, name="all").grid(size=1.0, cells=16, block=4).method(**method)
+    if material == "fluid":
+        b.material("soft", "fluid", K=1e2, gamma=7.0, rho=1.0).material("stiff", "fluid", K=1e4, gamma=7.0, rho=1.0)
+    else:
+        b.material("soft", material, E=1e2, nu=0.3, rho=1.0).material("stiff", material, E=1e4, nu=0.3, rho=1.0)
+    lo = [0.3] + [0.3] * (dim - 1)
+    b.box("stiff", lower=lo, upper=[0.5] + [0.55] * (dim - 1), velocity=[0.3] + [0.0] * (dim - 1))
+    b.box("soft", lower=[0.5] + lo[1:], upper=[0.7] + [0.55] * (dim - 1))
+    return b.gravity([0.0, -5.0] + [0.0] * (dim - 2)).time(stepping="async", cfl=0.4, tick=1e-5, levels=5,
+                                                              steps=2).build()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("method", valid_methods(), ids=lambda m: "-".join(str(v) for v in m.values()))
+def test_every_method_steps_asynchronously_on_two_levels(dim, method):
+    sim = Simulation(_two_level_scene(dim, method, "fixed_corotated"))
+    sim.run()
+    assert len(set(sim.particles.level.tolist())) >= 2 and np.all(np.isfinite(sim.x))
+    assert np.array_equal(np.sort(sim.id), np.arange(sim.n_particles))
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+@pytest.mark.parametrize("material", ["neo_hookean", "fluid", "snow", "sand"])
+def test_every_material_steps_asynchronously_on_both_backends(material, backend):
+    sim = Simulation(_two_level_scene(2, {"scheme": "mls"}, material), backend=backend)
+    sim.run()
+    assert len(set(sim.particles.level.tolist())) >= 2 and np.all(np.isfinite(sim.x))
+    assert sim.stepper.summary(sim.state)["particle_updates"] > 0

@@ -26,6 +26,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from ..physics.materials import material_groups
+
 STAGES = ("prepare", "stress", "p2g", "grid_update", "g2p", "return_map")
 
 
@@ -77,15 +79,9 @@ class MaterialTable:
         self.kernels = [kernels[type(m)] for m in self.materials]
 
     def groups(self, particles):
-        """``(material, kernels, idx)`` for each material that has particles; ``idx`` an int64 index array."""
-        if len(self.materials) == 1:
-            return [(self.materials[0], self.kernels[0], np.arange(particles.n, dtype=np.int64))]
-        out = []
-        for mat_id, (material, kernels) in enumerate(zip(self.materials, self.kernels)):
-            idx = np.flatnonzero(particles.material == mat_id)
-            if idx.size:
-                out.append((material, kernels, idx))
-        return out
+        """``(material, kernels, idx)`` for each material that has particles (:func:`~mpmref.physics.materials.material_groups`)."""
+        kernels = {id(m): k for m, k in zip(self.materials, self.kernels)}
+        return [(m, kernels[id(m)], idx) for m, idx in material_groups(self.materials, particles)]
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle."""

@@ -12,6 +12,9 @@ Sections of the JSON document (each ``null`` when not run):
   MLS-MPM for ``p2g`` and ``g2p``); ``memory`` (:mod:`mpmref.bench.memory`).
 * ``throughput``: ``cases`` (case, dim, cells, particles, dt, steps) and ``results`` (case, backend,
   threads, dtype, timing, ``particle_steps_per_s``, ``vs_numpy``).
+* ``async``: ``results`` (case, backend, threads, particles, levels, ``async`` and ``sync`` timings with
+  their particle updates, ``updates_ratio``, ``own_updates_ratio``, ``wall_ratio``, ``energy_difference``,
+  ``position_difference_dx``; :mod:`mpmref.bench.asynchronous`).
 * ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``
   (case, particles, threads, backend, ``mpmref`` and ``taichi`` timings, ``ratio``,
   ``mean_position_difference``, ``bound``, ``free_flight``, ``agree``; :mod:`mpmref.bench.peer`).
@@ -28,6 +31,7 @@ from importlib import metadata
 
 from ..backends import BACKENDS
 from ..io.atomic import write_text_atomic
+from .asynchronous import run_async
 from .peer import run_peer
 from .report import RENDERERS
 from .scenes import peer_cases, table2_cells, throughput_cases
@@ -39,7 +43,7 @@ SCHEMA = "mpmref-bench/1"
 DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
                "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
                "compilation is reported apart. See docs/performance.md.")
-SECTIONS = ("table2", "throughput", "peer")
+SECTIONS = ("table2", "throughput", "peer", "async")
 DEFAULT_PARTICLES = 1_000_000
 QUICK_PARTICLES = 4096
 FULL_CELLS = 100
@@ -113,7 +117,11 @@ def _peer(o, log):
     return run_peer(peer_cases(o.quick), o.backends, o.threads, o.repeats, o.peer_steps, log)
 
 
-SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "peer": _peer}
+def _async(o, log):
+    return run_async(o.quick, o.backends, o.threads, o.repeats, log)
+
+
+SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "peer": _peer, "async": _async}
 
 
 def environment():

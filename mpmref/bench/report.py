@@ -1,5 +1,7 @@
 """Readable tables of the benchmark sections (the JSON holds every figure; these show the medians)."""
 
+from .asynchronous import render_async
+
 METHOD_COLUMNS = (("mpm", "MPM"), ("mls", "MLS-MPM"))
 STAGE_ROWS = (("p2g", "P2G"), ("g2p", "G2P"))
 
@@ -97,7 +99,7 @@ def render_peer(section):
     return "\n".join(lines)
 
 
-RENDERERS = {"table2": render_table2, "throughput": render_throughput, "peer": render_peer}
+RENDERERS = {"table2": render_table2, "throughput": render_throughput, "peer": render_peer, "async": render_async}
 
 
 def render(results):

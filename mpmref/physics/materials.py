@@ -194,6 +194,22 @@ def elastic_wave_speeds(mu, lam, rho, J):
     return np.sqrt(np.maximum(shear + (2.0 * mu / 3.0 + lam) * (1.0 - np.log(J)) / rho, shear))
 
 
+def material_groups(materials, particles):
+    """``(material, idx)`` for each material of the list that has particles (``idx``: int64 indices, in order).
+
+    The one per-material dispatch of the toolkit: backends (through their kernel tables), diagnostics, the
+    CFL rule and outputs all group particles by material here.
+    """
+    if len(materials) == 1:
+        return [(materials[0], np.arange(particles.n, dtype=np.int64))]
+    groups = []
+    for mat_id, material in enumerate(materials):
+        idx = np.flatnonzero(particles.material == mat_id)
+        if idx.size:
+            groups.append((material, idx))
+    return groups
+
+
 def state_args(material, particles, sel):
     """The per-particle state a material's functions take: ``(J,)``, ``(F,)`` or ``(F, Jp)`` for plastic ones."""
     if material.tracks == "J":

@@ -2,7 +2,7 @@ r"""Step-size limits shared by the steppers: per-particle signal speed and the C
 
 import numpy as np
 
-from ..physics.materials import wave_speed_of
+from ..physics.materials import material_groups, wave_speed_of
 
 
 def particle_speeds(particles):
@@ -13,10 +13,8 @@ def particle_speeds(particles):
 def wave_speeds(materials, particles):
     r"""Current wave speed :math:`c_p` of each particle from its material and state (float64)."""
     c = np.zeros(particles.n)
-    for mat_id, material in enumerate(materials):
-        sel = particles.material == mat_id
-        if sel.any():
-            c[sel] = wave_speed_of(material, particles, sel)
+    for material, idx in material_groups(materials, particles):
+        c[idx] = wave_speed_of(material, particles, idx)
     return c
 
 
