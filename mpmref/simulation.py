@@ -1,14 +1,17 @@
 """Simulation: particle state + stepper + backend + outputs + diagnostics."""
 
 import time as _time
+import warnings
 
 import numpy as np
 
 from .backends import make_backend
 from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
-from .errors import DomainExitError, MpmrefError, NonFiniteError
+from .domain import apply_domain_exit, outside
+from .errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
+from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 from .steppers import SynchronousStepper
 
 
@@ -36,7 +39,9 @@ class Simulation:
         self.step_count = 0
         self.time = 0.0
         self.deleted = 0
+        self.clamped = 0
         self.last_dt = None
+        self._last_bounded = None  # (particles, meta) before an unbounded step, while no bounded step followed
 
     # ------------------------------------------------------------------------ state access
     def _particle_field(name):  # noqa: N805 - class-body helper building properties
@@ -73,14 +78,17 @@ class Simulation:
         inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
         norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
         d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, inertia, norms)
-        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted}
+        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted, "clamped": self.clamped}
 
     # --------------------------------------------------------------------------- stepping
     def step(self, dt=None):
         """Advance one time step of ``dt`` (default: the scene's fixed or CFL step); returns the Δt used."""
         dt = self.stepper.time_step(self.particles) if dt is None else dt
+        if self.step_count == 0:
+            warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, dt))
         new = self.stepper.advance(self.particles, dt, self.time)
         self._check_finite(new, dt)
+        self._check_bounded(new, dt)
         new = self._apply_domain_policy(new)
         self.particles = new
         self.step_count += 1
@@ -92,30 +100,56 @@ class Simulation:
         for name, arr in new.arrays().items():
             bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
             if bad.any():
-                raise NonFiniteError(step=self.step_count + 1, particle=int(np.argmax(bad)), quantity=name,
-                                     cfl=self.stepper.cfl_number(self.particles, dt),
-                                     checkpoint=self._save_last_good("nonfinite"))
+                cfl = self.stepper.cfl_number(self.particles, dt)
+                raise NonFiniteError(step=self.step_count + 1, particle=int(np.argmax(bad)), quantity=name, cfl=cfl,
+                                     checkpoint=self._save_last_good("nonfinite"),
+                                     cfl_note=above_limit_text(self.scene.method.scheme, cfl))
+
+    def _check_bounded(self, new, dt):
+        """Check the step for an unbounded velocity change (:func:`.stability.first_unbounded`).
+
+        One that would meet a domain-exit policy (a particle of the new state is outside the valid region)
+        raises :class:`InstabilityError`; one inside the domain is warned about once and the run goes on,
+        because runs above the measured limits must go on for ``mpmref verify extremes`` to find them. The
+        last good state stays the one before the unbounded step until a bounded step follows.
+        """
+        cfl = self.stepper.cfl_number(self.particles, dt)
+        bad = first_unbounded(self.particles.v, new.v, dt, self.scene.grid.dx)
+        if bad is None:
+            self._last_bounded = None  # the new state passes: it becomes the last good one
+            return
+
+        def instability(checkpoint=None):
+            return InstabilityError(self.step_count + 1, bad[0], "v", cfl, checkpoint, what=f"unbounded velocity v "
+                                    f"(|Δv|·Δt = {bad[1]:.3g} cells in one step; at most 1 is bounded)",
+                                    cfl_note=above_limit_text(self.scene.method.scheme, cfl))
+
+        first = self._last_bounded is None
+        if first:
+            self._last_bounded = (self.particles, self._meta("instability"))
+        if outside(new.x, *self.scene.valid_region()).any():
+            raise instability(self._save_last_good("instability"))
+        if first:
+            warnings.warn(f"{instability()}; the run goes on while every particle stays inside the domain",
+                          StabilityWarning, stacklevel=3)
 
     def _apply_domain_policy(self, new):
-        lo, hi = self.scene.valid_region()
-        outside = np.any((new.x < lo) | (new.x >= hi), axis=1)
-        if not outside.any():
-            return new
-        policy = self.scene.boundary.domain_exit
-        if policy == "error":
-            idx = np.nonzero(outside)[0]
-            raise DomainExitError(self.step_count + 1, idx, new.x[idx], checkpoint=self._save_last_good("domain_exit"))
-        if policy == "clamp":
-            span = hi - lo
-            eps = np.asarray(1e-6 * span, dtype=new.x.dtype)
-            return new.with_(x=np.clip(new.x, lo + eps, hi - eps).astype(new.x.dtype))
-        self.deleted += int(outside.sum())
-        return new.select(~outside)
+        result = apply_domain_exit(new, *self.scene.valid_region(), self.scene.boundary.domain_exit)
+        if result.outside.size and self.scene.boundary.domain_exit == "error":
+            raise DomainExitError(self.step_count + 1, result.outside, new.x[result.outside],
+                                  checkpoint=self._save_last_good("domain_exit"))
+        if result.particles.n == 0:
+            raise AllParticlesLeftError(self.step_count + 1, self.deleted + result.deleted,
+                                        checkpoint=self._save_last_good("all_left"))
+        self.clamped += result.clamped
+        self.deleted += result.deleted
+        return result.particles
 
     def _save_last_good(self, reason):
         if self.output is None:
             return None
-        return self.output.save_checkpoint(self.particles, self._meta(reason),
+        particles, meta = self._last_bounded or (self.particles, self._meta(reason))
+        return self.output.save_checkpoint(particles, {**meta, "reason": reason},
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
@@ -220,8 +254,13 @@ class Simulation:
         if self.scene.output.checkpoint:
             out.save_checkpoint(self.particles, self._meta("output"))
 
+    def save_checkpoint(self, reason="interrupted"):
+        """Write the current state to the output folder's ``checkpoint.npz`` (e.g. on Ctrl-C); returns its path."""
+        return self.output.save_checkpoint(self.particles, self._meta(reason))
+
     def _meta(self, reason):
-        return {"step": self.step_count, "time": self.time, "deleted": self.deleted, "reason": reason,
+        return {"step": self.step_count, "time": self.time, "deleted": self.deleted, "clamped": self.clamped,
+                "reason": reason,
                 "scene": self.scene.fingerprint()}
 
     @classmethod
@@ -236,6 +275,7 @@ class Simulation:
             raise MpmrefError(f"checkpoint {path} was written by a different scene; refusing to resume")
         sim.particles = particles
         sim.step_count, sim.time, sim.deleted = meta["step"], meta["time"], meta["deleted"]
+        sim.clamped = meta.get("clamped", 0)  # checkpoints before issue 13 have no clamp count
         sim.output.restore(meta["output"])
         return sim
 
