@@ -145,7 +145,7 @@ def sample_particles(scene):
     return Particles(
         x=cat["x"].astype(dtype), v=cat["v"].astype(dtype), mass=cat["mass"].astype(dtype),
         vol0=cat["vol0"].astype(dtype), material=cat["material"],
-        C=cat["C"].astype(dtype) if scene.transfer.affine else None,
+        C=np.ascontiguousarray(cat["C"], dtype=dtype) if scene.transfer.affine else None,  # one kernel layout
         F=np.broadcast_to(eye, (n, dim, dim)).copy() if scene.tracks("F") else None,
         J=np.ones(n, dtype=dtype) if scene.tracks("J") else None,
         Jp=np.ones(n, dtype=dtype) if scene.tracks("Jp") else None,

@@ -1,8 +1,18 @@
-"""Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume]``."""
+"""Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite]``.
+
+Exit status: 0 success; 2 a bad scene or command-line option (one line on stderr naming the field or
+option, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
+particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
+"""
 
 import argparse
+import contextlib
 import importlib
+import math
+import shlex
 import sys
+import time
+import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -13,18 +23,56 @@ from .errors import MpmrefError, SceneError
 COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
 #: entry-point group through which other installed packages add subcommands (``verification`` adds ``verify``)
 COMMAND_GROUP = "mpmref.commands"
+#: exit status after Ctrl-C (128 + SIGINT), as shells report it
+INTERRUPTED = 130
+
+
+class OptionError(Exception):
+    """A command-line option is invalid (exit status 2); the message is the one line to print."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser that raises :class:`OptionError` instead of printing usage and exiting."""
+
+    def error(self, message):
+        raise OptionError(f"{message} (see '{self.prog} --help')")
+
+
+def _count(text):
+    """``--steps``: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; allowed: an integer >= 0") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative; allowed: an integer >= 0")
+    return value
+
+
+def _end_time(text):
+    """``--t-end``: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number; allowed: a finite number >= 0") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: a finite number >= 0 (simulated time)")
+    return value
 
 
 def _parser():
-    parser = argparse.ArgumentParser(prog="mpmref", description="Material Point Method reference toolkit")
+    parser = _Parser(prog="mpmref", description="Material Point Method reference toolkit")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene file and write a ParaView series")
     run.add_argument("scene", type=Path, help="scene TOML file")
     stop = run.add_mutually_exclusive_group()
-    stop.add_argument("--steps", type=int, help="total number of steps (overrides time.steps / time.t_end)")
-    stop.add_argument("--t-end", type=float, help="end time (overrides time.steps / time.t_end)")
+    stop.add_argument("--steps", type=_count, help="total number of steps (overrides time.steps / time.t_end)")
+    stop.add_argument("--t-end", type=_end_time, help="end time (overrides time.steps / time.t_end)")
     run.add_argument("--out", type=Path, help="output folder (default: reports/<scene name>)")
-    run.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
+    again = run.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
+    again.add_argument("--overwrite", action="store_true",
+                       help="replace the run already in the output folder (its frames, diagnostics and checkpoints)")
     run.add_argument("--backend", default="numpy", choices=BACKENDS, help="execution backend (default: numpy)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=cmd_run)
@@ -39,9 +87,10 @@ def _format_summary(summary, out_dir):
     final = summary["final"]
     lines = [
         f"steps            {summary['steps']} (now at step {final['step']}, t = {final['time']:.6g})",
-        f"wall time        {summary['wall_s']:.3f} s",
+        f"wall time        {summary['wall_s']:.3f} s (kernel compilation excluded)",
         f"particle-steps/s {summary['particle_steps_per_s']:.4g}",
-        f"particles        {final['n_particles']} (deleted at the domain edge: {final['deleted']})",
+        f"particles        {final['n_particles']} (at the domain edge: {final['deleted']} deleted, "
+        f"{final['clamped']} clamped back inside)",
         f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
         f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls change it)",
         f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + gravitational)",
@@ -54,32 +103,111 @@ def _format_summary(summary, out_dir):
     return "\n".join(lines)
 
 
+def _check_out(out_dir, resume, overwrite):
+    """Refuse an ``--out`` that is a file, lies in a place that cannot be written, or holds a run already."""
+    from .io.run_output import CHECKPOINT_NAME, run_files
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OptionError(f"--out {out_dir}: this is an existing file; name a folder")
+    parent = next(p for p in (out_dir, *out_dir.parents) if p.exists())
+    if not parent.is_dir():
+        raise OptionError(f"--out {out_dir}: {parent} is a file, so no folder can be made under it")
+    if resume and not (out_dir / CHECKPOINT_NAME).is_file():
+        raise OptionError(f"--resume: there is no checkpoint to resume from ({out_dir / CHECKPOINT_NAME} does not "
+                          "exist); run without --resume to start")
+    earlier = run_files(out_dir)
+    if earlier and not (resume or overwrite):
+        raise OptionError(f"--out {out_dir} already holds a run ({len(earlier)} files, e.g. {earlier[0].name}); "
+                          "pass --resume to continue it or --overwrite to replace it")
+
+
+def _open_simulation(scene, args, out_dir):
+    """A new or resumed :class:`~mpmref.simulation.Simulation` writing to ``out_dir``."""
+    from .io.run_output import clear_run
+    from .simulation import Simulation
+
+    try:
+        if args.resume:
+            return Simulation.resume(scene, out_dir, backend=args.backend)
+        if args.overwrite:
+            clear_run(out_dir)
+        return Simulation(scene, backend=args.backend, out_dir=out_dir)
+    except OSError as exc:
+        raise OptionError(f"--out {out_dir}: cannot write there ({exc.strerror or exc})") from None
+
+
+def _warm_up(sim):
+    """Compile the backend's kernels for this scene before the timed run, saying so and how long it took."""
+    warm_up = getattr(sim.backend, "warm_up", None)
+    if warm_up is None:
+        return
+    print("mpmref: compiling kernels for this scene…", end="", file=sys.stderr, flush=True)
+    start = time.perf_counter()
+    warm_up(sim.particles)
+    print(f" done in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+
+
+def resume_command(args, out_dir):
+    """The ``mpmref run`` command line that continues the interrupted run (same stop, same backend)."""
+    words = ["mpmref", "run", str(args.scene), "--out", str(out_dir), "--resume"]
+    if args.steps is not None:
+        words += ["--steps", str(args.steps)]
+    if args.t_end is not None:
+        words += ["--t-end", repr(args.t_end)]
+    if args.backend != "numpy":
+        words += ["--backend", args.backend]
+    return shlex.join(words + (["--no-progress"] if args.no_progress else []))
+
+
 def cmd_run(args):
     from .scene import Scene
-    from .simulation import Simulation
 
     scene = Scene.from_toml(args.scene)
     out_dir = args.out or Path("reports") / scene.name
-    if args.resume:
-        sim = Simulation.resume(scene, out_dir, backend=args.backend)
-    else:
-        sim = Simulation(scene, backend=args.backend, out_dir=out_dir)
+    _check_out(out_dir, args.resume, args.overwrite)
+    sim = _open_simulation(scene, args, out_dir)
+    _warm_up(sim)
     steps = None if args.steps is None else max(0, args.steps - sim.step_count)
-    summary = sim.run(steps=steps, t_end=args.t_end, progress=not args.no_progress)
+    try:
+        summary = sim.run(steps=steps, t_end=args.t_end, progress=not args.no_progress)
+    except KeyboardInterrupt:
+        path = sim.save_checkpoint("interrupted")
+        print(f"mpmref: interrupted at step {sim.step_count}; checkpoint saved to {path}; resume with: "
+              f"{resume_command(args, out_dir)}", file=sys.stderr)
+        return INTERRUPTED
     print(_format_summary(summary, out_dir))
     return 0
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Print a warning as one line (no source line) on stderr."""
+    print(f"mpmref: warning: {message}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _one_line_warnings():
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        yield
+
+
 def main(argv=None):
-    args = _parser().parse_args(argv)
     try:
-        return args.func(args)
+        args = _parser().parse_args(argv)
+        with _one_line_warnings():
+            return args.func(args)
+    except OptionError as exc:
+        print(f"mpmref: {exc}", file=sys.stderr)
+        return 2
     except SceneError as exc:
         print(f"mpmref: invalid scene: {exc}", file=sys.stderr)
         return 2
     except MpmrefError as exc:
         print(f"mpmref: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 3
+    except KeyboardInterrupt:
+        print("mpmref: interrupted", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -23,22 +23,38 @@ class SceneError(MpmrefError, ValueError):
         super().__init__(f"scene field '{field}' = {value!r} is invalid: allowed {allowed}")
 
 
-class NonFiniteError(MpmrefError, FloatingPointError):
-    """A non-finite value appeared in the particle state.
+class InstabilityError(MpmrefError):
+    """A step blew up: its new state is not bounded (see :mod:`mpmref.stability`) or not finite.
 
-    Attributes name the step, the first offending particle and quantity, and the CFL number
-    ``dt * (c_max + |v|_max) / dx`` of the step that produced it; ``checkpoint`` is the path of the
-    last good state written before raising (or ``None``).
+    Raised before any domain-exit policy sees the new state. Attributes name the step, the first
+    offending particle and quantity, and the CFL number ``dt * (c_max + |v|_max) / dx`` of the step that
+    produced it; ``checkpoint`` is the path of the last good state (finite and bounded) written before
+    raising (or ``None``).
+
+    Parameters
+    ----------
+    step, particle : int
+    quantity : str        the particle array found bad, e.g. ``"v"``
+    cfl : float
+    checkpoint : path or None
+    what : str            what went wrong with the quantity (default: ``"unbounded <quantity>"``)
+    cfl_note : str        how the CFL number compares with the measured stable limit (or ``""``)
     """
 
-    def __init__(self, step, particle, quantity, cfl, checkpoint=None):
+    def __init__(self, step, particle, quantity, cfl, checkpoint=None, what=None, cfl_note=""):
         self.step, self.particle, self.quantity, self.cfl = step, particle, quantity, cfl
         self.checkpoint = checkpoint
         where = f"; last good state saved to {checkpoint}" if checkpoint else ""
-        super().__init__(
-            f"non-finite {quantity} at step {step}, particle {particle} "
-            f"(CFL number of that step {cfl:.3g}){where}"
-        )
+        note = f", {cfl_note}" if cfl_note else ""
+        super().__init__(f"{what or 'unbounded ' + quantity} at step {step}, particle {particle} "
+                         f"(CFL number of that step {cfl:.3g}{note}){where}")
+
+
+class NonFiniteError(InstabilityError, FloatingPointError):
+    """A non-finite value appeared in the particle state (an :class:`InstabilityError`)."""
+
+    def __init__(self, step, particle, quantity, cfl, checkpoint=None, cfl_note=""):
+        super().__init__(step, particle, quantity, cfl, checkpoint, what=f"non-finite {quantity}", cfl_note=cfl_note)
 
 
 class DomainExitError(MpmrefError):
@@ -70,3 +86,18 @@ class TickTooLongError(MpmrefError):
         self.tick, self.particle, self.limit_s = tick, particle, limit_s
         super().__init__(f"particle {particle} needs steps of at most {limit_s:.3g} s at tick {tick}, shorter than "
                          "one tick: lower 'time.tick'")
+
+
+class AllParticlesLeftError(MpmrefError):
+    """Every remaining particle left the domain in one step under ``domain_exit = "delete"``.
+
+    The run stops there, because nothing is left to simulate. ``deleted`` counts every particle deleted
+    since the start, ``step`` is the step at which the last ones left; the simulation keeps the state
+    before that step, saved to ``checkpoint`` (or ``None`` without an output folder).
+    """
+
+    def __init__(self, step, deleted, checkpoint=None):
+        self.step, self.deleted, self.checkpoint = step, deleted, checkpoint
+        where = f"; last state with particles saved to {checkpoint}" if checkpoint else ""
+        super().__init__(f"all particles have left the domain at step {step} ({deleted} deleted in all under "
+                         f"boundary.domain_exit = 'delete'); nothing is left to simulate{where}")

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import limits
 from .errors import SceneError
 from .physics.boundary import BOUNDARY_TYPES
 from .physics.colliders import Ball, Box, Collider, Cylinder, Plane
@@ -216,13 +217,7 @@ class Scene:
     def from_toml(cls, path):
         """Read and validate a TOML scene file; relative file paths resolve next to it."""
         path = Path(path)
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise SceneError("scene file", str(path), "an existing TOML file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError("scene file", str(path), f"valid TOML ({exc})") from None
+        data = _load_scene_file(path)
         data.setdefault("name", path.stem)
         return cls.from_dict(data, base_dir=path.parent)
 
@@ -242,6 +237,11 @@ class Scene:
         boundary = _parse_boundary(data.get("boundary", {}), dim, grid)
         time = _parse_time(data.get("time", {}))
         output = _parse_output(data.get("output", {}))
+        limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
+                                   "transfer": resolve(method, dim, list(materials.values())),
+                                   "bodies": bodies, "colliders": colliders,
+                                   "grid_field": _cell_size_field(data["grid"])[0],
+                                   "grid_value": _cell_size_field(data["grid"])[1]})
         name = data.get("name", "scene")
         if not isinstance(name, str) or not name or any(c in name for c in "/\\"):
             _fail("name", name, "a non-empty string without path separators")
@@ -278,6 +278,32 @@ class Scene:
         return json.dumps(self.source, sort_keys=True, default=str)
 
 
+def _load_scene_file(path):
+    """The parsed TOML of a scene file; what is not a readable UTF-8 TOML file is a :class:`SceneError`."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise SceneError("scene file", str(path), "an existing TOML file") from None
+    except IsADirectoryError:
+        raise SceneError("scene file", str(path), "a TOML file, not a directory") from None
+    except OSError as exc:
+        raise SceneError("scene file", str(path), f"a readable TOML file ({exc.strerror})") from None
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise SceneError("scene file", str(path), "a UTF-8 text file (this one is UTF-16; save it as UTF-8)")
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        raise SceneError("scene file", str(path), f"a UTF-8 text file (byte {nul} is NUL: a binary or UTF-16 file)")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError("scene file", str(path), f"a UTF-8 text file (byte {exc.start} is not UTF-8: a binary "
+                                                  "file or another encoding)") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError("scene file", str(path), f"valid TOML ({exc})") from None
+
+
 # ----------------------------------------------------------------------------------- sections
 def _parse_grid(g, dim, support):
     _section(g, "grid", {"origin", "size", "dx", "cells", "block"})
@@ -290,6 +316,7 @@ def _parse_grid(g, dim, support):
     else:
         dx = size[0] / _integer(g, "cells", "grid", lo=4, hi=4096)
     cells_f = size / dx
+    limits.check_cells_per_axis(cells_f, *_cell_size_field(g), dim)
     cells = np.rint(cells_f).astype(int)
     if np.any(np.abs(cells_f - cells) > 1e-9 * cells_f) or np.any(cells < 4):
         _fail("grid.size", size.tolist(), f"a whole number (>= 4) of cells of dx = {dx} along every axis")
@@ -297,6 +324,11 @@ def _parse_grid(g, dim, support):
     if block & (block - 1) or block < support:
         _fail("grid.block", block, f"a power of two >= {support} (the kernel support in nodes)")
     return Grid(origin=origin, dx=float(dx), cells=tuple(int(c) for c in cells), block=block)
+
+
+def _cell_size_field(g):
+    """The grid field that set the cell size, and its value (for memory-limit messages)."""
+    return ("grid.dx", g["dx"]) if "dx" in g else ("grid.cells", g["cells"])
 
 
 def _parse_method(m):

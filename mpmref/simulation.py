@@ -1,15 +1,18 @@
 """Simulation: particle state + stepper + backend + outputs + diagnostics."""
 
 import time as _time
+import warnings
 
 import numpy as np
 
 from .backends import make_backend
 from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
-from .errors import DomainExitError, MpmrefError, NonFiniteError
+from .domain import apply_domain_exit, outside
+from .errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
 from .physics.materials import material_groups
+from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 from .steppers import make_stepper
 
 
@@ -40,6 +43,7 @@ class Simulation:
         self.output = RunOutput(out_dir, scene) if out_dir is not None else None
         self.last_dt = None
         self.last_updates = 0
+        self._last_bounded = None  # (state, meta) before an unbounded step, while no bounded step followed
 
     # ------------------------------------------------------------------------ state access
     @property
@@ -61,6 +65,10 @@ class Simulation:
     @property
     def deleted(self):
         return self.state.deleted
+
+    @property
+    def clamped(self):
+        return self.state.clamped
 
     @property
     def id(self):
@@ -101,7 +109,7 @@ class Simulation:
         inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
         norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
         d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, inertia, norms)
-        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted,
+        return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted, "clamped": self.clamped,
                 **self.stepper.diagnostics(self.state)}
 
     # --------------------------------------------------------------------------- stepping
@@ -112,12 +120,17 @@ class Simulation:
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
         again); ``dt`` must be ``None``.
         """
+        synchronous = self.stepper.name == "sync"
+        if synchronous and self.step_count == 0:
+            first_dt = dt if dt is not None else self.stepper.time_step(self.particles)
+            warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, first_dt))
         new = self.stepper.advance(self.state, dt=dt, t_end=t_end)
         dt = new.time - self.state.time
         self.last_updates = self.stepper.updates(self.state, new)
         self._check_finite(new.particles, dt)
-        new.particles, deleted = self._apply_domain_policy(new.particles)
-        new.deleted += deleted
+        if synchronous:
+            self._check_bounded(new.particles, dt)
+        new.particles = self._apply_domain_policy(new)
         self.state = new
         self.last_dt = dt
         return dt
@@ -126,30 +139,58 @@ class Simulation:
         for name, arr in new.arrays().items():
             bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
             if bad.any():
+                cfl = self.stepper.cfl_number(self.particles, dt)
                 raise NonFiniteError(step=self.step_count + 1, particle=int(new.id[np.argmax(bad)]), quantity=name,
-                                     cfl=self.stepper.cfl_number(self.particles, dt),
-                                     checkpoint=self._save_last_good("nonfinite"))
+                                     cfl=cfl, checkpoint=self._save_last_good("nonfinite"),
+                                     cfl_note=above_limit_text(self.scene.method.scheme, cfl))
+
+    def _check_bounded(self, new, dt):
+        """Check a synchronous step for an unbounded velocity change (:func:`.stability.first_unbounded`).
+
+        One that would meet a domain-exit policy (a particle of the new state is outside the valid region)
+        raises :class:`InstabilityError`; one inside the domain is warned about once and the run goes on,
+        because runs above the measured limits must go on for ``mpmref verify extremes`` to find them. The
+        last good state stays the one before the unbounded step until a bounded step follows.
+        """
+        cfl = self.stepper.cfl_number(self.particles, dt)
+        bad = first_unbounded(self.particles.v, new.v, dt, self.scene.grid.dx)
+        if bad is None:
+            self._last_bounded = None  # the new state passes: it becomes the last good one
+            return
+
+        def instability(checkpoint=None):
+            return InstabilityError(self.step_count + 1, int(self.particles.id[bad[0]]), "v", cfl, checkpoint,
+                                    what=f"unbounded velocity v (|Δv|·Δt = {bad[1]:.3g} cells in one step; at most "
+                                    "1 is bounded)", cfl_note=above_limit_text(self.scene.method.scheme, cfl))
+
+        first = self._last_bounded is None
+        if first:
+            self._last_bounded = (self.state, self._meta("instability"))
+        if outside(new.x, *self.scene.valid_region()).any():
+            raise instability(self._save_last_good("instability"))
+        if first:
+            warnings.warn(f"{instability()}; the run goes on while every particle stays inside the domain",
+                          StabilityWarning, stacklevel=3)
 
     def _apply_domain_policy(self, new):
-        lo, hi = self.scene.valid_region()
-        outside = np.any((new.x < lo) | (new.x >= hi), axis=1)
-        if not outside.any():
-            return new, 0
-        policy = self.scene.boundary.domain_exit
-        if policy == "error":
-            idx = np.nonzero(outside)[0]
-            raise DomainExitError(self.step_count + 1, new.id[idx], new.x[idx],
+        """Apply ``boundary.domain_exit`` to the new state's particles; counts go into ``new``."""
+        p = new.particles
+        result = apply_domain_exit(p, *self.scene.valid_region(), self.scene.boundary.domain_exit)
+        if result.outside.size and self.scene.boundary.domain_exit == "error":
+            raise DomainExitError(self.step_count + 1, p.id[result.outside], p.x[result.outside],
                                   checkpoint=self._save_last_good("domain_exit"))
-        if policy == "clamp":
-            span = hi - lo
-            eps = np.asarray(1e-6 * span, dtype=new.x.dtype)
-            return new.with_(x=np.clip(new.x, lo + eps, hi - eps).astype(new.x.dtype)), 0
-        return new.select(~outside), int(outside.sum())
+        if result.particles.n == 0:
+            raise AllParticlesLeftError(self.step_count + 1, self.deleted + result.deleted,
+                                        checkpoint=self._save_last_good("all_left"))
+        new.clamped += result.clamped
+        new.deleted += result.deleted
+        return result.particles
 
     def _save_last_good(self, reason):
         if self.output is None:
             return None
-        return self.output.save_checkpoint(self.state, self._meta(reason),
+        state, meta = self._last_bounded or (self.state, self._meta(reason))
+        return self.output.save_checkpoint(state, {**meta, "reason": reason},
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
@@ -250,6 +291,10 @@ class Simulation:
         out.write_diagnostics(self.diagnostics())
         if self.scene.output.checkpoint:
             out.save_checkpoint(self.state, self._meta("output"))
+
+    def save_checkpoint(self, reason="interrupted"):
+        """Write the current state to the output folder's ``checkpoint.npz`` (e.g. on Ctrl-C); returns its path."""
+        return self.output.save_checkpoint(self.state, self._meta(reason))
 
     def _meta(self, reason):
         return {"reason": reason, "scene": self.scene.fingerprint()}

@@ -167,6 +167,7 @@ class State:
                             block's step in ticks; the synchronous stepper counts one tick per step)
     tick_length : float or None   seconds per tick (``None`` when synchronous steps have no fixed length)
     deleted : int           particles removed at the domain edge so far
+    clamped : int           particles clamped back inside at the domain edge so far (a particle each time)
     stepper : dict          the stepper's own arrays (e.g. block levels), saved with checkpoints
     """
 
@@ -176,9 +177,10 @@ class State:
     tick: int = 0
     tick_length: float | None = None
     deleted: int = 0
+    clamped: int = 0
     stepper: dict = field(default_factory=dict)
 
     def clock(self):
         """The scalar fields as a JSON-ready dict (what a checkpoint stores besides arrays)."""
         return {"step": self.step, "time": self.time, "tick": self.tick, "tick_length": self.tick_length,
-                "deleted": self.deleted}
+                "deleted": self.deleted, "clamped": self.clamped}

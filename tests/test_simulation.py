@@ -98,7 +98,10 @@ def test_domain_exit_clamp_and_delete():
     lo, hi = clamp.scene.valid_region()
     assert clamp.n_particles == n_clamp
     assert np.all((clamp.x >= lo) & (clamp.x < hi))
-    assert clamp.x[-1, 1] == pytest.approx(hi[1], abs=1e-5)
+    # clamped at step 1 with its outward (upward) velocity zeroed, the loner then falls freely for two steps
+    assert clamp.clamped == 1 and clamp.diagnostics()["clamped"] == 1
+    assert clamp.v[-1, 1] == pytest.approx(-2 * 9.8e-3, rel=1e-9)
+    assert clamp.x[-1, 1] == pytest.approx(hi[1] - 1e-6 * (hi[1] - lo[1]) - 3 * 9.8e-6, abs=1e-12)
     delete = Simulation(jelly_with_loner(exit_policy="delete", **fast))
     n0, m0 = delete.n_particles, delete.mass.sum()
     delete.run(steps=3)

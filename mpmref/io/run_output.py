@@ -9,6 +9,25 @@ from .checkpoint import load_checkpoint, save_checkpoint
 from .vtk import write_grid_vti, write_particles_vtu, write_pvd
 
 CHECKPOINT_NAME = "checkpoint.npz"
+#: the files a run writes into its folder (``last_good_*`` only when it fails)
+RUN_FILE_PATTERNS = ("particles_*.vtu", "grid_*.vti", "particles.pvd", "grid.pvd", "diagnostics.csv",
+                     CHECKPOINT_NAME, "last_good_*.npz")
+
+
+def run_files(folder):
+    """The files of an earlier run in ``folder`` (sorted; empty if the folder is absent or holds none)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted({p for pattern in RUN_FILE_PATTERNS for p in folder.glob(pattern) if p.is_file()})
+
+
+def clear_run(folder):
+    """Remove the files of an earlier run from ``folder`` (other files are left alone); returns how many."""
+    files = run_files(folder)
+    for path in files:
+        path.unlink()
+    return len(files)
 
 
 class RunOutput:
