@@ -179,9 +179,12 @@ def jacobi_rotation(alpha, beta, gamma):
     Van Loan 2013 §8.5.2, Demmel & Veselić 1992 §4), i.e. the rotation angle of magnitude at most
     :math:`\pi/4`. This is the Jacobi rotation that annihilates the entry :math:`\gamma` of the Gram matrix
     :math:`B^TB = V^TF^TFV` (McAdams et al. 2011 §2.1), computed from the columns themselves.
+    :math:`\sqrt{1+\zeta^2}` is evaluated as ``hypot(1, zeta)``, which does not overflow for large
+    :math:`|\zeta|` (:math:`t \to 1/(2\zeta)`, the correct small angle).
     """
-    zeta = (beta - alpha) / (2 * gamma)
-    t = np.copysign(1, zeta) / (np.abs(zeta) + np.sqrt(1 + zeta * zeta))
+    with np.errstate(over="ignore"):  # a column whose squared length underflows: zeta = inf, t = 0, no rotation
+        zeta = (beta - alpha) / (2 * gamma)
+        t = np.copysign(1, zeta) / (np.abs(zeta) + np.hypot(1, zeta))
     c = 1 / np.sqrt(1 + t * t)
     return c.astype(alpha.dtype, copy=False), (c * t).astype(alpha.dtype, copy=False)
 
@@ -252,7 +255,7 @@ def svd_3d(F, tol_ulps=TOL_ULPS, max_sweeps=MAX_SWEEPS):
             alpha = np.einsum("ni,ni->n", B[:, :, p], B[:, :, p])
             beta = np.einsum("ni,ni->n", B[:, :, q], B[:, :, q])
             gamma = np.einsum("ni,ni->n", B[:, :, p], B[:, :, q])
-            todo = np.abs(gamma) > tol * np.sqrt(alpha * beta)
+            todo = np.abs(gamma) > tol * (np.sqrt(alpha) * np.sqrt(beta))
             if not todo.any():
                 continue
             rotated = True

@@ -83,10 +83,10 @@ def _jacobi_pair(B, V, p, q, tol):
         alpha += B[i, p] * B[i, p]
         beta += B[i, q] * B[i, q]
         gamma += B[i, p] * B[i, q]
-    if abs(gamma) <= tol * np.sqrt(alpha * beta):
+    if abs(gamma) <= tol * (np.sqrt(alpha) * np.sqrt(beta)):
         return False
     zeta = (beta - alpha) / (T(2.0) * gamma)
-    t = (one if zeta >= 0 else -one) / (abs(zeta) + np.sqrt(one + zeta * zeta))
+    t = (one if zeta >= 0 else -one) / (abs(zeta) + np.hypot(one, zeta))
     c = one / np.sqrt(one + t * t)
     s = c * t
     _rotate_columns(B, p, q, c, s)
