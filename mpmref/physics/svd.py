@@ -26,7 +26,7 @@ convention of :func:`mpmref.physics.materials.signed_svd`, which obtains it from
   :math:`\sqrt{\varepsilon}\,\sigma_1` would lose them entirely.
 
 Both are backward stable: the computed factors are exact for a matrix :math:`F + \delta F` with
-:math:`\|\delta F\| \le c\,\varepsilon\,\|F\|` (:math:`\varepsilon` the unit round-off of the dtype).
+:math:`\|\delta F\| \le c\,\varepsilon\,\|F\|` (:math:`\varepsilon` the machine epsilon of the dtype).
 ``tests/test_svd.py`` checks this, and the agreement with LAPACK, by hypothesis.
 
 The NumPy reference backend does **not** use this module: its materials keep ``np.linalg.svd``
@@ -47,7 +47,7 @@ import numpy as np
 MAX_SWEEPS = 12
 
 #: A column pair is orthogonal enough when :math:`|b_p\cdot b_q| \le` ``TOL_ULPS`` :math:`\varepsilon
-#: \|b_p\|\|b_q\|`: the rounding error of a 3-term dot product is up to :math:`3\varepsilon|b_p||b_q|`,
+#: \|b_p\|\|b_q\|` (compared squared): the rounding error of a 3-term dot product is up to :math:`3\varepsilon|b_p||b_q|`,
 #: so a smaller threshold would chase round-off; the entry dropped from :math:`R` is then at most
 #: ``TOL_ULPS`` :math:`\varepsilon\,\sigma_q`.
 TOL_ULPS = 4.0
@@ -167,26 +167,30 @@ def jacobi_rotation(alpha, beta, gamma):
 
     For columns :math:`b_p, b_q` with :math:`\alpha = \|b_p\|^2`, :math:`\beta = \|b_q\|^2`,
     :math:`\gamma = b_p\cdot b_q \ne 0`, the columns :math:`c\,b_p - s\,b_q` and :math:`s\,b_p + c\,b_q` are
-    orthogonal for
+    orthogonal for :math:`t = s/c` the smaller root :math:`|t| \le 1` of :math:`t^2 + 2\zeta t - 1 = 0`,
+    :math:`\zeta = (\beta - \alpha)/(2\gamma)`, i.e. :math:`t = \operatorname{sign}\zeta/(|\zeta| +
+    \sqrt{1+\zeta^2})` (Rutishauser's formula; Golub & Van Loan 2013 §8.5.2, Demmel & Veselić 1992 §4), the
+    rotation angle of magnitude at most :math:`\pi/4`. This is the Jacobi rotation that annihilates the entry
+    :math:`\gamma` of the Gram matrix :math:`B^TB = V^TF^TFV` (McAdams et al. 2011 §2.1), computed from the
+    columns themselves. Multiplying through by :math:`|2\gamma|` avoids the division by :math:`\gamma` (and
+    its overflow) and shortens the chain of dependent divisions and square roots:
 
     .. math::
 
-        \zeta = \frac{\beta - \alpha}{2\gamma},\qquad
-        t = \frac{\operatorname{sign}\zeta}{|\zeta| + \sqrt{1 + \zeta^2}},\qquad
-        c = \frac{1}{\sqrt{1 + t^2}},\quad s = c\,t,
+        u = \beta - \alpha,\quad w = 2\gamma,\quad
+        (c, s) = \frac{\big(|u| + \sqrt{u^2 + w^2},\ \operatorname{sign}(u)\,w\big)}
+                      {\sqrt{\big(|u| + \sqrt{u^2 + w^2}\big)^2 + w^2}}
 
-    the smaller root :math:`|t| \le 1` of :math:`t^2 + 2\zeta t - 1 = 0` (Rutishauser's formula; Golub &
-    Van Loan 2013 §8.5.2, Demmel & Veselić 1992 §4), i.e. the rotation angle of magnitude at most
-    :math:`\pi/4`. This is the Jacobi rotation that annihilates the entry :math:`\gamma` of the Gram matrix
-    :math:`B^TB = V^TF^TFV` (McAdams et al. 2011 §2.1), computed from the columns themselves.
-    :math:`\sqrt{1+\zeta^2}` is evaluated as ``hypot(1, zeta)``, which does not overflow for large
-    :math:`|\zeta|` (:math:`t \to 1/(2\zeta)`, the correct small angle).
+    (:math:`\operatorname{sign}(0) = +1`: equal lengths give the rotation by :math:`\pi/4`). Both square
+    roots are taken as ``hypot``: :math:`u, w` are squared lengths already, and squaring them again would
+    underflow in float32 for columns below about :math:`10^{-10}`, leaving :math:`c^2 + s^2 \ne 1`.
     """
-    with np.errstate(over="ignore"):  # a column whose squared length underflows: zeta = inf, t = 0, no rotation
-        zeta = (beta - alpha) / (2 * gamma)
-        t = np.copysign(1, zeta) / (np.abs(zeta) + np.hypot(1, zeta))
-    c = 1 / np.sqrt(1 + t * t)
-    return c.astype(alpha.dtype, copy=False), (c * t).astype(alpha.dtype, copy=False)
+    u = beta - alpha
+    w = 2 * gamma
+    den = np.abs(u) + np.hypot(u, w)
+    num = np.where(u >= 0, w, -w)
+    norm = np.hypot(den, num)
+    return den / norm, num / norm
 
 
 def givens(a, b):
@@ -212,8 +216,8 @@ def svd_3d(F, tol_ulps=TOL_ULPS, max_sweeps=MAX_SWEEPS):
 
     1. :math:`B \leftarrow F`, :math:`V \leftarrow I`. Sweep over the column pairs (0,1), (0,2), (1,2),
        rotating columns :math:`p, q` of :math:`B` and of :math:`V` by the Jacobi rotation of the pair
-       unless :math:`|b_p\cdot b_q| \le \tau\,\|b_p\|\|b_q\|`, :math:`\tau` = ``tol_ulps`` × the unit
-       round-off :math:`\varepsilon` of the dtype; stop after a sweep with no rotation, or after
+       unless :math:`(b_p\cdot b_q)^2 \le \tau^2\,\|b_p\|^2\|b_q\|^2`, :math:`\tau` = ``tol_ulps`` × the
+       machine epsilon :math:`\varepsilon` of the dtype; stop after a sweep with no rotation, or after
        ``max_sweeps``. Then :math:`B = FV` has orthogonal columns, and :math:`\|b_i\| = |\sigma_i|`.
     2. Sort the columns of :math:`B` (and :math:`V`) by decreasing length; each swap also negates one of
        the two columns, so :math:`\det V` stays +1 (McAdams et al. 2011 §3).
@@ -255,7 +259,7 @@ def svd_3d(F, tol_ulps=TOL_ULPS, max_sweeps=MAX_SWEEPS):
             alpha = np.einsum("ni,ni->n", B[:, :, p], B[:, :, p])
             beta = np.einsum("ni,ni->n", B[:, :, q], B[:, :, q])
             gamma = np.einsum("ni,ni->n", B[:, :, p], B[:, :, q])
-            todo = np.abs(gamma) > tol * (np.sqrt(alpha) * np.sqrt(beta))
+            todo = gamma * gamma > tol * tol * alpha * beta
             if not todo.any():
                 continue
             rotated = True
