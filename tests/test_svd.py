@@ -9,18 +9,20 @@ same matrix.
 
 The bounds come from round-off (ε: the machine epsilon of the dtype under test):
 
-* Backward error. Applying one plane rotation in floating point is exact for the two rows (columns) it
-  touches perturbed by at most γ₆ ≈ 6ε relative (Higham 2002, *Accuracy and Stability of Numerical
-  Algorithms*, Lemma 19.8), and the perturbations of successive rotations add (§19.6). The 2D closed form
+* Backward error. Computing a plane rotation and applying it in floating point is exact for the two rows
+  (columns) it touches perturbed by a small multiple of ε, about 6ε (Higham 2002, *Accuracy and Stability
+  of Numerical Algorithms*, §19.6), and the perturbations of successive rotations add. The 2D closed form
   applies k = 3 rotations (R(θ), V(φ) and U = RV); the 3D algorithm at most k = 3·MAX_SWEEPS Jacobi
   rotations plus 3 Givens rotations (dropping R's off-diagonal adds at most TOL_ULPS·ε, inside one
   rotation's share). Hence ‖UΣVᵀ − F‖_F ≤ C ε ‖F‖_F and ‖UᵀU − I‖_F, ‖VᵀV − I‖_F, |det − 1| ≤ C ε with
   C = 6k: 18 in 2D, 234 in 3D.
 * Singular values. Each factorisation is exact for F + δF with ‖δF‖ ≤ C ε ‖F‖ (LAPACK's constant is far
-  smaller: Demmel 1997 §5.4); by Weyl's theorem (Golub & Van Loan 2013 Cor. 8.6.2) every σ_i moves by at
+  smaller: LAPACK Users' Guide, error bounds for the SVD); by Weyl's theorem (Golub & Van Loan 2013
+  Cor. 8.6.2) every σ_i moves by at
   most ‖δF‖₂, so the two agree to 2 C ε ‖F‖_F (signed: a last σ within that of 0 may take either sign).
-* Polar rotation. R = UVᵀ changes by at most 2‖δF‖_F / min_{i<j}(σ_i + σ_j) (signed σ; Higham 2008,
-  *Functions of Matrices*, Thm 8.9, whose proof carries over to the signed convention), so
+* Polar rotation. R = UVᵀ changes by at most 2‖δF‖_F / min_{i<j}(σ_i + σ_j) to first order (signed σ:
+  differentiating F = RS, S = VΣVᵀ gives δR = UΩVᵀ, Ω_ij = (M_ij − M_ji)/(σ_i + σ_j), M = UᵀδF V; for
+  positive σ this is Li 1995's bound, Higham 2008, *Functions of Matrices*, Ch. 8), so
   ‖R − R_ref‖_F ≤ 4 C ε ‖F‖_F / gap, checked where the rotation is unique and this first-order bound
   applies: gap = min(σ_i + σ_j) ≥ √ε ‖F‖_F.
 

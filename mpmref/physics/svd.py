@@ -15,13 +15,14 @@ convention of :func:`mpmref.physics.materials.signed_svd`, which obtains it from
   (:func:`polar_2d`), and the symmetric factor :math:`S = R^TF` is diagonalised by one Jacobi rotation
   (:func:`svd_2d`).
 * **3D, Jacobi** (after McAdams et al. 2011, "Computing the singular value decomposition of 3×3 matrices
-  with minimal branching and elementary floating point operations", §2–§4): cyclic Jacobi sweeps build a
+  with minimal branching and elementary floating point operations": Jacobi eigenanalysis, sorting, QR by
+  Givens rotations): cyclic Jacobi sweeps build a
   rotation :math:`V` that orthogonalises the columns of :math:`B = FV`; the columns are sorted by length
   (a swap negates one column so that :math:`\det V` stays +1); a QR factorisation of :math:`B` by three
   Givens rotations gives :math:`U = Q` and :math:`\Sigma = \operatorname{diag}(R)` (:func:`svd_3d`). Where
   McAdams et al. diagonalise :math:`F^TF` with a fixed number of sweeps of *approximate* rotations (single
   precision), the sweeps here use exact rotations computed from the current columns of :math:`B`
-  (one-sided Jacobi, Hestenes 1958; Demmel & Veselić 1992 §4) and stop at a fixed tolerance: :math:`F^TF`
+  (one-sided Jacobi, Hestenes 1958; Demmel & Veselić 1992) and stop at a fixed tolerance: :math:`F^TF`
   squares the condition number, and a matrix with two singular values below
   :math:`\sqrt{\varepsilon}\,\sigma_1` would lose them entirely.
 
@@ -169,9 +170,9 @@ def jacobi_rotation(alpha, beta, gamma):
     :math:`\gamma = b_p\cdot b_q \ne 0`, the columns :math:`c\,b_p - s\,b_q` and :math:`s\,b_p + c\,b_q` are
     orthogonal for :math:`t = s/c` the smaller root :math:`|t| \le 1` of :math:`t^2 + 2\zeta t - 1 = 0`,
     :math:`\zeta = (\beta - \alpha)/(2\gamma)`, i.e. :math:`t = \operatorname{sign}\zeta/(|\zeta| +
-    \sqrt{1+\zeta^2})` (Rutishauser's formula; Golub & Van Loan 2013 §8.5.2, Demmel & Veselić 1992 §4), the
+    \sqrt{1+\zeta^2})` (Rutishauser's formula; Golub & Van Loan 2013 §8.5.2, Demmel & Veselić 1992), the
     rotation angle of magnitude at most :math:`\pi/4`. This is the Jacobi rotation that annihilates the entry
-    :math:`\gamma` of the Gram matrix :math:`B^TB = V^TF^TFV` (McAdams et al. 2011 §2.1), computed from the
+    :math:`\gamma` of the Gram matrix :math:`B^TB = V^TF^TFV` (McAdams et al. 2011), computed from the
     columns themselves. Multiplying through by :math:`|2\gamma|` avoids the division by :math:`\gamma` (and
     its overflow) and shortens the chain of dependent divisions and square roots:
 
@@ -184,6 +185,17 @@ def jacobi_rotation(alpha, beta, gamma):
     (:math:`\operatorname{sign}(0) = +1`: equal lengths give the rotation by :math:`\pi/4`). Both square
     roots are taken as ``hypot``: :math:`u, w` are squared lengths already, and squaring them again would
     underflow in float32 for columns below about :math:`10^{-10}`, leaving :math:`c^2 + s^2 \ne 1`.
+
+    Parameters
+    ----------
+    alpha, beta, gamma : (m,) arrays
+        :math:`\|b_p\|^2`, :math:`\|b_q\|^2` and :math:`b_p\cdot b_q` of ``m`` column pairs
+        (:math:`\gamma \ne 0`).
+
+    Returns
+    -------
+    c, s : (m,) arrays
+        Cosine and sine, :math:`c > 0`, :math:`|s| \le c`.
     """
     u = beta - alpha
     w = 2 * gamma
@@ -199,7 +211,16 @@ def givens(a, b):
     .. math:: r = \sqrt{a^2 + b^2},\qquad c = a / r,\quad s = b / r \qquad (c = 1,\ s = 0 \text{ where } r = 0),
 
     so that :math:`\begin{pmatrix}c & s\\ -s & c\end{pmatrix}\begin{pmatrix}a\\ b\end{pmatrix} =
-    \begin{pmatrix}r\\ 0\end{pmatrix}` (Golub & Van Loan 2013 §5.1.8; McAdams et al. 2011 §4).
+    \begin{pmatrix}r\\ 0\end{pmatrix}` (Golub & Van Loan 2013 §5.1.8; as in McAdams et al. 2011).
+
+    Parameters
+    ----------
+    a, b : (m,) arrays
+        The entry kept and the entry zeroed.
+
+    Returns
+    -------
+    c, s : (m,) arrays
     """
     r = np.hypot(a, b)
     zero = r == 0
@@ -211,7 +232,7 @@ def givens(a, b):
 def svd_3d(F, tol_ulps=TOL_ULPS, max_sweeps=MAX_SWEEPS):
     r"""Signed SVD :math:`F = U\Sigma V^T` of a batch of 3×3 matrices by Jacobi sweeps and a Givens QR.
 
-    After McAdams et al. 2011 (§2 Jacobi eigenanalysis, §3 sorting the singular values, §4 QR by Givens
+    After McAdams et al. 2011 (Jacobi eigenanalysis, sorting the singular values, QR by Givens
     rotations), with exact one-sided Jacobi rotations (:func:`jacobi_rotation`) and a fixed tolerance:
 
     1. :math:`B \leftarrow F`, :math:`V \leftarrow I`. Sweep over the column pairs (0,1), (0,2), (1,2),
@@ -220,7 +241,7 @@ def svd_3d(F, tol_ulps=TOL_ULPS, max_sweeps=MAX_SWEEPS):
        machine epsilon :math:`\varepsilon` of the dtype; stop after a sweep with no rotation, or after
        ``max_sweeps``. Then :math:`B = FV` has orthogonal columns, and :math:`\|b_i\| = |\sigma_i|`.
     2. Sort the columns of :math:`B` (and :math:`V`) by decreasing length; each swap also negates one of
-       the two columns, so :math:`\det V` stays +1 (McAdams et al. 2011 §3).
+       the two columns, so :math:`\det V` stays +1 (as in McAdams et al. 2011).
     3. :math:`B = QR` by three Givens rotations (:func:`givens`) that zero :math:`B_{10}, B_{20}, B_{21}`;
        :math:`U = Q` is a rotation, :math:`R_{00}, R_{11} \ge 0`, and
        :math:`\operatorname{sign}R_{22} = \operatorname{sign}\det F`. The off-diagonal entries of
@@ -304,7 +325,10 @@ def polar_rotation(F):
     closed form (no eigen-decomposition needed); in 3D it is :math:`UV^T` of :func:`svd_3d`. :math:`R` is
     unique where all signed pair sums :math:`\sigma_i + \sigma_j` (:math:`i < j`) are non-zero; its
     sensitivity to a perturbation :math:`\delta F` is at most :math:`2\|\delta F\|/\min_{i<j}(\sigma_i +
-    \sigma_j)` (Higham 2008, "Functions of Matrices", Thm 8.9, with the signed singular values).
+    \sigma_j)` to first order: :math:`\delta R = U\Omega V^T` with :math:`\Omega_{ij} = (M_{ij} -
+    M_{ji})/(\sigma_i + \sigma_j)`, :math:`M = U^T\delta F\,V` (differentiate :math:`F = RS`,
+    :math:`S = V\Sigma V^T`; with positive :math:`\sigma` this is the bound of Li 1995, "New perturbation
+    bounds for the unitary polar factor", and Higham 2008, "Functions of Matrices", Ch. 8).
     """
     if F.shape[1] == 2:
         R, _ = polar_2d(F)

@@ -94,7 +94,7 @@ def _jacobi_pair(x0, x1, x2, y0, y1, y2, v0, v1, v2, w0, w1, w2, tol2):
 def _sort_pair(x0, x1, x2, y0, y1, y2, v0, v1, v2, w0, w1, w2):
     r"""Columns ``x, y`` of :math:`B` (``v, w`` of :math:`V`) in order of decreasing length: where
     :math:`\|x\| < \|y\|` they swap and the new second column is negated, so that :math:`\det V` is unchanged
-    (McAdams et al. 2011 §3)."""
+    (as in McAdams et al. 2011)."""
     if x0 * x0 + x1 * x1 + x2 * x2 < y0 * y0 + y1 * y1 + y2 * y2:
         return y0, y1, y2, -x0, -x1, -x2, w0, w1, w2, -v0, -v1, -v2
     return x0, x1, x2, y0, y1, y2, v0, v1, v2, w0, w1, w2
@@ -125,7 +125,7 @@ def svd_3d_into(F, U, sigma, Vt):
     ``vij`` = :math:`V_{ij}`, ``uij`` = :math:`U_{ij}`): one-sided Jacobi sweeps over the column pairs
     (0,1), (0,2), (1,2) of :math:`B = FV` until a sweep rotates none (at most ``MAX_SWEEPS``), sorting by
     column length with sign-preserving swaps, then :math:`B = QR` by Givens rotations that zero
-    :math:`B_{10}, B_{20}, B_{21}`, :math:`U = Q`, :math:`\sigma_i = R_{ii}` (McAdams et al. 2011 §2–§4).
+    :math:`B_{10}, B_{20}, B_{21}`, :math:`U = Q`, :math:`\sigma_i = R_{ii}` (after McAdams et al. 2011).
     """
     T = F.dtype.type
     tol2 = T((TOL_ULPS * np.finfo(F.dtype).eps) ** 2)
