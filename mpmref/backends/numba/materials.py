@@ -4,6 +4,12 @@ The equations are those of :mod:`mpmref.physics.materials` and :mod:`mpmref.phys
 docstrings for sources and symbols). Each material has a stress kernel and, if plastic, a return-map
 kernel over the index list of its particles; :data:`KERNELS` maps a material class to them and to the
 parameters they take. Adding a material adds its kernels and one entry here.
+
+The singular value and polar decompositions are the fast ones of :mod:`.svd` (closed form in 2D, Jacobi
+sweeps and a Givens QR in 3D; :mod:`mpmref.physics.svd` gives the method and its accuracy), not LAPACK's
+``np.linalg.svd``, which cost about 3 µs per particle here. The NumPy reference keeps LAPACK, so the
+conformance harness checks these against an independent factorisation. The kernels loop over chunks of
+:data:`CHUNK` particles and allocate the decomposition's small work arrays once per chunk.
 """
 
 import numpy as np
@@ -11,27 +17,42 @@ from numba import njit, prange
 
 from ...physics.materials import FixedCorotated, NeoHookean, WeaklyCompressibleFluid
 from ...physics.plasticity import SIGMA_FLOOR, DruckerPragerSand, SnowPlasticity
+from .svd import polar_rotation_into, signed_svd_into
+
+#: particles per chunk of a material kernel's parallel loop (one set of work arrays per chunk)
+CHUNK = 64
 
 
 @njit(cache=True)
-def signed_svd(F):
-    r"""SVD :math:`F = U \Sigma V^T` with proper rotations (as :func:`mpmref.physics.materials.signed_svd`)."""
-    U, sigma, Vt = np.linalg.svd(F)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        d = F.shape[0]
-        for a in range(d):
-            U[a, d - 1] = -U[a, d - 1]
-        sigma[d - 1] = -sigma[d - 1]
-    return U, sigma, Vt
+def n_chunks(n):
+    """Number of :data:`CHUNK`-sized chunks covering ``n`` particles."""
+    return (n + CHUNK - 1) // CHUNK
 
 
 @njit(cache=True)
-def corotated_stress_into(F, mu, lam, scale, out):
+def work_arrays(d, dtype):
+    """Work arrays of one chunk: ``R``, ``U``, ``sigma``, ``Vt`` for :mod:`.svd`, and a second length-``d``
+    vector."""
+    return np.empty((d, d), dtype), np.empty((d, d), dtype), np.empty(d, dtype), np.empty((d, d), dtype), np.empty(d, dtype)
+
+
+@njit(cache=True, inline="always")
+def det_small(F):
+    r""":math:`\det F` of a 2×2 or 3×3 matrix by cofactors (Laplace expansion along the first row)."""
+    if F.shape[0] == 2:
+        return F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    return (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
+            - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+            + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
+
+
+@njit(cache=True, inline="always")
+def corotated_stress_into(F, mu, lam, scale, out, R, U, sigma, Vt):
     r"""``out = scale * (2 mu (F - R) F^T + lam (J - 1) J I)`` (fixed-corotated Kirchhoff stress,
-    Stomakhin et al. 2012 §4), :math:`R = UV^T`, :math:`J = \det F`."""
-    U, _, Vt = signed_svd(F)
-    R = U @ Vt
-    J = np.linalg.det(F)
+    Stomakhin et al. 2012 §4), :math:`R = UV^T` the polar rotation (:func:`.svd.polar_rotation_into`: closed
+    form in 2D), :math:`J = \det F`. ``R``, ``U``, ``sigma``, ``Vt`` are work arrays."""
+    polar_rotation_into(F, R, U, sigma, Vt)
+    J = det_small(F)
     d = F.shape[0]
     for a in range(d):
         for b in range(d):
@@ -44,9 +65,12 @@ def corotated_stress_into(F, mu, lam, scale, out):
 @njit(parallel=True, cache=True)
 def fixed_corotated_stress(F, Jp, idx, mu, lam, tau):
     """Fixed-corotated Kirchhoff stress of the particles ``idx``."""
-    for k in prange(idx.shape[0]):
-        p = idx[k]
-        corotated_stress_into(np.ascontiguousarray(F[p]), mu, lam, 1.0, tau[p])
+    n = idx.shape[0]
+    for chunk in prange(n_chunks(n)):
+        R, U, sigma, Vt, _ = work_arrays(F.shape[1], F.dtype)
+        for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            p = idx[k]
+            corotated_stress_into(F[p], mu, lam, 1.0, tau[p], R, U, sigma, Vt)
 
 
 @njit(parallel=True, cache=True)
@@ -79,33 +103,42 @@ def fluid_stress(J, idx, K, gamma, tau):
 @njit(parallel=True, cache=True)
 def snow_stress(F, Jp, idx, mu, lam, hardening, tau):
     r""":math:`\tau = e^{\xi(1 - J_P)}\,\tau_{corotated}(F_E)` (Stomakhin et al. 2013 §5) of the particles ``idx``."""
-    for k in prange(idx.shape[0]):
-        p = idx[k]
-        corotated_stress_into(np.ascontiguousarray(F[p]), mu, lam, np.exp(hardening * (1.0 - Jp[p])), tau[p])
+    n = idx.shape[0]
+    for chunk in prange(n_chunks(n)):
+        R, U, sigma, Vt, _ = work_arrays(F.shape[1], F.dtype)
+        for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            p = idx[k]
+            corotated_stress_into(F[p], mu, lam, np.exp(hardening * (1.0 - Jp[p])), tau[p], R, U, sigma, Vt)
 
 
 @njit(parallel=True, cache=True)
 def snow_return_map(F, Jp, idx, theta_c, theta_s, Jp_min, Jp_max):
     r"""Clamp :math:`\sigma_i` to :math:`[1-\theta_c, 1+\theta_s]` and move the excess into :math:`J_P`
-    (Stomakhin et al. 2013 §4.1 step 7), in place; particles already inside keep ``F`` bit for bit."""
+    (Stomakhin et al. 2013 §4.1 step 7), in place; particles already inside keep ``F`` bit for bit.
+
+    :math:`U\hat\Sigma V^T` is unique even where singular values repeat (equal :math:`\sigma_i` clamp to
+    equal :math:`\hat\sigma_i`), so the fast SVD's choice of :math:`U, V` there does not matter."""
     d = F.shape[1]
-    for k in prange(idx.shape[0]):
-        p = idx[k]
-        U, sigma, Vt = signed_svd(np.ascontiguousarray(F[p]))
-        inside = True
-        before, after = 1.0, 1.0
-        for a in range(d):
-            clamped = min(max(sigma[a], 1.0 - theta_c), 1.0 + theta_s)
-            inside = inside and clamped == sigma[a]
-            before *= sigma[a]
-            after *= clamped
-            sigma[a] = clamped
-        if not inside:
-            compose_into(U, sigma, Vt, F[p])
-        Jp[p] = min(max(Jp[p] * (before / after), Jp_min), Jp_max)
+    n = idx.shape[0]
+    for chunk in prange(n_chunks(n)):
+        _, U, sigma, Vt, _ = work_arrays(d, F.dtype)
+        for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            p = idx[k]
+            signed_svd_into(F[p], U, sigma, Vt)
+            inside = True
+            before, after = 1.0, 1.0
+            for a in range(d):
+                clamped = min(max(sigma[a], 1.0 - theta_c), 1.0 + theta_s)
+                inside = inside and clamped == sigma[a]
+                before *= sigma[a]
+                after *= clamped
+                sigma[a] = clamped
+            if not inside:
+                compose_into(U, sigma, Vt, F[p])
+            Jp[p] = min(max(Jp[p] * (before / after), Jp_min), Jp_max)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def compose_into(U, sigma, Vt, out):
     r"""``out = U diag(sigma) Vt``."""
     d = out.shape[0]
@@ -117,44 +150,71 @@ def compose_into(U, sigma, Vt, out):
             out[a, b] = s
 
 
-@njit(cache=True)
-def hencky_strain(F):
-    r"""``U``, :math:`\ln\max(\sigma, \sigma_{floor})`, ``Vt`` (Klar et al. 2016 §4)."""
-    U, sigma, Vt = signed_svd(F)
-    return U, np.log(np.maximum(sigma, SIGMA_FLOOR)), Vt
+@njit(cache=True, inline="always")
+def hencky_strain_into(F, U, eps, Vt):
+    r"""``U``, :math:`\epsilon = \ln\max(\sigma, \sigma_{floor})` into ``eps``, ``Vt`` (Klar et al. 2016 §4);
+    returns :math:`\operatorname{tr}\epsilon`."""
+    signed_svd_into(F, U, eps, Vt)
+    trace = 0.0
+    for a in range(F.shape[0]):
+        eps[a] = np.log(max(eps[a], SIGMA_FLOOR))
+        trace += eps[a]
+    return trace
 
 
 @njit(parallel=True, cache=True)
 def sand_stress(F, Jp, idx, mu, lam, tau):
-    r""":math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\, I)U^T` (Klar et al. 2016 §4) of ``idx``."""
-    for k in prange(idx.shape[0]):
-        p = idx[k]
-        U, eps, _ = hencky_strain(np.ascontiguousarray(F[p]))
-        principal = 2.0 * mu * eps + lam * np.sum(eps)
-        compose_into(U, principal, U.T.copy(), tau[p])
+    r""":math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\, I)U^T` (Klar et al. 2016 §4) of ``idx``.
+
+    Unique where singular values repeat (equal :math:`\sigma_i`, equal principal stresses)."""
+    d = F.shape[1]
+    n = idx.shape[0]
+    for chunk in prange(n_chunks(n)):
+        Ut, U, eps, Vt, _ = work_arrays(d, F.dtype)
+        for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            p = idx[k]
+            trace = hencky_strain_into(F[p], U, eps, Vt)
+            for a in range(d):
+                eps[a] = 2.0 * mu * eps[a] + lam * trace
+                for b in range(d):
+                    Ut[a, b] = U[b, a]
+            compose_into(U, eps, Ut, tau[p])
 
 
 @njit(parallel=True, cache=True)
 def sand_return_map(F, Jp, idx, mu, lam, alpha, cohesion):
     r"""Drucker–Prager projection of the Hencky strain with the cohesion shift (Klar et al. 2016 Alg. 2; see
-    :meth:`mpmref.physics.plasticity.DruckerPragerSand.return_map`), in place."""
+    :meth:`mpmref.physics.plasticity.DruckerPragerSand.return_map`), in place.
+
+    :math:`U e^{\epsilon^{new}} V^T` is unique where singular values repeat: the projection maps equal
+    strains to equal strains."""
     d = F.shape[1]
-    for k in prange(idx.shape[0]):
-        p = idx[k]
-        U, eps, Vt = hencky_strain(np.ascontiguousarray(F[p]))
-        trace = np.sum(eps)
-        dev = eps - trace / d
-        norm = np.sqrt(np.sum(dev**2))
-        tr_shifted = trace - d * cohesion
-        dgamma = norm + (d * lam + 2.0 * mu) / (2.0 * mu) * tr_shifted * alpha
-        if tr_shifted > 0:
-            eps_new = np.full(d, cohesion)
-        elif dgamma > 0:
-            eps_new = eps - dgamma / norm * dev if norm > 0 else eps.copy()
-        else:
-            continue
-        compose_into(U, np.exp(eps_new), Vt, F[p])
-        Jp[p] = Jp[p] * np.exp(trace - np.sum(eps_new))
+    n = idx.shape[0]
+    for chunk in prange(n_chunks(n)):
+        _, U, eps, Vt, eps_new = work_arrays(d, F.dtype)
+        for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            p = idx[k]
+            trace = hencky_strain_into(F[p], U, eps, Vt)
+            norm2 = 0.0
+            for a in range(d):
+                norm2 += (eps[a] - trace / d) ** 2
+            norm = np.sqrt(norm2)
+            tr_shifted = trace - d * cohesion
+            dgamma = norm + (d * lam + 2.0 * mu) / (2.0 * mu) * tr_shifted * alpha
+            if tr_shifted > 0:
+                for a in range(d):
+                    eps_new[a] = cohesion
+            elif dgamma > 0:
+                for a in range(d):
+                    eps_new[a] = eps[a] - dgamma / norm * (eps[a] - trace / d) if norm > 0 else eps[a]
+            else:
+                continue
+            trace_new = 0.0
+            for a in range(d):
+                trace_new += eps_new[a]
+                eps_new[a] = np.exp(eps_new[a])
+            compose_into(U, eps_new, Vt, F[p])
+            Jp[p] = Jp[p] * np.exp(trace - trace_new)
 
 
 def _elastic(kernel):
