@@ -58,7 +58,7 @@ class Particles:
 
     def arrays(self):
         """Mapping of field name to array, for the fields that are allocated."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+        return {name: a for name in PARTICLE_FIELDS if (a := getattr(self, name)) is not None}
 
     def copy(self):
         return Particles(**{k: a.copy() for k, a in self.arrays().items()})
@@ -81,6 +81,10 @@ class Particles:
     def with_(self, **changes):
         """A shallow copy with some arrays replaced."""
         return replace(self, **changes)
+
+
+#: every field of :class:`Particles`, in declaration order
+PARTICLE_FIELDS = tuple(f.name for f in fields(Particles))
 
 
 @dataclass(frozen=True)

@@ -170,7 +170,7 @@ class RandomLevels(AsynchronousStepper):
 
 
 class _FrozenShadows(_Interval):
-    def refresh_shadows(self, proposal, proposal_t):
+    def refresh_shadows(self, proposals):
         """Broken on purpose: shadows stay at the coarse step's start (no sub-cycling)."""
 
 

@@ -203,6 +203,7 @@ class _Interval:
         self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
         self.shadow = self.P.copy()
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
+        self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
         self.block_dt = np.asarray(state.stepper["block_dt"]).copy()
         self.updates = 0
         self.own_updates = 0
@@ -229,31 +230,39 @@ class _Interval:
         self.finest = min(self.finest, int(self.dt_p[at].min()))
         self.shadow.assign(at, here)
         self.shadow_t[at] = t
-        proposal, proposal_t = self.shadow.copy(), np.full(self.P.n, -1, dtype=np.int64)
+        self.shadow_base[at] = self.base[at]
+        proposals = []  # (shadow indices, their results, end tick) of each update, coarse first
         D = s.max_units
         while D >= 1:
             active = at[self.dt_p[at] == D] if t % D == 0 else at[:0]
             if active.size:
-                self.update_level(D, active, proposal, proposal_t)
+                proposals.append(self.update_level(D, active))
             D //= 2
-        self.refresh_shadows(proposal, proposal_t)
+        self.refresh_shadows(proposals)
         self.t = int(self.t_p.min())
 
-    def refresh_shadows(self, proposal, proposal_t):
-        """Each shadow takes the result of the finest update that used it at this tick (if any)."""
-        refreshed = proposal_t >= 0
-        self.shadow.assign(refreshed, proposal.select(refreshed))
-        self.shadow_t[refreshed] = proposal_t[refreshed]
+    def refresh_shadows(self, proposals):
+        """Each shadow takes the result of the finest update that used it at this tick (if any).
 
-    def update_level(self, D, active, proposal, proposal_t):
-        """One level-``D`` update at the current tick: a substep of the active particles and their ghosts."""
+        Updates ran coarse first, so writing the proposals in order leaves the finest one.
+        """
+        for idx, rows, end in proposals:
+            self.shadow.assign(idx, rows)
+            self.shadow_t[idx] = end
+            self.shadow_base[idx] = self.s.base_nodes(rows.x)
+
+    def update_level(self, D, active):
+        """One level-``D`` update at the current tick: a substep of the active particles and their ghosts.
+
+        Returns the shadow proposal ``(indices, results, end tick)`` of the coarser ghosts.
+        """
         s, t = self.s, self.t
         zone = s.ghost_zone(self.base[active])
-        others = np.ones(self.P.n, dtype=bool)
-        others[active] = False
-        level_ghosts = np.flatnonzero(others & (self.t_p == t) & zone[tuple(self.base.T)])
+        waiting = np.flatnonzero(self.t_p == t)  # the active particles and the finer ones, not yet advanced
+        waiting = waiting[self.dt_p[waiting] < D]
+        level_ghosts = waiting[zone[tuple(self.base[waiting].T)]]
         mid = np.flatnonzero(self.t_p > t)
-        shadow_ghosts = mid[zone[tuple(s.base_nodes(self.shadow.x[mid]).T)]]
+        shadow_ghosts = mid[zone[tuple(self.shadow_base[mid].T)]]
         self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
         group = self.P.concatenate([self.P.select(active), self.P.select(level_ghosts),
                                     self.shadow.select(shadow_ghosts)])
@@ -263,8 +272,6 @@ class _Interval:
         self.P.level[active] = int(D).bit_length() - 1
         self.t_p[active] = t + D
         first_shadow = n_active + level_ghosts.size
-        proposal.assign(shadow_ghosts, result.select(slice(first_shadow, None)))
-        proposal_t[shadow_ghosts] = t + D
         self.updates += group.n
         self.own_updates += n_active
         if s.trace is not None:
@@ -272,6 +279,7 @@ class _Interval:
                             "level_ghosts": sorted(set(self.owner[level_ghosts].tolist())),
                             "shadow_ghosts": sorted(set(zip(s.owner_blocks(self.shadow.x[shadow_ghosts]).tolist(),
                                                             self.shadow_t[shadow_ghosts].tolist())))})
+        return shadow_ghosts, result.select(slice(first_shadow, None)), t + D
 
     def finish(self):
         """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census."""
