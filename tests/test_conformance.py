@@ -270,6 +270,18 @@ def test_cli_check_prints_the_table_and_exits_0_or_1(capsys, monkeypatch):
     assert "FAILED: 6 of 12" in out and "stress-3d-snow" in out
 
 
+def test_cli_check_shows_progress_on_stderr_unless_told_not_to(capsys):
+    """The bar names each case on standard error; standard output keeps only the table."""
+    argv = ["conformance", "check", "--backend", "numpy", "--dim", "2", "--stage", "stress"]
+    assert cli(argv) == 0
+    out, err = capsys.readouterr()
+    assert "conformance: 100%" in err and "6/6" in err and "stress-2d" in err
+    assert "conformance:" not in out and out.splitlines()[0].startswith("stage")
+    assert cli(argv + ["--no-progress"]) == 0
+    quiet_out, quiet_err = capsys.readouterr()
+    assert quiet_err == "" and quiet_out == out
+
+
 def test_cli_export_selects_dimension_stage_and_dtype(tmp_path, capsys):
     assert cli(["conformance", "export", str(tmp_path / "v"), "--dim", "3", "--stage", "grid_update",
                 "--dtype", "float32"]) == 0
