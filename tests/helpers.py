@@ -1,5 +1,7 @@
 """Shared builders for tests: small random particle states and scenes."""
 
+from pathlib import Path
+
 import numpy as np
 
 from mpmref import Scene, SceneBuilder
@@ -86,4 +88,18 @@ def random_deformations(rng, n, dim, scale=0.3, min_det=0.3):
     return np.array(out)
 
 
-__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations", "Scene"]
+__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations", "Scene",
+           "assert_every_figure_has_a_caption"]
+
+
+def assert_every_figure_has_a_caption(folder):
+    """Every PNG under ``folder`` carries a caption (:func:`verification.report.save_figure`) that reads as a
+    sentence about the figure, not a file name."""
+    from verification.report import figure_caption
+
+    pngs = sorted(Path(folder).rglob("*.png"))
+    assert pngs, f"no figures under {folder}"
+    for png in pngs:
+        caption = figure_caption(png)
+        assert caption is not None, f"{png.name} has no caption"
+        assert "Look for" in caption and png.name not in caption and len(caption.split()) >= 15, caption

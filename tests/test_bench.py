@@ -76,12 +76,24 @@ def test_mpm88_scene_is_the_example_with_another_particle_count():
 
 
 # --------------------------------------------------------------------------------- JSON and tables
+def test_bench_no_progress_leaves_standard_error_empty(capsys):
+    args = parse(["--quick", "--size", "64", "--backends", "numpy", "--dtype", "f64", "--threads", "1",
+                  "--repeats", "1", "--steps", "1", "--only", "table2", "--no-memory", "--no-progress"])
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and "Table 2" in out
+
+
+
 def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     path = tmp_path / "bench.json"
     args = parse(["--quick", "--size", "64", "--backends", "numpy", "--dtype", "f64", "--threads", "1",
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
+    for i, section in enumerate(("table2", "throughput"), 1):
+        assert f"[{i}/2] {section}: started" in err and f"[{i}/2] {section}: finished in " in err
+    assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
     assert set(results) >= {"created_utc", "environment", "options", *SECTIONS}

@@ -39,7 +39,10 @@ def test_pic_loses_angular_momentum_of_spinning_disk():
     assert loss > 0.99
 
 
+@pytest.mark.slow
 def test_mpm88_runs_2000_steps_finite_inside_and_mass_exact():
+    """A long trajectory (about 20 s on an idle core): ``pytest -m slow``. The default run steps mpm88 in
+    ``tests/test_examples.py``."""
     scene = Scene.from_toml(EXAMPLES / "mpm88.toml")
     sim = Simulation(scene)
     mass0 = sim.mass.sum()

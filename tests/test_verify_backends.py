@@ -5,6 +5,7 @@ from dataclasses import replace
 import pytest
 
 from mpmref.backends import BACKENDS
+from helpers import assert_every_figure_has_a_caption
 from verification import backends as case
 from verification.common import failed
 from verification import momentum
@@ -51,3 +52,5 @@ def test_report_writes_plot_vtk_series_and_table(result, tmp_path):
     assert (tmp_path / "vtk" / "2d_quadratic_mls" / "particles.pvd").exists()
     text = (tmp_path / "backends.md").read_text()
     assert text.count("| 2 | quadratic |") == len(momentum.VARIANTS) and "FAIL" not in text
+    assert_every_figure_has_a_caption(tmp_path)
+    assert case.backends_run(result) == ("numpy", "numba")

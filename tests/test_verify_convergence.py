@@ -10,6 +10,7 @@ from mpmref import SceneBuilder, Simulation
 from mpmref.backends import make_backend
 from mpmref.bodies import sample_particles
 from mpmref.physics.materials import NeoHookean
+from helpers import assert_every_figure_has_a_caption
 from verification import convergence as case
 from verification.common import failed
 from verification._conv_problems import AxisAlignedMMS, VibratingBar
@@ -115,3 +116,13 @@ def test_the_report_writes_plots_vtk_and_summary(result, tmp_path):
     for name in ("convergence_bar.png", "convergence_mms.png", "vtk_bar/particles.pvd", "vtk_mms/particles.pvd"):
         assert (tmp_path / name).is_file(), name
     assert len(list((tmp_path / "vtk_bar").glob("particles_*.vtu"))) == case.Params.quick().vtk_frames + 1
+    assert_every_figure_has_a_caption(tmp_path)
+
+
+def test_the_mls_quadratic_bar_slope_is_a_finding_not_a_check(result):
+    """The series without an expected rate are findings with their fitted slope; they are not checked."""
+    row = next(r for r in result["rows"] if r["series"].problem == "bar" and r["series"].label == "MLS-MPM quadratic")
+    (finding,) = case.findings(result)  # the quick preset's only series without an expected rate
+    assert finding.name == "bar: MLS-MPM quadratic: fitted slope of e_u" and finding.value == row["slope_u"]
+    assert f"Δx^{row['slope_u']:.2f}" in finding.sentence and "quadratic kernel C_p" in finding.sentence
+    assert not [c for c in case.checks(result) if "MLS-MPM quadratic" in c.name]

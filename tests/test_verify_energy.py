@@ -5,6 +5,7 @@ from dataclasses import replace
 import pytest
 
 from mpmref.backends.numpy import backend as numpy_backend
+from helpers import assert_every_figure_has_a_caption
 from verification import energy as case
 from verification.common import failed
 
@@ -56,3 +57,4 @@ def test_report_writes_plots_vtk_series_and_budget(result, tmp_path):
         assert (tmp_path / "vtk" / problem / "mls" / "particles.pvd").exists()
     text = (tmp_path / "energy.md").read_text()
     assert "| lost fraction |" in text and "FAIL" not in text
+    assert_every_figure_has_a_caption(tmp_path)

@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import pytest
 
+from helpers import assert_every_figure_has_a_caption
 from verification import extremes as case
 from verification.common import failed
 
@@ -49,3 +50,13 @@ def test_the_report_writes_table_plot_and_a_breaking_run(result, tmp_path):
     assert "| condition | pic | flip | apic | mls | polypic |" in text and "FAIL" not in text
     assert (tmp_path / "extremes.png").is_file()
     assert len(list((tmp_path / "vtk_breaking").glob("particles_*.vtu"))) >= 2
+    assert_every_figure_has_a_caption(tmp_path)
+
+
+def test_each_schemes_limit_on_the_base_block_is_a_finding(result):
+    params = case.Params.quick()
+    found = {f.name.split(":")[0]: f for f in case.findings(result)}
+    assert list(found) == list(params.schemes)
+    for r in (r for r in result["rows"] if r["condition"] == params.base):
+        assert found[r["scheme"]].value == r["limit"]
+        assert f"{case.resolution(params):.3g}" in found[r["scheme"]].sentence

@@ -2,6 +2,7 @@
 
 import argparse
 import html
+import json
 import os
 import re
 import time
@@ -98,9 +99,22 @@ def test_a_case_that_raises_is_reported_and_fails(monkeypatch, tmp_path):
     monkeypatch.setattr(momentum, "run", explode)
     assert verify(["momentum", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 1
     assert "deliberate failure inside the case" in (tmp_path / "momentum" / "report.md").read_text()
-    assert "| momentum | 0 | ERROR |" in (tmp_path / "report.md").read_text()
+    assert "| [momentum](momentum/report.md) | numpy | 0 | ERROR |" in (tmp_path / "report.md").read_text()
 
 
 def test_an_unknown_case_exits_2(tmp_path, capsys):
     assert verify(["nonsense", "--out", str(tmp_path)]) == 2
     assert "unknown case(s) nonsense" in capsys.readouterr().err
+
+
+def test_results_json_holds_every_check_of_the_real_cases(report_dir):
+    out, _ = report_dir
+    data = json.loads((out / "results.json").read_text())
+    index = (out / "report.md").read_text().split("## Every check")[1]
+    assert [c["case"] for c in data["cases"]] == ["momentum", "transfer_energy"]
+    assert len(data["checks"]) == data["summary"]["checks"] == index.count(" | pass | ") + index.count(" | FAIL | ")
+    momentum_checks = [c for c in data["checks"] if c["case"] == "momentum"]
+    assert len(momentum_checks) == 2 * len(momentum.VARIANTS)
+    for c in data["checks"]:
+        assert c["verdict"] == "pass" and c["reason"] and c["relation"] in ("<=", ">=", "<", ">")
+        assert f"| {c['case']} | {c['name'].replace('|', chr(92) + '|')} | {c['figure']:.6g} | " in index

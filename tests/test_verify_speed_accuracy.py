@@ -3,8 +3,10 @@
 import pytest
 
 from mpmref.backends import BACKENDS
+from helpers import assert_every_figure_has_a_caption
 from verification import speed_accuracy as case
 from verification.common import failed
+from verification.executor import Executor
 
 pytestmark = pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")
 
@@ -50,3 +52,29 @@ def test_report_writes_plot_tables_and_vtk(result, tmp_path):
     text = (tmp_path / "speed_accuracy.md").read_text()
     assert "Pareto front:" in text and "| yes |" in text and "FAIL" not in text
     assert (tmp_path / "vtk" / "most_accurate" / "particles.pvd").exists()
+    assert_every_figure_has_a_caption(tmp_path)
+
+
+def test_the_speed_ratio_is_a_finding_with_the_timing_conditions(result):
+    """NumPy's wall time over Numba's on the finest grid, the median over the series; never a check."""
+    finest = case.Params.quick().cells[-1]
+    walls = {(p["series"], p["backend"]): p["wall_s"] for p in result["points"] if p["cells"] == finest}
+    ratios = sorted(walls[(s, "numpy")] / walls[(s, "numba")] for s, b in walls if b == "numba")
+    (finding,) = case.findings(result)
+    assert finding.value == pytest.approx(ratios[len(ratios) // 2], rel=1e-12)  # three series: the middle one
+    assert "at most one timed run per core" in finding.sentence and "warm-up" in finding.sentence
+    assert not [c for c in case.checks(result) if "wall" in c.name]
+
+
+def test_local_timing_runs_at_most_one_process_per_core_and_one_numba_thread(monkeypatch):
+    monkeypatch.setattr(case.os, "cpu_count", lambda: 2)
+    assert case.timing_executor(Executor(workers=8)).workers == 2
+    same = Executor(workers=2)
+    assert case.timing_executor(same) is same
+    assert "more threads than cores" in case.timing_conditions(same, jobs=6, threads=2)
+    assert "at most one timed run per core" in case.timing_conditions(same, jobs=6, threads=1)
+    numba = pytest.importorskip("numba")
+    before = numba.get_num_threads()
+    with case.numba_threads("numba", 1):
+        assert numba.get_num_threads() == 1
+    assert numba.get_num_threads() == before

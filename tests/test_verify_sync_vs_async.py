@@ -22,7 +22,7 @@ def test_report_writes_plots_series_and_findings(result, tmp_path):
     paths = case.report(result, tmp_path)
     assert all(p.exists() for p in paths)
     text = (tmp_path / "sync_vs_async.md").read_text()
-    assert "## Findings" in text and "Colliding balls" in text
+    assert "## Findings" in text and "colliding balls" in text
     assert (tmp_path / "vtk" / "stork2d" / "particles.pvd").exists()
 
 

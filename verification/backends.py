@@ -147,7 +147,13 @@ def run(params=Params(), backend="numpy", executor=None):
     candidate = params.candidate if backend == "numpy" else backend
     jobs = [(params, dim, kernel, key, candidate) for dim in params.dims for kernel in params.kernels
             for key in params.variants]
-    return {"params": params, "candidate": candidate, "runs": executor.map(run_pair, jobs)}
+    return {"params": params, "candidate": candidate, "executor": executor.describe(),
+            "runs": executor.map(run_pair, jobs)}
+
+
+def backends_run(result):
+    """The reference and the candidate: this case runs both."""
+    return ("numpy", result["candidate"])
 
 
 # ------------------------------------------------------------------------------------------- checks
@@ -205,7 +211,10 @@ def plot_growth(result, path):
     ax.set(xlabel="step", ylabel="max relative difference", title=f"numpy vs {result['candidate']}")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
-    return save_figure(fig, path)
+    return save_figure(fig, path, caption=(
+        f"Largest relative difference between NumPy and {result['candidate']} (over materials and particle "
+        "arrays) against the step number, per run. Look for every curve below the dashed bound n·1e-12 and "
+        "growing at most linearly; exact agreement is drawn at the floor eps/8."))
 
 
 def report(result, out_dir):
@@ -216,7 +225,9 @@ def report(result, out_dir):
     paths += [write_series(out / "vtk" / f"{r['dim']}d_{r['kernel']}_{r['key']}", r["frames"])
               for r in result["runs"]]
     text = (f"# NumPy reference vs {result['candidate']}\n\nMax relative difference per material (over every "
-            f"particle array) after one step and over the trajectory; wall time per step after the first.\n\n"
+            f"particle array) after one step and over the trajectory; wall time per step after the first (so "
+            f"without compilation), measured while the runs shared the machine ({result['executor']}, Numba at "
+            f"its default thread count): a rough figure, not a benchmark (`mpmref bench` is one).\n\n"
             f"{table(result)}\n\n{checks_table(checks(result))}\n\n![growth](difference_growth.png)\n")
     write_text_atomic(out / "backends.md", text)
     return paths + [out / "backends.md"]

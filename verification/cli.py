@@ -1,9 +1,11 @@
-"""``mpmref verify [CASE ...] [--quick|--full] [--backend B] [--out DIR] [--scheduler ADDRESS] [--workers N]``.
+"""``mpmref verify [CASE ...] [--quick|--full] [--backend B] [--out DIR] [--scheduler A] [--workers N] [--no-progress]``
 
 Runs the named verification cases (default: every available case) and writes, under ``DIR``, one folder per
-case (its VTK series, PNG plots, tables and ``report.md``) and an index (``report.md``, ``index.html``)
-with every check's figure, bound and verdict. Exit code 0 when every check passes, 1 otherwise, 2 for an
-unknown case name.
+case (its VTK series, PNG plots, tables and ``report.md``) and an index (``report.md``, ``index.html``, and
+``results.json`` for programs) with the findings, then every check's figure, bound and verdict. While it
+runs, a line per case on standard error says when the case starts and when it finishes (wall time,
+verdict); standard output gets the failing checks and the summary at the end. Exit code 0 when every
+check passes, 1 otherwise, 2 for an unknown case name.
 """
 
 import sys
@@ -15,7 +17,7 @@ from mpmref.backends import BACKENDS
 from . import registry
 from .common import failed
 from .executor import Executor
-from .report import machine, write_case_report, write_index
+from .report import case_record, machine, write_case_report, write_index
 
 DEFAULT_OUT = Path("reports") / "verify"
 
@@ -36,6 +38,7 @@ def add_parser(subparsers):
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"report folder (default: {DEFAULT_OUT})")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run sweeps on this dask.distributed scheduler")
     p.add_argument("--workers", type=int, help="local worker processes for sweeps (default: CPU cores)")
+    p.add_argument("--no-progress", action="store_true", help="no per-case progress lines on standard error")
     return p
 
 
@@ -48,31 +51,40 @@ def cmd_verify(args):
               file=sys.stderr)
         return 2
     executor = Executor(scheduler=args.scheduler, workers=args.workers)
-    start, outcomes = time.perf_counter(), []
+    start, records = time.perf_counter(), []
     for i, name in enumerate(names, 1):
-        print(f"[{i}/{len(names)}] {name} ({args.preset}, {args.backend}) ...", flush=True)
+        tag = f"[{i}/{len(names)}] {name}"
+        _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
         case_dir = args.out / name
         outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
-        write_case_report(outcome, case_dir)
-        outcomes.append(outcome)
-        _print_outcome(outcome, case_dir)
-    meta = {"preset": args.preset, "backend": args.backend, "executor": executor.describe(),
-            "wall_s": time.perf_counter() - start, "machine": machine()}
-    md, page = write_index(args.out, outcomes, meta)
+        record = case_record(outcome, case_dir)
+        write_case_report(record, case_dir)
+        records.append(record)
+        _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
+                        f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
+                        f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
+    meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
+            "machine": machine()}
+    md, page, data = write_index(args.out, records, meta)
+    for record in records:
+        _print_problems(record.outcome)
+    outcomes = [r.outcome for r in records]
     total = sum(len(o.checks) for o in outcomes)
     n_failed = sum(len(failed(o.checks)) for o in outcomes)
     errors = sum(o.error is not None for o in outcomes)
     print(f"{total - n_failed} of {total} checks pass, {errors} case(s) stopped with an error, "
-          f"{meta['wall_s']:.1f} s; report: {md} and {page}")
+          f"{meta['wall_s']:.1f} s; report: {md}, {page} and {data}")
     return 0 if all(o.passed for o in outcomes) else 1
 
 
-def _print_outcome(outcome, case_dir):
-    passed = sum(c.passed for c in outcome.checks)
-    print(f"    {outcome.verdict}: {passed} of {len(outcome.checks)} checks pass in {outcome.wall_s:.1f} s "
-          f"-> {case_dir / 'report.md'}", flush=True)
-    for c in outcome.checks:
-        if not c.passed:
-            print(f"    FAIL {c.name}: {c.value:.6g} (bound {c.relation} {c.bound:.6g})", flush=True)
+def _progress(args, line):
+    if not args.no_progress:
+        print(line, file=sys.stderr, flush=True)
+
+
+def _print_problems(outcome):
+    """The failing checks and the error of one case, on standard output."""
+    for c in failed(outcome.checks):
+        print(f"{outcome.name}: FAIL {c.name}: {c.value:.6g} (bound {c.relation} {c.bound:.6g})")
     if outcome.error is not None:
-        print("    " + outcome.error.strip().splitlines()[-1], flush=True)
+        print(f"{outcome.name}: ERROR " + outcome.error.strip().splitlines()[-1] + f" (see {outcome.name}/report.md)")

@@ -1,4 +1,10 @@
-"""Shared pieces of verification cases: named checks with their bound and verdict."""
+"""Shared pieces of verification cases: named checks with their bound and verdict, and findings.
+
+A case's ``checks(result)`` returns :class:`Check` objects (a figure held to a bound derived from
+theory); a case may also define ``findings(result)`` returning :class:`Finding` objects (a measured
+figure that is reported, not judged: behaviour worth knowing that is not a failure) and
+``backends_run(result)`` returning the backends it ran (default: the one it was asked for).
+"""
 
 from dataclasses import dataclass
 
@@ -24,6 +30,25 @@ class Check:
     def line(self):
         verdict = "pass" if self.passed else "FAIL"
         return f"| {self.name} | {self.value:.6g} | {self.relation} {self.bound:.6g} | {verdict} | {self.reason} |"
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A measured figure of a case that is reported, not judged.
+
+    Attributes
+    ----------
+    name : str
+        What was measured, e.g. ``"bar: MLS-MPM quadratic: fitted slope of e_u"``.
+    value : float
+        The measured figure.
+    sentence : str
+        One sentence saying what the figure shows and why it is not a failure.
+    """
+
+    name: str
+    value: float
+    sentence: str
 
 
 def checks_table(checks):

@@ -20,7 +20,7 @@ end time and the slope of :math:`\log e` against :math:`\log \Delta x` is fitted
   :math:`k` the mode's wavenumber. :math:`C = 1` for second-order series (the leading error of a
   consistent second-order discretisation of a mode is :math:`c_2 (k\Delta x)^2` with an :math:`O(1)`
   constant :math:`c_2 \ll 1`); for PIC, :func:`pic_bound_constant`. Series without an expected rate are
-  findings: reported and plotted, never judged.
+  findings (:func:`findings`): their fitted slope is reported and plotted, never judged.
 
 See ``docs/convergence.md`` for the problems, the boundary treatment and how to read the plots.
 """
@@ -38,8 +38,9 @@ from mpmref.steppers.limits import cfl_time_step
 
 from ._conv_problems import PROBLEMS
 from ._conv_stepping import TREATMENTS, advance
-from .common import Check, checks_table
+from .common import Check, Finding, checks_table
 from .executor import Executor
+from .report import pyplot, save_figure
 
 SCHEME_NAMES = {("apic", "classic"): "APIC", ("mls", "mls"): "MLS-MPM", ("pic", "classic"): "PIC"}
 CFL = 0.4
@@ -95,7 +96,7 @@ class Series:
         return {"scheme": self.scheme, "force": self.force, "kernel": self.kernel}
 
 
-MLS_QUADRATIC = ("finding: with the quadratic kernel C_p reproduces only affine velocities (the stencil's third "
+MLS_QUADRATIC = ("with the quadratic kernel C_p reproduces only affine velocities (the stencil's third "
                  "moment is odd in the particle's offset), so MLS-MPM's velocity gradient grad v_p = C_p has an "
                  "O(dx) error that cancels only while particles sit symmetrically in their cells")
 
@@ -119,7 +120,7 @@ def contrast_series():
                   why="zeroing the nodes at x <= 0 pins the bar over the stencil's half-width: the boundary "
                       "moves by O(dx)")
     floor = [Series("mms", "apic", "classic", k, expected_rate=None, amplitude=0.05,
-                    why="finding: at 20x the amplitude, the particle quadrature of the distorted particle "
+                    why="at 20x the amplitude, the particle quadrature of the distorted particle "
                         "lattice puts a floor under the error") for k in ("quadratic", "cubic")]
     return [zero] + floor
 
@@ -294,13 +295,37 @@ def checks(result):
     return out
 
 
+def findings(result):
+    """The fitted slope of :math:`e_u` of each series without an expected rate: measured, not judged."""
+    out = []
+    for row in result["rows"]:
+        s = row["series"]
+        if s.expected_rate is None:
+            cells = [lv["cells"] for lv in row["levels"]]
+            out.append(Finding(f"{s.problem}: {s.label}: fitted slope of e_u", row["slope_u"],
+                               f"e_u falls as Δx^{row['slope_u']:.2f} over {cells[0]}..{cells[-1]} cells; "
+                               f"{s.why}."))
+    return out
+
+
 # ---------------------------------------------------------------------------------------------- report
+PROBLEM_TITLES = {"bar": "Vibrating bar (T/4)", "mms": "Axis-aligned manufactured solution (t = 1/(2c))"}
+
+
+def _caption(result, problem):
+    rows = [r for r in result["rows"] if r["series"].problem == problem]
+    expected = ", ".join(f"{r['series'].label} {r['series'].expected_rate:g}" for r in rows
+                         if r["series"].expected_rate is not None)
+    found = ", ".join(f"{r['series'].label} {r['slope_u']:.2f}" for r in rows if r["series"].expected_rate is None)
+    text = (f"{PROBLEM_TITLES[problem]}: displacement error (left) and velocity error (right) against Δx on "
+            f"log-log axes, with least-squares fits (dashed; slopes in the legend). Look for each filled series "
+            f"running parallel to its expected slope ({expected}; checked within the rate tolerance)")
+    return text + (f", and for the hollow squares, findings reported, not judged (fitted slope {found})." if found
+                   else ".")
+
+
 def _plot(result, problem, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
     for i, row in enumerate(r for r in result["rows"] if r["series"].problem == problem):
         s, color = row["series"], f"C{i}"
@@ -316,11 +341,9 @@ def _plot(result, problem, path):
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="best", framealpha=0.6)
-    fig.suptitle({"bar": "Vibrating bar (T/4)", "mms": "Axis-aligned manufactured solution (t = 1/(2c))"}[problem])
+    fig.suptitle(PROBLEM_TITLES[problem])
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, caption=_caption(result, problem), dpi=120)
 
 
 def _write_vtk(rep, folder):
@@ -371,9 +394,8 @@ def report(result, out_dir):
             pvd = _write_vtk(rep, out / f"vtk_{problem}")
             parts += [f"Representative run: {rep['series'].label} on {rep['cells']} cells, "
                       f"`{pvd.relative_to(out)}`.", ""]
-    findings = [f"- {r['series'].problem}, {r['series'].label}: fitted slope {r['slope_u']:.3f}. {r['series'].why}."
-                for r in result["rows"] if r["series"].expected_rate is None]
-    parts += ["## Findings (reported, not judged)", ""] + (findings or ["(none in this preset)"]) + [""]
+    found = [f"- {f.name}: {f.value:.3f}. {f.sentence}" for f in findings(result)]
+    parts += ["## Findings (reported, not judged)", ""] + (found or ["(none in this preset)"]) + [""]
     parts += ["## Checks", "", checks_table(checks(result)), ""]
     write_text_atomic(out / "convergence.md", "\n".join(parts))
     return out / "convergence.md"

@@ -37,8 +37,9 @@ import numpy as np
 
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
 
-from .common import Check, checks_table
+from .common import Check, Finding, checks_table
 from .executor import Executor
+from .report import pyplot, save_figure
 
 #: scheme label -> method options (the force is the engine's default, MLS, unless stated)
 SCHEMES = {
@@ -276,6 +277,24 @@ def checks(result):
     return out
 
 
+def findings(result):
+    """The largest stable CFL number of each scheme on the base block: measured, not judged (only the
+    guaranteed 0.3 is checked)."""
+    p = result["params"]
+    out = []
+    for r in (r for r in result["rows"] if r["condition"] == p.base):
+        if r["unstable_at"] is None:
+            how = f"every probe up to the search's top, CFL {p.cfl_max:g}, was stable"
+        else:
+            how = (f"the first unstable probe, CFL {r['unstable_at']:.3f}, broke by {r['kind']} at step "
+                   f"{r['break_step']}")
+        out.append(Finding(f"{r['scheme']}: largest stable CFL number, base block", r["limit"],
+                           f"Measured by bisection to within {resolution(p):.3g} over {p.steps} steps; {how}. "
+                           f"Only CFL >= {p.guaranteed_cfl:g} is checked; the limit itself depends on the scheme "
+                           "and the run length."))
+    return out
+
+
 # ----------------------------------------------------------------------------------------------- report
 def _cell(row):
     if row["unstable_at"] is None:
@@ -313,11 +332,7 @@ def crossing_table(result):
 
 
 def _plot(result, path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     p = result["params"]
     sweeps = (("nu", "Poisson ratio ν", "linear"), ("E", "Young's modulus E", "log"),
               ("ppc", "particles per cell", "linear"))
@@ -333,9 +348,11 @@ def _plot(result, path):
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Largest stable CFL number ({p.steps} steps, energy factor {p.energy_factor:g})")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120, caption=(
+        f"Largest stable CFL number per scheme as one of ν, E and particles per cell moves away from the base "
+        f"block (bisection resolution {resolution(p):.3g}). Look for every point above the dashed line at CFL "
+        f"{p.guaranteed_cfl:g} (checked) and flat curves across E (dimensional analysis, checked); how far the "
+        "limits sit above the line, and how they move with ν and ppc, is measured, not judged."))
 
 
 def _representative(result, folder):

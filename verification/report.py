@@ -1,21 +1,29 @@
 """Report writing shared by every case and by ``mpmref verify``.
 
 Cases use :func:`snapshot`, :func:`write_series` and :func:`save_figure` to write the VTK series of their
-representative runs and their PNG plots; ``mpmref verify`` uses :func:`write_case_report` and
-:func:`write_index` for the per-case ``report.md`` and the top-level ``report.md`` / ``index.html``.
-Every file is written atomically (:mod:`mpmref.io.atomic`).
+representative runs and their PNG plots (each PNG carries its caption, the sentence that says what to
+look for, in its ``Description`` text chunk: :func:`figure_caption`). ``mpmref verify`` turns each
+case's :class:`~verification.registry.Outcome` into a :class:`CaseRecord` (:func:`case_record`: the
+backends it ran, its findings, its figures) and writes the per-case ``report.md``
+(:func:`write_case_report`) and the top-level ``report.md``, ``index.html`` and ``results.json``
+(:func:`write_index`). Every file is written atomically (:mod:`mpmref.io.atomic`).
 """
 
+import datetime
 import html
+import json
+import math
 import os
 import platform
 import sys
-from dataclasses import asdict
+import traceback
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from mpmref.io.atomic import atomic_path, write_text_atomic
 from mpmref.io.vtk import write_particles_vtu, write_pvd
 
+from . import registry
 from .common import failed
 
 #: particle fields recorded in the VTK frames of verification runs
@@ -53,21 +61,53 @@ def pyplot():
     return plt
 
 
-def save_figure(fig, path):
-    """Save a matplotlib figure as PNG atomically and close it."""
+def save_figure(fig, path, caption=None, dpi=110):
+    """Save a matplotlib figure as PNG atomically and close it.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure (closed afterwards).
+    path : str or Path
+        Where the PNG goes.
+    caption : str, optional
+        What to look for in the figure, in a sentence or two. It is stored in the PNG's ``Description``
+        text chunk, so the figure carries it into every report that shows it (:func:`figure_caption`).
+    dpi : int
+        Resolution.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    metadata = {"Description": caption} if caption else None
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+        fig.savefig(tmp, format="png", dpi=dpi, bbox_inches="tight", metadata=metadata)
     pyplot().close(fig)
     return Path(path)
 
 
+#: what the reports say under a figure saved without a caption
+NO_CAPTION = "(The case gives no caption for this figure.)"
+
+
+def figure_caption(path):
+    """The caption stored in a PNG by :func:`save_figure`, or ``None`` when it has none."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return image.text.get("Description") or None
+
+
 # ------------------------------------------------------------------------------------------ machine
 def machine():
-    """What ran the cases, for reports: host, CPU, cores, OS, Python and NumPy versions (and Numba's
-    version and thread count when a case used it: its timings depend on them)."""
+    """What ran the cases, for reports: host, CPU, cores, load average now, OS, Python and NumPy versions
+    (and Numba's version and thread count when a case used it: its timings depend on them)."""
     import numpy as np
 
     info = {"host": platform.node(), "cpu": _cpu_model(), "cores": os.cpu_count(),
+            "load average (1, 5, 15 min)": " / ".join(f"{x:.2f}" for x in os.getloadavg()),
             "os": platform.platform(), "python": sys.version.split()[0], "numpy": np.__version__}
     numba = sys.modules.get("numba")
     if numba is not None:
@@ -85,6 +125,55 @@ def _cpu_model():
     return platform.processor() or platform.machine()
 
 
+# ------------------------------------------------------------------------------------ case records
+@dataclass
+class CaseRecord:
+    """What the reports say about one case.
+
+    Attributes
+    ----------
+    outcome : verification.registry.Outcome
+        The case's run: checks, timing, error.
+    backends : tuple of str
+        The backends the case ran: its ``backends_run(result)`` where it defines one (cases that compare
+        backends), else the backend it was asked for.
+    findings : tuple of verification.common.Finding
+        Its ``findings(result)`` where it defines one: measured behaviour reported, not judged.
+    figures : tuple of (Path, str)
+        Each PNG written by this run (relative to the case folder) with its caption.
+    """
+
+    outcome: object
+    backends: tuple
+    findings: tuple
+    figures: tuple
+
+    @property
+    def name(self):
+        return self.outcome.name
+
+
+def case_record(outcome, case_dir):
+    """The :class:`CaseRecord` of ``outcome``; the case's figures are read from ``case_dir``.
+
+    An exception in the case's ``backends_run`` or ``findings`` is kept in ``outcome.error`` (the case
+    then counts as stopped with an error), like one in its ``run``.
+    """
+    module = registry.load(outcome.name)
+    backends, findings = (outcome.backend,), ()
+    if outcome.error is None:
+        try:
+            if hasattr(module, "backends_run"):
+                backends = tuple(module.backends_run(outcome.result))
+            if hasattr(module, "findings"):
+                findings = tuple(module.findings(outcome.result))
+        except Exception:  # reported like an exception in the case's run
+            outcome.error = traceback.format_exc()
+    pngs, _, _ = _files_by_kind(case_dir, outcome.started)
+    figures = tuple((p, figure_caption(Path(case_dir) / p) or NO_CAPTION) for p in pngs)
+    return CaseRecord(outcome, backends, findings, figures)
+
+
 # ------------------------------------------------------------------------------------ case reports
 def _files_by_kind(case_dir, since):
     """PNG, PVD and table files under ``case_dir`` written at or after ``since`` (older runs' files are stale)."""
@@ -94,18 +183,33 @@ def _files_by_kind(case_dir, since):
             [f for f in files if f.suffix in (".md", ".csv") and f.name != "report.md"])
 
 
-def case_summary_md(outcome, case_dir):
-    """Markdown text of one case's ``report.md``: set-up, checks, figures, VTK series, other files."""
+def _findings_md(findings, with_case):
+    """Markdown table of ``findings`` = ``[(case name, Finding), ...]``, with a case column if asked."""
+    head = ["case"] * with_case + ["finding", "figure", "what it shows"]
+    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return rows + ["| " + " | ".join([_cell(case)] * with_case + [_cell(f.name), f"{f.value:.6g}", _cell(f.sentence)])
+                   + " |" for case, f in findings]
+
+
+def case_summary_md(record, case_dir):
+    """Markdown text of one case's ``report.md``: set-up, findings, checks, figures, VTK series, other files."""
+    outcome = record.outcome
     lines = [f"# {outcome.name}", "", outcome.title, "",
-             f"Preset `{outcome.preset}`, backend `{outcome.backend}`, wall time {outcome.wall_s:.1f} s, "
-             f"verdict **{outcome.verdict}**.", "", "## Parameters", "", "| parameter | value |", "|---|---|"]
+             f"Preset `{outcome.preset}`, backends run: {', '.join(record.backends)}, wall time "
+             f"{outcome.wall_s:.1f} s, verdict **{outcome.verdict}**.", "", "## Parameters", "",
+             "| parameter | value |", "|---|---|"]
     lines += [f"| {k} | {_cell(v)} |" for k, v in asdict(outcome.params).items()] if outcome.params is not None else []
     if outcome.error is not None:
         lines += ["", "## Error", "", "```text", outcome.error.rstrip(), "```"]
+    if record.findings:
+        lines += ["", "## Findings (measured, not judged)", ""]
+        lines += _findings_md([(outcome.name, f) for f in record.findings], with_case=False)
     lines += ["", "## Checks", ""] + (_checks_md(outcome.checks) if outcome.checks else ["(none)"])
-    figures, series, others = _files_by_kind(case_dir, outcome.started)
-    if figures:
-        lines += ["", "## Figures", ""] + [f"![{f.stem}]({f.as_posix()})" for f in figures]
+    _, series, others = _files_by_kind(case_dir, outcome.started)
+    if record.figures:
+        lines += ["", "## Figures"]
+        for path, caption in record.figures:
+            lines += ["", f"![{path.stem}]({path.as_posix()})", "", caption]
     if series:
         lines += ["", "## VTK series (open in ParaView)", ""] + [f"- [{f.as_posix()}]({f.as_posix()})" for f in series]
     if others:
@@ -113,12 +217,12 @@ def case_summary_md(outcome, case_dir):
     return "\n".join(lines) + "\n"
 
 
-def write_case_report(outcome, case_dir):
-    """Write ``case_dir/report.md`` for one case's :class:`~verification.registry.Outcome`."""
+def write_case_report(record, case_dir):
+    """Write ``case_dir/report.md`` for one case's :class:`CaseRecord`."""
     case_dir = Path(case_dir)
     case_dir.mkdir(parents=True, exist_ok=True)
     path = case_dir / "report.md"
-    write_text_atomic(path, case_summary_md(outcome, case_dir))
+    write_text_atomic(path, case_summary_md(record, case_dir))
     return path
 
 
@@ -145,29 +249,44 @@ def _checks_md(checks):
 
 
 # -------------------------------------------------------------------------------------------- index
-def _check_rows(outcomes):
-    for o in outcomes:
-        if o.error is not None:
-            yield o, None
-        for c in o.checks:
-            yield o, c
+def _check_rows(records):
+    for r in records:
+        if r.outcome.error is not None:
+            yield r.outcome, None
+        for c in r.outcome.checks:
+            yield r.outcome, c
 
 
-def index_md(outcomes, meta):
-    """Markdown of the top-level ``report.md``: verdicts per case, then every check."""
-    n_checks = sum(len(o.checks) for o in outcomes)
-    n_failed = sum(len(failed(o.checks)) for o in outcomes)
+def _summary(records):
+    outcomes = [r.outcome for r in records]
+    return {"cases": len(outcomes), "checks": sum(len(o.checks) for o in outcomes),
+            "failing": sum(len(failed(o.checks)) for o in outcomes),
+            "errors": sum(o.error is not None for o in outcomes),
+            "findings": sum(len(r.findings) for r in records)}
+
+
+def _all_backends(records):
+    return list(dict.fromkeys(b for r in records for b in r.backends))
+
+
+def index_md(records, meta):
+    """Markdown of the top-level ``report.md``: findings, verdicts per case, then every check."""
+    n = _summary(records)
     lines = ["# mpmref verification report", "",
-             f"{len(outcomes)} cases, {n_checks} checks, {n_failed} failing; "
-             f"{sum(1 for o in outcomes if o.error)} cases stopped with an error.", "",
-             f"Preset `{meta['preset']}`, backend `{meta['backend']}`, executor: {meta['executor']}, "
-             f"total wall time {meta['wall_s']:.1f} s.", "",
+             f"{n['cases']} cases, {n['checks']} checks, {n['failing']} failing; {n['errors']} cases stopped with "
+             f"an error; {n['findings']} findings (measured, not judged).", "",
+             f"Preset `{meta['preset']}`; backends run: {', '.join(_all_backends(records))} (per case below); "
+             f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s.", "",
              "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "",
-             "| case | checks | verdict | wall time [s] | report |", "|---|---|---|---|---|"]
-    lines += [f"| {o.name} | {len(o.checks)} | {o.verdict} | {o.wall_s:.1f} | "
-              f"[{o.name}/report.md]({o.name}/report.md) |" for o in outcomes]
+             "## Findings (measured, not judged)", ""]
+    findings = [(r.name, f) for r in records for f in r.findings]
+    lines += _findings_md(findings, with_case=True) if findings else ["(none in these cases)"]
+    lines += ["", "## Cases", "", "| case (its report) | backends | checks | verdict | wall time [s] |",
+              "|---|---|---|---|---|"]
+    lines += [f"| [{r.name}]({r.name}/report.md) | {', '.join(r.backends)} | {len(r.outcome.checks)} | "
+              f"{r.outcome.verdict} | {r.outcome.wall_s:.1f} |" for r in records]
     lines += ["", "## Every check", ""] + _check_header(True)
-    for o, c in _check_rows(outcomes):
+    for o, c in _check_rows(records):
         if c is None:
             lines.append(f"| {o.name} | (the case stopped with an error) | — | — | FAIL | see {o.name}/report.md |")
         else:
@@ -185,39 +304,88 @@ def _html_check_row(o, c):
             f"<td>{'pass' if c.passed else 'FAIL'}</td><td>{e(c.reason)}</td></tr>")
 
 
-def index_html(outcomes, meta):
-    """A standalone HTML page with the same content as :func:`index_md`, plus the cases' figures."""
+def index_html(records, meta):
+    """A standalone HTML page with the content of :func:`index_md`, plus each case's figures and captions."""
     e = html.escape
-    rows = [_html_check_row(o, c) for o, c in _check_rows(outcomes)]
-    cases = "".join(f"<tr class='{'pass' if o.passed else 'fail'}'><td><a href='{e(o.name)}/report.md'>{e(o.name)}</a>"
-                    f"</td><td>{len(o.checks)}</td><td>{e(o.verdict)}</td><td>{o.wall_s:.1f}</td></tr>"
-                    for o in outcomes)
-    figures = "".join(f"<figure><img src='{e(p)}' alt='{e(p)}'><figcaption>{e(p)}</figcaption></figure>"
-                      for p in meta["figures"])
+    n = _summary(records)
+    findings = "".join(f"<tr><td>{e(r.name)}</td><td>{e(f.name)}</td><td>{f.value:.6g}</td><td>{e(f.sentence)}</td>"
+                       "</tr>" for r in records for f in r.findings)
+    findings = (f"<table><tr><th>case</th><th>finding</th><th>figure</th><th>what it shows</th></tr>{findings}</table>"
+                if findings else "<p>(none in these cases)</p>")
+    cases = "".join(f"<tr class='{'pass' if r.outcome.passed else 'fail'}'><td><a href='{e(r.name)}/report.md'>"
+                    f"{e(r.name)}</a></td><td>{e(', '.join(r.backends))}</td><td>{len(r.outcome.checks)}</td>"
+                    f"<td>{e(r.outcome.verdict)}</td><td>{r.outcome.wall_s:.1f}</td></tr>" for r in records)
+    rows = "".join(_html_check_row(o, c) for o, c in _check_rows(records))
+    figures = "".join(f"<h3>{e(r.name)}</h3>" + "".join(
+        f"<figure><img src='{e(r.name)}/{e(p.as_posix())}' alt='{e(caption)}'><figcaption>{e(caption)}</figcaption>"
+        "</figure>" for p, caption in r.figures) for r in records if r.figures)
     machine = ", ".join(f"{e(k)} {e(str(v))}" for k, v in meta["machine"].items())
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>mpmref verification report</title>
 <style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 6px;text-align:left}} tr.fail td{{background:#fdd}}
-tr.pass td:nth-child(5){{color:#070}} img{{max-width:640px}} figure{{display:inline-block}}</style></head>
+tr.pass td:nth-child(5){{color:#070}} img{{max-width:640px}} figure{{display:inline-block;max-width:660px;
+vertical-align:top}} figcaption{{font-size:90%}}</style></head>
 <body><h1>mpmref verification report</h1>
-<p>Preset <code>{e(meta['preset'])}</code>, backend <code>{e(meta['backend'])}</code>, executor: {e(meta['executor'])},
-total wall time {meta['wall_s']:.1f} s.</p><p>Machine: {machine}.</p>
-<h2>Cases</h2><table><tr><th>case</th><th>checks</th><th>verdict</th><th>wall time [s]</th></tr>{cases}</table>
+<p>{n['cases']} cases, {n['checks']} checks, {n['failing']} failing; {n['errors']} cases stopped with an error;
+{n['findings']} findings (measured, not judged).</p>
+<p>Preset <code>{e(meta['preset'])}</code>; backends run: {e(', '.join(_all_backends(records)))} (per case below);
+sweeps run in {e(meta['executor'])}; total wall time {meta['wall_s']:.1f} s.</p><p>Machine: {machine}.</p>
+<h2>Findings (measured, not judged)</h2>{findings}
+<h2>Cases</h2><table><tr><th>case</th><th>backends</th><th>checks</th><th>verdict</th><th>wall time [s]</th></tr>
+{cases}</table>
 <h2>Every check</h2><table><tr><th>case</th><th>check</th><th>figure</th><th>bound</th><th>verdict</th>
-<th>why this bound</th></tr>{''.join(rows)}</table>
+<th>why this bound</th></tr>{rows}</table>
 <h2>Figures</h2>{figures}
 </body></html>
 """
 
 
-def write_index(out_dir, outcomes, meta):
-    """Write ``out_dir/report.md`` and ``out_dir/index.html``; returns their paths."""
+# ------------------------------------------------------------------------------------- results.json
+#: schema name of ``results.json``
+SCHEMA = "mpmref-verify/1"
+
+
+def _number(x):
+    """A float for JSON: itself when finite, else ``"nan"``, ``"inf"`` or ``"-inf"`` (JSON has no such numbers)."""
+    x = float(x)
+    return x if math.isfinite(x) else str(x)
+
+
+def results(records, meta):
+    """The machine-readable report (schema :data:`SCHEMA`) as a dict.
+
+    Keys: ``schema``, ``created_utc``, ``preset``, ``executor``, ``wall_s``, ``machine``, ``summary``
+    (counts of cases, checks, failing checks, cases stopped with an error, findings); ``cases`` (per case:
+    ``case``, ``title``, ``backends``, ``verdict``, ``passed``, ``wall_s``, ``error``: the traceback or
+    ``null``, ``figures``: ``path`` and ``caption``); ``checks`` (every check: ``case``, ``name``,
+    ``figure``, ``relation``, ``bound``, ``verdict`` ``"pass"``/``"FAIL"``, ``reason``); ``findings``
+    (``case``, ``name``, ``figure``, ``sentence``). A non-finite figure or bound is the string ``"nan"``,
+    ``"inf"`` or ``"-inf"``.
+    """
+    return {
+        "schema": SCHEMA, "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "preset": meta["preset"], "executor": meta["executor"], "wall_s": meta["wall_s"],
+        "machine": meta["machine"], "summary": _summary(records),
+        "cases": [{"case": r.name, "title": r.outcome.title, "backends": list(r.backends),
+                   "verdict": r.outcome.verdict, "passed": r.outcome.passed, "wall_s": r.outcome.wall_s,
+                   "error": r.outcome.error,
+                   "figures": [{"path": f"{r.name}/{p.as_posix()}", "caption": c} for p, c in r.figures]}
+                  for r in records],
+        "checks": [{"case": r.name, "name": c.name, "figure": _number(c.value), "relation": c.relation,
+                    "bound": _number(c.bound), "verdict": "pass" if c.passed else "FAIL", "reason": c.reason}
+                   for r in records for c in r.outcome.checks],
+        "findings": [{"case": r.name, "name": f.name, "figure": _number(f.value), "sentence": f.sentence}
+                     for r in records for f in r.findings],
+    }
+
+
+def write_index(out_dir, records, meta):
+    """Write ``out_dir/report.md``, ``index.html`` and ``results.json`` atomically; returns their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    figures = [p.relative_to(out).as_posix() for o in outcomes for p in sorted((out / o.name).rglob("*.png"))
-               if p.stat().st_mtime >= o.started - MTIME_SLACK]
-    meta = {**meta, "figures": figures}
-    write_text_atomic(out / "report.md", index_md(outcomes, meta))
-    write_text_atomic(out / "index.html", index_html(outcomes, meta))
-    return out / "report.md", out / "index.html"
+    paths = out / "report.md", out / "index.html", out / "results.json"
+    write_text_atomic(paths[0], index_md(records, meta))
+    write_text_atomic(paths[1], index_html(records, meta))
+    write_text_atomic(paths[2], json.dumps(results(records, meta), indent=2, allow_nan=False) + "\n")
+    return paths

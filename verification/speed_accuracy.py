@@ -3,8 +3,16 @@ r"""Speed against accuracy: wall time and error across scheme × kernel × resol
 Set-up: the refinement runs of :mod:`verification.convergence` (the axially vibrating bar; with the full
 preset also the manufactured solution), each run by :func:`verification.convergence.run_level`, which
 steps the problem to its end time and returns the displacement error :math:`e_u` at :math:`T/4` and the
-wall time of the stepping loop. Every (problem, scheme, kernel, backend) runs its coarsest level once
-first, untimed, so that a compiled backend's compile or cache-load time is not counted.
+wall time of the stepping loop.
+
+How the timings are taken (:func:`run`, :func:`timing_conditions`):
+
+* every (problem, scheme, kernel, backend) runs its coarsest level once first, untimed, so that a
+  compiled backend's compile or cache-load time is not counted;
+* local sweeps run at most one process per CPU core, and Numba runs ``Params.threads`` threads (default
+  one) in each, so that no two timed runs share a core; both backends are then timed on one core each.
+  On a ``dask.distributed`` cluster the processes per core are not known, and the report says so;
+* the load average before and after the sweep is recorded: other work on the machine slows every run.
 
 A run is on the **Pareto front** of its problem when no other run is both faster and more accurate:
 those are the only runs worth choosing, whatever the accuracy wanted. Timings are reported, never
@@ -19,6 +27,8 @@ asserted (they depend on the machine and its load); the checks concern the error
   is still larger than that of every second-order scheme on the coarsest grid.
 """
 
+import os
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +37,7 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 
 from .backends import trajectory_bound
-from .common import Check, checks_table
+from .common import Check, Finding, checks_table
 from .convergence import LevelRun, Series, run_level
 from .executor import Executor
 from .report import pyplot, save_figure, write_series
@@ -47,6 +57,7 @@ class Params:
     cfl: float = 0.4
     ppa: int = 2  # particles per cell per axis
     frames: int = 8  # VTK frames of the representative run (the sweep's most accurate)
+    threads: int = 1  # Numba threads in each timing process (one process per core)
 
     @classmethod
     def quick(cls):
@@ -61,11 +72,49 @@ def _series(problem, scheme, force, kernel):
     return Series(problem, scheme, force, kernel, expected_rate=1.0 if scheme == "pic" else 2.0)
 
 
+@contextmanager
+def numba_threads(backend, threads):
+    """Run the enclosed code with ``threads`` Numba threads when ``backend`` is ``"numba"``."""
+    if backend != "numba":
+        yield
+        return
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
 def run_group(job):
     """One (series, backend) on every grid, after an untimed warm-up on the coarsest."""
-    series, backend, cells, cfl, ppa = job
-    run_level(LevelRun(series, cells[0], cfl, ppa, backend))
-    return [run_level(LevelRun(series, c, cfl, ppa, backend)) for c in cells]
+    series, backend, cells, cfl, ppa, threads = job
+    with numba_threads(backend, threads):
+        run_level(LevelRun(series, cells[0], cfl, ppa, backend))
+        return [run_level(LevelRun(series, c, cfl, ppa, backend)) for c in cells]
+
+
+def timing_executor(executor):
+    """``executor`` itself on a cluster; locally, the same with at most one process per CPU core."""
+    cores = os.cpu_count() or 1
+    if executor.scheduler is not None or executor.workers <= cores:
+        return executor
+    return Executor(workers=cores)
+
+
+def timing_conditions(executor, jobs, threads):
+    """One sentence saying how the timed runs shared the machine (for the report)."""
+    cores = os.cpu_count() or 1
+    if executor.scheduler is not None:
+        return (f"Timed on the dask.distributed cluster {executor.scheduler}: how many runs shared a core there "
+                "is not known, so the timings may include contention.")
+    processes = min(executor.workers, jobs)
+    sharing = "at most one timed run per core" if processes * threads <= cores else "more threads than cores"
+    return (f"Timed in {processes} {'process' if processes == 1 else 'processes'} at once on {cores} "
+            f"{'core' if cores == 1 else 'cores'}, Numba at {threads} {'thread' if threads == 1 else 'threads'} "
+            f"in each: {sharing}; compilation excluded by an untimed warm-up run.")
 
 
 def position_scale(series, cells, ppa):
@@ -79,11 +128,14 @@ def run(params=Params(), backend="numpy", executor=None):
 
     With ``backend`` other than the reference the backends compared are ``("numpy", backend)``.
     """
-    executor = executor or Executor(workers=1)
+    executor = timing_executor(executor or Executor(workers=1))
     backends = params.backends if backend == "numpy" else ("numpy", backend)
-    jobs = [(_series(p, s, f, k), b, params.cells, params.cfl, params.ppa) for p in params.problems
+    jobs = [(_series(p, s, f, k), b, params.cells, params.cfl, params.ppa, params.threads) for p in params.problems
             for s, f in SCHEMES for k in params.kernels if not (p == "mms" and s == "pic") for b in backends]
+    load_before = os.getloadavg()[0]
     groups = executor.map(run_group, jobs)
+    timing = {"conditions": timing_conditions(executor, len(jobs), params.threads),
+              "load_before": load_before, "load_after": os.getloadavg()[0]}
     points = []
     for (series, b, *_), levels in zip(jobs, groups):
         for lv in levels:
@@ -94,7 +146,13 @@ def run(params=Params(), backend="numpy", executor=None):
     best = min((p for p in points if p["series"].problem == params.problems[0]), key=lambda p: p["error_u"])
     frames = run_level(LevelRun(best["series"], best["cells"], params.cfl, params.ppa, best["backend"],
                                 params.frames))["frames"]
-    return {"params": params, "backends": backends, "points": points, "representative": (best, frames)}
+    return {"params": params, "backends": backends, "points": points, "representative": (best, frames),
+            "timing": timing}
+
+
+def backends_run(result):
+    """The backends whose runs were timed and compared."""
+    return result["backends"]
 
 
 def mark_pareto(points):
@@ -137,6 +195,26 @@ def checks(result):
     return out
 
 
+def findings(result):
+    """NumPy's wall time over each other backend's on the finest grid (median over the series): measured, not judged.
+
+    Timings depend on the machine and its load, so they are findings, never checks.
+    """
+    params, timing, out = result["params"], result["timing"], []
+    for problem in params.problems:
+        finest = [p for p in result["points"] if p["series"].problem == problem and p["cells"] == params.cells[-1]]
+        reference = {p["series"]: p["wall_s"] for p in finest if p["backend"] == "numpy"}
+        for b in (b for b in result["backends"] if b != "numpy"):
+            ratio = float(np.median([reference[p["series"]] / p["wall_s"] for p in finest if p["backend"] == b]))
+            particles = max(p["particles"] for p in finest)
+            out.append(Finding(
+                f"{problem}: NumPy wall time / {b} wall time on {params.cells[-1]} cells (median over series)", ratio,
+                f"{b} is {'faster' if ratio > 1 else 'slower'} than NumPy here. Runs of at most {particles} particles, "
+                f"where fixed per-step costs weigh more than the particle loops. {timing['conditions']} Load "
+                f"average {timing['load_before']:.2f} before the sweep, {timing['load_after']:.2f} after."))
+    return out
+
+
 def table(result, problem, front_only=False):
     head = ["| scheme | kernel | backend | cells | particles | steps | wall time [s] | e_u | Pareto |",
             "|---|---|---|---|---|---|---|---|---|"]
@@ -168,7 +246,11 @@ def plot(result, problem, path):
     ax.set(xlabel="wall time of the run [s]", ylabel="displacement error e_u", title=f"{problem}: speed vs accuracy")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
-    return save_figure(fig, path)
+    return save_figure(fig, path, caption=(
+        f"{problem}: displacement error against wall time, one line per scheme, kernel and backend (filled: NumPy, "
+        "hollow: the others), refining to the right; the dashed staircase is the Pareto front. Look for the runs "
+        "on the front (the only ones worth choosing) and for each backend pair lying at the same height (same "
+        f"error, checked); their horizontal offset is the speed-up. {result['timing']['conditions']}"))
 
 
 def report(result, out_dir):
@@ -179,13 +261,17 @@ def report(result, out_dir):
     vtk = [(f["time"], f["x"], {"velocity": f["velocity"], "displacement": f["displacement"],
                                 "displacement_error": f["displacement"] - f["displacement_exact"]}) for f in frames]
     paths = [write_series(out / "vtk" / "most_accurate", vtk)]
-    parts = ["# Speed against accuracy", "", f"Backends {', '.join(result['backends'])}; timings exclude a warm-up "
-             "run. Representative run (the most accurate): "
+    timing = result["timing"]
+    parts = ["# Speed against accuracy", "", f"Backends {', '.join(result['backends'])}. {timing['conditions']} "
+             f"Load average {timing['load_before']:.2f} before the sweep, {timing['load_after']:.2f} after. "
+             "Representative run (the most accurate): "
              f"{best['series'].label}, {best['backend']}, {best['cells']} cells (`vtk/most_accurate`).", ""]
     for problem in result["params"].problems:
         paths.append(plot(result, problem, out / f"speed_accuracy_{problem}.png"))
         parts += [f"## {problem}", "", f"![{problem}](speed_accuracy_{problem}.png)", "", "Pareto front:", "",
                   table(result, problem, front_only=True), "", "Every run:", "", table(result, problem), ""]
-    parts += ["## Checks", "", checks_table(checks(result)), ""]
+    parts += ["## Findings (measured, not judged)", ""]
+    parts += [f"- {f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result)] or ["(none: one backend)"]
+    parts += ["", "## Checks", "", checks_table(checks(result)), ""]
     write_text_atomic(out / "speed_accuracy.md", "\n".join(parts))
     return paths + [out / "speed_accuracy.md"]

@@ -26,6 +26,7 @@ import json
 import os
 import platform
 import sys
+import time
 from dataclasses import asdict, dataclass
 from importlib import metadata
 
@@ -93,14 +94,19 @@ def _to_stderr(message):
 def run_bench(options, log=print, progress=_to_stderr):
     """Run the selected sections and return the JSON dict.
 
-    Each section's table goes to ``log`` as soon as it is complete; one line per measurement being
-    started goes to ``progress`` (standard error by default).
+    Each section's table goes to ``log`` as soon as it is complete. ``progress`` (standard error by
+    default) gets a line when each section starts and when it finishes (with its wall time), and one per
+    measurement being started.
     """
     check_threads(options.backends, options.threads)
     results = {"schema": SCHEMA, "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                "environment": environment(), "options": asdict(options), **{name: None for name in SECTIONS}}
-    for name in options.sections:
+    for i, name in enumerate(options.sections, 1):
+        tag = f"[{i}/{len(options.sections)}] {name}"
+        progress(f"{tag}: started")
+        start = time.perf_counter()
         results[name] = SECTION_RUNNERS[name](options, progress)
+        progress(f"{tag}: finished in {time.perf_counter() - start:.1f} s")
         log(RENDERERS[name](results[name]) + "\n")
     return results
 
@@ -201,6 +207,8 @@ def add_parser(subparsers):
     p.add_argument("--quick", action="store_true", help="tiny sizes: a smoke test whose figures mean nothing")
     p.add_argument("--no-memory", action="store_true", help="skip the Table-2 peak-memory probe")
     p.add_argument("--json", dest="json_path", help="write the results to this JSON file (atomically)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress lines (they go to standard error; the tables to standard output)")
     p.set_defaults(func=cmd_bench)
     return p
 
@@ -217,8 +225,13 @@ def options_from_args(args):
                         quick=args.quick, memory=not args.no_memory)
 
 
+def _silent(message):
+    """A ``progress`` callable that drops the line (``--no-progress``)."""
+
+
 def cmd_bench(args):
-    results = run_bench(options_from_args(args))
+    """Run ``mpmref bench``: tables on standard output, progress on standard error; exit status 0."""
+    results = run_bench(options_from_args(args), progress=_silent if args.no_progress else _to_stderr)
     if args.json_path:
         write_json(results, args.json_path)
         print(f"results written to {args.json_path}")

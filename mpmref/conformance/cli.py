@@ -31,8 +31,9 @@ def cmd_export(args):
 
 
 def cmd_check(args):
-    """Check a backend against the reference; print the table; exit status 0 if every case passed, else 1."""
-    report = check(args.backend, _selected_cases(args), rtol=args.rtol)
+    """Check a backend against the reference (progress bar on standard error unless ``--no-progress``); print
+    the table on standard output; exit status 0 if every case passed, else 1."""
+    report = check(args.backend, _selected_cases(args), rtol=args.rtol, progress=not args.no_progress)
     print(report.table(verbose=args.verbose))
     return 0 if report.passed else 1
 
@@ -52,6 +53,8 @@ def add_parser(subparsers):
                               help="pass threshold on the relative error (default: "
                               + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")
     check_parser.add_argument("--verbose", action="store_true", help="list every case, not only the failed ones")
+    check_parser.add_argument("--no-progress", action="store_true",
+                              help="no progress bar (it goes to standard error; the table to standard output)")
     _add_selection(check_parser)
     check_parser.set_defaults(func=cmd_check)
     return parser

@@ -2,11 +2,13 @@
 
 import json
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
+from tqdm import tqdm
 
 from ..backends import make_backend
 from ..backends.base import STAGES as BACKEND_STAGES
@@ -178,7 +180,7 @@ def _run_case(fn, case, rtol):
     return CaseResult(case, errors, rtol, note)
 
 
-def check(candidate, cases=None, rtol=None):
+def check(candidate, cases=None, rtol=None, progress=False):
     """Run ``candidate`` on ``cases`` (default: every float64 case) and compare each stage with the reference.
 
     Parameters
@@ -190,6 +192,9 @@ def check(candidate, cases=None, rtol=None):
     rtol : float, optional
         Pass threshold on each case's relative error (:func:`relative_error`, largest over its outputs).
         Default: each case's own ``rtol``, 1e-12 in float64.
+    progress : bool
+        Show a progress bar on standard error, naming the case being run (the first case of each scene
+        is where a compiled candidate compiles its kernels, which can take a while).
 
     Returns
     -------
@@ -197,7 +202,9 @@ def check(candidate, cases=None, rtol=None):
     """
     cases = make_cases() if cases is None else list(cases)
     built, results, skipped = {}, [], []
-    for case in cases:
+    bar = tqdm(cases, desc="conformance", unit="case", file=sys.stderr, disable=not progress)
+    for case in bar:
+        bar.set_postfix_str(case.name, refresh=True)
         key = json.dumps(case.scene_dict, sort_keys=True)
         if key not in built:
             built[key] = stage_functions(candidate, case.scene())
