@@ -20,7 +20,7 @@ known only once its file is read.
 The estimate errs on the safe side. Peak resident memory of one NumPy step, measured against it
 (float64, fixed-corotated block): 2D MLS, 2.7 M particles on 513² nodes, 1167 MiB measured for 1529 MiB
 estimated; 3D MLS, 3.7 M particles on 65³ nodes, 2842 for 3672 MiB; 3D PIC, 4.1 M particles on 201³
-nodes, 3693 for 4288 MiB; 3D ``cells = 256`` with 125 particles, 2.4 GB measured (issue 13) for 2.3 GB.
+nodes, 3693 for 4288 MiB; 3D ``cells = 256`` with 125 particles, 2.4 GB measured (reported by users) for 2.3 GB.
 """
 
 import math

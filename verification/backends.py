@@ -17,7 +17,7 @@ Theory and bounds
 -----------------
 * **One step**: the two backends evaluate the same equations and differ only in the order of floating-
   point operations (blocked, coloured P2G sums; fused loops). The per-stage conformance bound applies:
-  :math:`\le 10^{-12}` in float64 (``../shared/DESIGN.md``; :mod:`mpmref.conformance`).
+  :math:`\le 10^{-12}` in float64 (the design rule for backends; :mod:`mpmref.conformance`).
 * **Trajectory of** :math:`n` **steps**: a difference :math:`\delta_k` made at step :math:`k` is carried by
   the linearised step map; for a stable explicit step its powers are bounded (:math:`\|G^j\| \le K`),
   the transfers are non-expansive in the kinetic energy norm (Jiang et al. 2015 §6) and the plastic return

@@ -8,7 +8,7 @@ the peak back (``VmHWM``). The figure is compared with the state it works on:
 * grid bytes: the node mass, momentum and force of P2G, ``n_nodes * (1 + 2 d)`` floats.
 
 ``peak_over_state = (particle bytes + step peak growth) / (particle bytes + grid bytes)``: the memory the
-process needs at the peak of a step, relative to the particle and grid state (issue 4 asks for at most 1.5
+process needs at the peak of a step, relative to the particle and grid state (the project's goal is at most 1.5
 at 1 M particles in 3D). A fresh process keeps earlier phases of the benchmark out of the figure, and a
 fixed glibc mmap threshold keeps memory that the allocator would retain from sampling from being
 silently reused by the step. ``tracemalloc_peak_bytes`` is the peak of the allocations Python's

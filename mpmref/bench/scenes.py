@@ -20,7 +20,7 @@ TABLE2_METHODS = {"mpm": {"scheme": "apic", "force": "classic"}, "mls": {"scheme
 TABLE2_MATERIAL = "fixed_corotated"
 #: empty cells around the Table-2 block (the quadratic stencil reaches 1.5 cells)
 TABLE2_PAD = 2
-#: builder arguments of the throughput cases, as in issue 4: ``(count, cells)`` in 2D, ``(cells,)`` for the
+#: builder arguments of the throughput cases (the performance goals' scenes): ``(count, cells)`` in 2D, ``(cells,)`` for the
 #: 3D fluid; tiny ones for ``--quick``
 THROUGHPUT_SIZES = {"mpm88": (32768, 128), "fluid3d": (64,), "large2d": (262144, 512)}
 QUICK_SIZES = {"mpm88": (512, 128), "fluid3d": (16,), "large2d": (2048, 64)}
@@ -98,7 +98,7 @@ class Case:
 
 
 def throughput_cases(quick=False):
-    """The three throughput cases of issue 4: ``mpm88`` (32 768 particles, 128² grid), ``fluid3d`` (64³ grid,
+    """The three throughput cases of the performance goals: ``mpm88`` (32 768 particles, 128² grid), ``fluid3d`` (64³ grid,
     65 536 particles) and ``large2d`` (262 144 particles, 512² grid); tiny versions if ``quick``."""
     sizes = QUICK_SIZES if quick else THROUGHPUT_SIZES
     builders = {"mpm88": mpm88_scene, "fluid3d": fluid3d_scene, "large2d": mpm88_scene}
@@ -106,5 +106,5 @@ def throughput_cases(quick=False):
 
 
 def peer_cases(quick=False):
-    """The cases compared with a peer code: ``mpm88`` and ``fluid3d`` (the fluid scenes of issue 4's goals)."""
+    """The cases compared with a peer code: ``mpm88`` and ``fluid3d`` (the fluid scenes of the performance goals)."""
     return [c for c in throughput_cases(quick) if c.name in ("mpm88", "fluid3d")]
