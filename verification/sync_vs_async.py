@@ -57,7 +57,7 @@ class Params:
 
     @classmethod
     def quick(cls):
-        return cls(census_ticks=10_000, ball_t_end=0.08, stork_t_end=0.004, stork3d_t_end=0.002)
+        return cls(census_ticks=10_000, ball_t_end=0.05, stork_t_end=0.002, stork3d_t_end=0.001, frames=3)
 
     @classmethod
     def full(cls):
@@ -165,7 +165,7 @@ class RandomLevels(AsynchronousStepper):
     rng = np.random.default_rng(7)
 
     def particle_limits(self, particles):
-        per_block = self.rng.choice(5, size=self.grid.n_blocks, p=[0.1, 0.1, 0.2, 0.3, 0.3])
+        per_block = self.rng.choice(5, size=self.grid.n_blocks, p=[0.05, 0.05, 0.15, 0.25, 0.5])
         return np.exp2(per_block[self.owner_blocks(particles.x)]).astype(float)
 
 
