@@ -57,7 +57,8 @@ class Params:
 
     @classmethod
     def quick(cls):
-        return cls(census_ticks=10_000, ball_t_end=0.05, stork_t_end=0.002, stork3d_t_end=0.001, frames=3)
+        return cls(census_ticks=10_000, ball_cells=24, ball_t_end=0.04, stork_t_end=0.002, stork3d_t_end=0.001,
+                   frames=3)
 
     @classmethod
     def full(cls):
