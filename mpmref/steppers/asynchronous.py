@@ -81,9 +81,10 @@ class AsynchronousStepper:
 
     ``advance`` moves a :class:`~mpmref.state.State` from one synchronised time (every particle at the same
     tick) to the next. Its stepper state: ``block_dt`` (each block's step in ticks), ``updates`` (particle
-    updates done, ghosts included), ``sync_updates`` (what synchronous stepping at each interval's finest
-    step would have done), ``finest_dt`` (the finest step taken, ticks), ``stale_shadows`` and ``sync_times``. Set ``trace = []`` to record every update
-    as a dict (tick, level, active blocks, ghost blocks) for inspection.
+    updates done, ghosts included), ``own_updates`` (the particles' own steps), ``sync_updates`` (what
+    synchronous stepping at each interval's finest step would have done), ``finest_dt`` (the finest step
+    taken, ticks), ``stale_shadows`` and ``sync_times``. Set ``trace = []`` to record every update as a dict
+    (tick, level, active blocks, ghost blocks) for inspection.
     """
 
     name = "async"
