@@ -221,3 +221,47 @@ def test_compatibility_broadcasts_over_nodes_and_particles(field):
     assert np.array_equal(c[banded, 0], xi[banded, 1] >= 0.5)
     assert np.array_equal(c[banded, 1], xi[banded, 1] < 0.5)
     assert np.all(c[~banded])
+
+
+# ------------------------------------------------------------------------------ reconstruction rules
+def synthetic_field(T_node):
+    """A 2-body field on an 8 x 8 unit grid where every node is near both bodies with d_i = y_i + 1 (a linear
+    field) and the side bits ``T_node`` everywhere except node (3, 4), which gets the bits given per call."""
+    from mpmref.physics.cdf import ColoredDistanceField
+
+    shape = (8, 8)
+    idx = np.indices(shape).reshape(2, -1).T
+    A = np.ones((64, 2), dtype=bool)
+    T = np.zeros((64, 2), dtype=bool)
+    T[np.ravel_multi_index((3, 4), shape)] = T_node
+    return ColoredDistanceField(d=idx[:, 1] + 1.0, body=np.zeros(64, dtype=np.int64), A=A, T=T, shape=shape,
+                                origin=np.zeros(2), dx=1.0)
+
+
+def test_reconstruction_targets_compatible_one_differing_and_skipped_nodes():
+    x = np.array([[3.2, 3.9]])
+    A_p, T_p = np.ones((1, 2), dtype=bool), np.zeros((1, 2), dtype=bool)
+    # all compatible: the linear field d = y + 1 is fitted exactly
+    phi, normal, near = reconstruct(synthetic_field([False, False]), x, A_p, T_p)
+    assert near[0] and np.isclose(phi[0], 4.9) and np.allclose(normal[0], [0.0, 1.0])
+    # both shared sides differ at node (3, 4): skipped, the rest is still linear, same fit
+    phi2, normal2, _ = reconstruct(synthetic_field([True, True]), x, A_p, T_p)
+    assert np.isclose(phi2[0], 4.9) and np.allclose(normal2[0], [0.0, 1.0])
+    # exactly one differs: the node's target becomes -d, which changes the fit
+    phi1, _, _ = reconstruct(synthetic_field([True, False]), x, A_p, T_p)
+    assert phi1[0] < 4.9 - 0.1
+    # untagged particles are not fitted
+    phi0, normal0, near0 = reconstruct(synthetic_field([False, False]), x, np.zeros((1, 2), bool), T_p)
+    assert not near0[0] and phi0[0] == 0 and np.all(normal0 == 0)
+
+
+def test_nearest_body_id():
+    bodies = [horizontal_segment(y=0.5), horizontal_segment(y=0.5 + 2 * DX)]
+    f = build_cdf(bodies, SHAPE, ORIGIN, DX)
+    xi = f.node_positions()
+    mid = np.isclose(xi[:, 0], 0.5)
+    for y, body in ((0.5 - DX, 0), (0.5, 0), (0.5 + 2 * DX, 1), (0.5 + 3 * DX, 1)):
+        i = np.nonzero(mid & np.isclose(xi[:, 1], y))[0][0]
+        assert f.body[i] == body
+    i = np.nonzero(mid & np.isclose(xi[:, 1], 0.5 + DX))[0][0]  # equally near both: the lower id
+    assert f.body[i] == 0 and f.A[i].all() and f.T[i].tolist() == [False, True]
