@@ -152,11 +152,11 @@ class Simulation:
         because runs above the measured limits must go on for ``mpmref verify extremes`` to find them. The
         last good state stays the one before the unbounded step until a bounded step follows.
         """
-        cfl = self.stepper.cfl_number(self.particles, dt)
         bad = first_unbounded(self.particles.v, new.v, dt, self.scene.grid.dx)
         if bad is None:
             self._last_bounded = None  # the new state passes: it becomes the last good one
             return
+        cfl = self.stepper.cfl_number(self.particles, dt)  # per-particle wave speeds: only when it is reported
 
         def instability(checkpoint=None):
             return InstabilityError(self.step_count + 1, int(self.particles.id[bad[0]]), "v", cfl, checkpoint,
