@@ -22,10 +22,18 @@ class Simulation:
     Parameters
     ----------
     scene : Scene
-    backend : str            ``"numpy"`` (the reference) or ``"numba"``
-    out_dir : path or None   where VTK series, ``diagnostics.csv`` and checkpoints go; None writes nothing
-    particles : Particles    initial state (default: sampled from the scene's bodies)
-    hooks : Hooks            additions to the step (:class:`mpmref.steppers.Hooks`; default none)
+        The validated scene.
+    backend : str
+        ``"numpy"`` (the reference) or ``"numba"``.
+    out_dir : path or None
+        Where VTK series, ``diagnostics.csv`` and checkpoints go; None writes nothing.
+    particles : Particles
+        Initial state (default: sampled from the scene's bodies).
+    hooks : Hooks
+        Additions to the step (:class:`mpmref.steppers.Hooks`; default none).
+
+    Notes
+    -----
 
     ``sim.state`` is the whole :class:`~mpmref.state.State` (particles with stable ids, clock, stepper
     state). The particle arrays are readable and settable as ``sim.x``, ``sim.v``, ``sim.C``, ``sim.F``,

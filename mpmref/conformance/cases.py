@@ -76,7 +76,7 @@ def collider_dicts(dim):
 
 
 def scene_dict(dim, materials, method=None, boundary=None, colliders=(), dtype="float64"):
-    """The declaration of a case's scene: unit box of ``CELLS``^d cells, gravity, the given materials.
+    """The declaration of a case's scene: unit box of ``CELLS`` cells per axis, gravity, the given materials.
 
     ``boundary`` defaults to :func:`mixed_walls`. The one body only makes the scene valid; the cases draw
     their own particles.

@@ -77,9 +77,13 @@ class TaichiFluid:
 
     Parameters
     ----------
-    scene : Scene      a scene accepted by :func:`check_scene`; its dtype is the fields' dtype
+    scene : Scene
+        A scene accepted by :func:`check_scene`; its dtype is the fields' dtype.
     particles : Particles
         Initial state (``x, v, C, J, mass, vol0``), copied into the fields.
+
+    Notes
+    -----
 
     Call :func:`init` first. ``step()`` launches the four kernels of one step; ``run(steps)`` steps and
     then waits for every kernel to finish (``ti.sync``); ``state()`` reads the particles back as NumPy arrays.

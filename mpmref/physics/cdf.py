@@ -36,7 +36,7 @@ from .rigid import segment_frame, surface_samples
 EDGE_MARGIN = 0.02
 #: a newly near body tags a particle only if the weighted distance sum exceeds this (spec B3 step 2)
 TAG_THRESHOLD = 1e-7
-#: the least-squares fit is accepted (``near``) if |det| of its normal matrix exceeds this in 2D (spec B3)
+#: the least-squares fit is accepted (``near``) if abs(det) of its normal matrix exceeds this in 2D (spec B3)
 DET_THRESHOLD_2D = 3e-3
 #: the fitted normal is normalised only if its squared length exceeds this (spec B3)
 NORMAL_THRESHOLD = 1e-4

@@ -20,22 +20,34 @@ TRANSFER_OF = {"pic": "pic", "flip": "flip", "apic": "apic", "polypic": "polypic
 
 
 class TransferSpec(NamedTuple):
-    """What a scene's transfers are; plain values only (the Numba backend's compile-time constants).
+    r"""What a scene's transfers are; plain values only (the Numba backend's compile-time constants).
 
     Attributes
     ----------
-    scheme : str        the declared scheme (``"mls"`` kept for reports)
-    transfer : str      ``pic``, ``flip``, ``apic`` or ``polypic``
-    force : str         ``mls`` (:math:`w_{ip} D_p^{-1}(x_i - x_p)`) or ``classic`` (:math:`\nabla w_{ip}`)
-    kernel : str        ``linear``, ``quadratic`` or ``cubic``
-    support : int       kernel support in nodes per axis
+    scheme : str
+        The declared scheme (``"mls"`` kept for reports).
+    transfer : str
+        ``pic``, ``flip``, ``apic`` or ``polypic``.
+    force : str
+        ``mls`` (:math:`w_{ip} D_p^{-1}(x_i - x_p)`) or ``classic`` (:math:`\nabla w_{ip}`).
+    kernel : str
+        ``linear``, ``quadratic`` or ``cubic``.
+    support : int
+        Kernel support in nodes per axis.
     dim : int
-    affine : bool       particles carry :math:`C_p` through P2G (APIC, PolyPIC, MLS-MPM)
-    polypic : bool      particles carry PolyPIC's higher modes
-    flip : bool         G2P blends the FLIP increment
-    flip_alpha : float  the FLIP fraction (0 unless ``flip``)
-    mls : bool          the MLS force and velocity gradient
-    tracks_F, tracks_J, tracks_Jp : bool   deformation state the materials need
+        Dimension, 2 or 3.
+    affine : bool
+        Particles carry :math:`C_p` through P2G (APIC, PolyPIC, MLS-MPM).
+    polypic : bool
+        Particles carry PolyPIC's higher modes.
+    flip : bool
+        G2P blends the FLIP increment.
+    flip_alpha : float
+        The FLIP fraction (0 unless ``flip``).
+    mls : bool
+        The MLS force and velocity gradient.
+    tracks_F, tracks_J, tracks_Jp : bool
+        Deformation state the materials need.
     """
 
     scheme: str

@@ -23,7 +23,7 @@ class NumpyBackend:
     """Reference implementation of the stages of :mod:`mpmref.backends.base` for ``scene``.
 
     ``stress`` and ``return_map`` go through the scene's :class:`~mpmref.backends.base.MaterialTable`;
-    ``prepare``, ``p2g``, ``grid_update`` and ``g2p`` are the functions of :mod:`.transfers`.
+    ``prepare``, ``p2g``, ``grid_update`` and ``g2p`` are the functions of :mod:`mpmref.backends.numpy.transfers`.
     """
 
     name = "numpy"

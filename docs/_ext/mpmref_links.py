@@ -1,0 +1,145 @@
+"""Links from the chapters to the code, and back, resolved when the site is built.
+
+The chapters link to code the way GitHub shows it: ``[`mpmref.physics.kernels.compute_stencil`](../mpmref/physics/kernels.py)``
+(link text: the object's qualified name; target: its source file). In the built site this extension points
+such a link at the object's first line in the rendered source (``sphinx.ext.viewcode``), so that one
+click on an equation's implementation link shows the code. A link to a Python file without a qualified
+name opens the file's rendered source; a link to any other file in the repository (an example scene) opens
+a copy of the file placed beside the site. A qualified name that does not name an object defined in the
+linked file, or a file that does not exist, is a build error.
+
+Back-links: a docstring line ``Docs: docs/PAGE.md#anchor`` becomes a link to that section of the site.
+"""
+
+import ast
+import posixpath
+import re
+import shutil
+from pathlib import Path
+
+from docutils import nodes
+from sphinx import addnodes
+from sphinx.pycode import ModuleAnalyzer
+from sphinx.util import logging
+
+logger = logging.getLogger(__name__)
+QUALNAME = re.compile(r"^(mpmref|verification)(\.\w+)+$")
+BACKLINK = re.compile(r"Docs: docs/(\w+)\.md#([\w-]+)")
+
+
+def module_of(repo_path):
+    """``mpmref/physics/kernels.py`` -> ``mpmref.physics.kernels`` (packages: their ``__init__``)."""
+    parts = list(Path(repo_path).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def anchor_in(qualname, module, path):
+    """The viewcode anchor of ``qualname`` in ``module``'s rendered source: the object's name inside the
+    module (``NumpyBackend.stress``), or "" for the module itself or a module-level constant (the page's
+    top). None when the source of ``module`` does not define it. A public path that re-exports an object
+    from a submodule (``mpmref.conformance.check``, defined in ``mpmref.conformance.report``) lands on
+    the definition. Read from the file ``path`` with Sphinx's own analyser, so nothing is imported."""
+    if qualname == module:
+        return ""
+    package = module
+    while package and not qualname.startswith(package + "."):
+        package = package.rpartition(".")[0]
+    if not package:
+        return None
+    inside = qualname[len(package) + 1:]
+    analyzer = ModuleAnalyzer.for_file(str(path), module)
+    if inside in analyzer.find_tags():
+        return inside
+    analyzer.analyze()
+    return "" if ("", inside) in analyzer.attr_docs or inside in top_level_names(analyzer.code) else None
+
+
+def top_level_names(code):
+    names = set()
+    for node in ast.parse(code).body:
+        if isinstance(node, ast.Assign):
+            names |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names.add(node.target.id)
+    return names
+
+
+def rewrite_code_links(app, doctree):
+    """Replace MyST's download links to repository files (``../mpmref/x.py``) by links into the site."""
+    docname = app.env.docname
+    root = Path(app.confdir).parent
+    source_dir = Path(app.env.doc2path(docname)).parent
+    to_root = posixpath.relpath(".", posixpath.dirname(docname)) if "/" in docname else "."
+    for ref in list(doctree.findall(addnodes.download_reference)):
+        target = (source_dir / ref["reftarget"]).resolve()
+        try:
+            repo_path = target.relative_to(root).as_posix()
+        except ValueError:
+            logger.warning("link %s leaves the repository", ref["reftarget"], location=ref)
+            continue
+        if not target.is_file():
+            continue  # Sphinx itself reports a missing download target
+        text = ref.astext()
+        if target.suffix == ".py":
+            module = module_of(repo_path)
+            inside = anchor_in(text, module, target) if QUALNAME.match(text) else ""
+            if inside is None:
+                logger.warning("%s is not defined in %s", text, repo_path, location=ref)
+                continue
+            if target.name == "__init__.py" and not inside:
+                uri = f"{to_root}/api/{module}.html"  # a package: its API page lists its modules
+            else:
+                uri = f"{to_root}/_modules/{module.replace('.', '/')}.html" + (f"#{inside}" if inside else "")
+                app.env.mpmref_code_links.add((docname, module, inside))
+        else:
+            uri = f"{to_root}/_repo/{repo_path}"
+            app.env.mpmref_repo_files.add(repo_path)
+        ref.replace_self(nodes.reference("", "", *ref.children, refuri=uri, internal=True))
+
+
+def init_env(app, env, docnames):
+    for name in ("mpmref_code_links", "mpmref_repo_files"):
+        if not hasattr(env, name):
+            setattr(env, name, set())
+    env.mpmref_code_links = {link for link in env.mpmref_code_links if link[0] not in docnames}
+
+
+def backlinks_in_docstring(app, what, name, obj, options, lines):
+    """``Docs: docs/PAGE.md#anchor`` in a docstring -> a link to that section of the site."""
+    for index, line in enumerate(lines):
+        lines[index] = BACKLINK.sub(lambda m: f"Docs: `{m.group(1)}.md#{m.group(2)} "
+                                              f"<{m.group(1)}.html#{m.group(2)}>`_", line)
+
+
+def check_code_anchors(app, exception):
+    """Every code link lands on a rendered source page, and on the object's anchor there."""
+    if exception is not None or app.builder.format != "html":
+        return
+    for docname, module, inside in sorted(app.env.mpmref_code_links):
+        page = Path(app.outdir) / "_modules" / (module.replace(".", "/") + ".html")
+        if not page.exists():
+            logger.warning("%s: no rendered source for %s (is it in the API reference?)", docname, module)
+        elif inside and f'id="{inside}"' not in page.read_text(encoding="utf-8"):
+            logger.warning("%s: the source page of %s has no anchor for %s (documented in the API?)",
+                           docname, module, inside)
+
+
+def copy_repo_files(app, exception):
+    if exception is not None or app.builder.format != "html":
+        return
+    root = Path(app.confdir).parent
+    for repo_path in sorted(app.env.mpmref_repo_files):
+        out = Path(app.outdir) / "_repo" / repo_path
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(root / repo_path, out)
+
+
+def setup(app):
+    app.connect("env-before-read-docs", init_env)
+    app.connect("doctree-read", rewrite_code_links, priority=400)  # before Sphinx collects downloads
+    app.connect("autodoc-process-docstring", backlinks_in_docstring)
+    app.connect("build-finished", copy_repo_files)
+    app.connect("build-finished", check_code_anchors)
+    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

@@ -1,0 +1,55 @@
+"""Sphinx configuration of the mpmref documentation site.
+
+Build it with ``python -m mpmref.docs_build`` (after ``pip install -e '.[docs]'``). The Markdown pages in
+this folder are the chapters, read by MyST-Parser as they are; ``api.md`` documents every module with
+autodoc and napoleon; ``sphinx.ext.viewcode`` renders the source with line numbers, and the local
+extension ``_ext/mpmref_links.py`` turns each link whose text is a qualified name into a link to that
+object's first line in the rendered source.
+"""
+
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+ROOT = DOCS.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(DOCS / "_ext"))
+
+project = "mpmref"
+author = "the mpmref authors"
+copyright = "the mpmref authors, MIT licence"
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.viewcode",
+    "sphinx.ext.mathjax",
+    "mpmref_links",
+]
+
+root_doc = "index"
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}  # .rst: the generated API pages
+exclude_patterns = ["_build"]
+templates_path = ["_templates"]        # the API page of a module: its docstrings, then its submodules (private ones too)
+
+myst_enable_extensions = ["dollarmath", "amsmath"]
+myst_heading_anchors = 3            # the GitHub-style heading anchors the pages already link to
+myst_dmath_double_inline = True
+
+autodoc_default_options = {"members": True, "undoc-members": True, "ignore-module-all": True}
+autosummary_generate = True          # one page per module under api/ (generated, not committed)
+autodoc_member_order = "bysource"
+autodoc_typehints = "none"
+autodoc_mock_imports = ["taichi"]    # the optional `bench` extra; only its peer module imports it
+napoleon_google_docstring = False
+napoleon_numpy_docstring = True
+napoleon_use_ivar = True             # dataclass fields listed under "Attributes" are not documented twice
+viewcode_line_numbers = True
+viewcode_follow_imported_members = False   # anchors by where autodoc documents an object (a mocked class too)
+
+nitpicky = False
+html_theme = "alabaster"
+html_title = "mpmref: a verified reference of the Material Point Method"
+html_static_path = []
