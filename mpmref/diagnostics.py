@@ -25,14 +25,20 @@ def cross(a, b):
 
 
 def affine_spin(C):
-    r"""Axial vector of the skew part of :math:`C`: :math:`(C_{yx} - C_{xy})` in 2D, its 3D analogue."""
+    r"""Axial vector of the skew part of :math:`C`: :math:`(C_{yx} - C_{xy})` in 2D, its 3D analogue.
+
+    Docs: docs/transfers.md#angular-momentum
+    """
     if C.shape[1] == 2:
         return C[:, 1, 0] - C[:, 0, 1]
     return np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=1)
 
 
 def angular_momentum(particles, inertia):
-    """Total angular momentum about the origin (scalar in 2D, (3,) in 3D), affine part included."""
+    """Total angular momentum about the origin (scalar in 2D, (3,) in 3D), affine part included.
+
+    Docs: docs/transfers.md#angular-momentum
+    """
     m = particles.mass.astype(np.float64)
     x, v = particles.x.astype(np.float64), particles.v.astype(np.float64)
     L = np.tensordot(m, cross(x, v), axes=1)

@@ -1,4 +1,12 @@
-"""The documentation site: every page is in its table of contents, and it builds with warnings as errors.
+"""The documentation site: its table of contents, its equation links, and the build itself.
+
+* Every page is in the site's table of contents.
+* Every numbered equation (MyST's ``$$ ... $$ (eq-label)``) is followed by a paragraph with ``Code:`` and
+  a link to each object that implements it (link text: the qualified name); each such object's docstring
+  links back (a paragraph ``Docs: docs/PAGE.md#section, ...``) to the section that holds the equation, and every such
+  back-link in the sources names a section whose equations name that object. So a function that moves,
+  is renamed or disappears, or a section that is renamed, fails here (the linked file is checked by
+  ``test_docs.py``).
 
 The fast checks need no Sphinx. The full build (``docs/build.py``: Sphinx, MyST-Parser, autodoc, viewcode,
 warnings as errors, every code link landing on its object's line) runs when the ``docs`` extra is
@@ -6,13 +14,23 @@ installed (``pip install -e '.[docs]'``) and is skipped otherwise; run it with
 ``.venv/bin/python -m pytest tests/test_docs_site.py``.
 """
 
+import ast
+import importlib
 import importlib.util
+import inspect
 import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from test_docs import QUALNAME, resolve, slugs
+
+PAGES = sorted(Path(__file__).resolve().parent.parent.glob("docs/*.md"))
+EQUATION = re.compile(r"^\$\$[ \t]*\n((?:(?!\$\$).)*?)^\$\$[ \t]*\((eq-[a-z0-9-]+)\)[ \t]*$", re.MULTILINE | re.DOTALL)
+HEADING = re.compile(r"^#{1,6}[ \t]+(.*?)[ \t]*#*[ \t]*$", re.MULTILINE)
+BACKLINK = re.compile(r"docs/(\w+\.md)#([\w-]+)")
+SOURCES = sorted(p for folder in ("mpmref", "verification") for p in (Path(__file__).resolve().parent.parent / folder).rglob("*.py"))
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -43,3 +61,96 @@ def test_site_builds_with_warnings_as_errors(tmp_path):
     assert 'href="./_modules/mpmref/backends/numpy/transfers.html#mls_gradient_weight"' in cycle
     source = (out / "_modules" / "mpmref" / "backends" / "numpy" / "transfers.html").read_text(encoding="utf-8")
     assert 'id="mls_gradient_weight"' in source
+
+
+# ------------------------------------------------------------------------------------ equation links
+def github_slug(title, seen):
+    slug = re.sub(r"[^\w\- ]", "", title.strip().lower()).replace(" ", "-")
+    n = seen.get(slug, 0)
+    seen[slug] = n + 1
+    return slug if n == 0 else f"{slug}-{n}"
+
+
+def numbered_equations(page):
+    """``[(label, section slug, [qualified names after "Code:"])]`` for each numbered equation of ``page``."""
+    text = page.read_text(encoding="utf-8")
+    headings, seen = [], {}
+    fences = [(m.start(), m.end()) for m in re.finditer(r"^```.*?^```", text, re.MULTILINE | re.DOTALL)]
+    for m in HEADING.finditer(text):
+        if not any(a <= m.start() < b for a, b in fences):
+            headings.append((m.start(), github_slug(m.group(1), seen)))
+    out = []
+    for m in EQUATION.finditer(text):
+        section = [slug for start, slug in headings if start < m.start()][-1]
+        after = text[m.end():].lstrip("\n").split("\n\n", 1)[0]
+        code = after.split("Code:", 1)[1] if "Code:" in after else ""
+        names = [QUALNAME.match(f"`{q}`").group(1) for q, _ in re.findall(r"\[`([\w.]+)`\]\(([^)]+)\)", code)]
+        out.append((m.group(2), section, names))
+    return out
+
+
+def equation_index():
+    return {page.name: numbered_equations(page) for page in PAGES}
+
+
+def test_numbered_equations_exist_where_the_mls_chapter_needs_them():
+    index = equation_index()
+    for name in ("mls_vs_classic.md", "transfers.md", "mpm_cycle.md"):
+        assert len(index[name]) >= 5, f"{name} has too few numbered equations"
+    labels = [label for eqs in index.values() for label, _, _ in eqs]
+    assert len(labels) == len(set(labels)), "equation labels must be unique across the site"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
+def test_every_numbered_equation_links_to_code_that_links_back(page):
+    problems = []
+    for label, section, names in numbered_equations(page):
+        if not names:
+            problems.append(f"({label}): no 'Code:' link in the paragraph after the equation")
+        for qualname in names:
+            if (page.name, section) not in backlinks_of(resolve(qualname).__doc__):
+                problems.append(f"({label}): the docstring of {qualname} lacks 'Docs: docs/{page.name}#{section}'")
+    assert not problems, f"{page.name}:\n" + "\n".join(problems)
+
+
+def backlinks_of(doc):
+    """The ``(page, slug)`` pairs of the paragraph that starts with ``Docs:`` in a docstring."""
+    paragraphs = inspect.cleandoc(doc or "").split("\n\n")
+    return {pair for par in paragraphs if par.startswith("Docs:") for pair in BACKLINK.findall(par)}
+
+
+def docstring_backlinks():
+    """``[(object, page, slug, where)]`` for every ``Docs: docs/PAGE.md#slug`` in a docstring."""
+    out = []
+    for path in SOURCES:
+        module_name = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        stack = [(tree, [])]
+        while stack:
+            node, names = stack.pop()
+            for child in ast.iter_child_nodes(node):
+                if isinstance(child, (ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)):
+                    stack.append((child, names + [child.name]))
+            if not isinstance(node, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)):
+                continue
+            for page, slug in sorted(backlinks_of(ast.get_docstring(node, clean=False))):
+                out.append((module_name, names, page, slug, f"{path.relative_to(ROOT)}:{'.'.join(names) or '<module>'}"))
+    return out
+
+
+def test_every_docstring_backlink_names_a_section_whose_equations_name_the_object():
+    index = equation_index()
+    backlinks = docstring_backlinks()
+    assert len(backlinks) >= 10
+    problems = []
+    for module_name, names, page, slug, where in backlinks:
+        if not (DOCS / page).exists() or slug not in slugs(DOCS / page):
+            problems.append(f"{where}: docs/{page}#{slug} does not exist")
+            continue
+        obj = importlib.import_module(module_name)
+        for name in names:
+            obj = getattr(obj, name)
+        implemented = {id(resolve(q)) for _, section, qs in index[page] if section == slug for q in qs}
+        if id(obj) not in implemented:
+            problems.append(f"{where}: no numbered equation in docs/{page}#{slug} names this object after 'Code:'")
+    assert not problems, "\n".join(problems)

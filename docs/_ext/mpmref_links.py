@@ -8,7 +8,8 @@ name opens the file's rendered source; a link to any other file in the repositor
 a copy of the file placed beside the site. A qualified name that does not name an object defined in the
 linked file, or a file that does not exist, is a build error.
 
-Back-links: a docstring line ``Docs: docs/PAGE.md#anchor`` becomes a link to that section of the site.
+Back-links: in a docstring paragraph that starts with ``Docs:``, each ``docs/PAGE.md#anchor`` becomes a link
+to that section of the site.
 """
 
 import ast
@@ -24,7 +25,7 @@ from sphinx.util import logging
 
 logger = logging.getLogger(__name__)
 QUALNAME = re.compile(r"^(mpmref|verification)(\.\w+)+$")
-BACKLINK = re.compile(r"Docs: docs/(\w+)\.md#([\w-]+)")
+BACKLINK = re.compile(r"docs/(\w+)\.md#([\w-]+)")
 
 
 def module_of(repo_path):
@@ -107,10 +108,34 @@ def init_env(app, env, docnames):
 
 
 def backlinks_in_docstring(app, what, name, obj, options, lines):
-    """``Docs: docs/PAGE.md#anchor`` in a docstring -> a link to that section of the site."""
+    """The paragraph ``Docs: docs/PAGE.md#anchor, ...`` of a docstring -> links to those sections."""
+    in_docs = False
     for index, line in enumerate(lines):
-        lines[index] = BACKLINK.sub(lambda m: f"Docs: `{m.group(1)}.md#{m.group(2)} "
-                                              f"<{m.group(1)}.html#{m.group(2)}>`_", line)
+        in_docs = line.strip().startswith("Docs:") or (in_docs and line.strip() != "")
+        if in_docs:
+            lines[index] = BACKLINK.sub(lambda m: f":docs-section:`{m.group(1)}#{m.group(2)}`", line)
+
+
+def docs_section_role(name, rawtext, text, lineno, inliner, options=None, content=None):
+    """``:docs-section:`page#slug``` -> a reference, resolved to the page's heading in ``resolve_sections``."""
+    page, _, slug = text.partition("#")
+    ref = nodes.reference(rawtext, f"docs/{page}.md#{slug}", refuri="", internal=True)
+    ref["mpmref_section"] = (page, slug)
+    return [ref], []
+
+
+def resolve_sections(app, doctree, docname):
+    """Point each back-link at its heading's id (MyST's GitHub-style slug -> the section id)."""
+    for ref in doctree.findall(nodes.reference):
+        if "mpmref_section" not in ref:
+            continue
+        page, slug = ref["mpmref_section"]
+        slugs = app.env.metadata.get(page, {}).get("myst_slugs", {})
+        if slug not in slugs:
+            logger.warning("%s: back-link to docs/%s.md#%s: no such page or heading", docname, page, slug,
+                           location=ref)
+            continue
+        ref["refuri"] = app.builder.get_relative_uri(docname, page) + "#" + slugs[slug][1]
 
 
 def check_code_anchors(app, exception):
@@ -140,6 +165,8 @@ def setup(app):
     app.connect("env-before-read-docs", init_env)
     app.connect("doctree-read", rewrite_code_links, priority=400)  # before Sphinx collects downloads
     app.connect("autodoc-process-docstring", backlinks_in_docstring)
+    app.add_role("docs-section", docs_section_role)
+    app.connect("doctree-resolved", resolve_sections)
     app.connect("build-finished", copy_repo_files)
     app.connect("build-finished", check_code_anchors)
     return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}

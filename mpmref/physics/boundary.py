@@ -25,6 +25,8 @@ def project_velocity(v, normal, kind, friction=0.0, v_collider=None):
     ``kind`` is one of ``BOUNDARY_TYPES``; ``friction`` is the Coulomb coefficient (used by
     ``separate``); ``v_collider`` is the boundary's velocity (broadcastable to ``v``, default at rest).
     Returns the projected velocities (a new array).
+
+    Docs: docs/mpm_cycle.md#boundary-conditions-talk-eq-25
     """
     v_co = 0.0 if v_collider is None else v_collider
     v_rel = v - v_co

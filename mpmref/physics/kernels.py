@@ -42,6 +42,8 @@ class QuadraticBSpline:
 
         Returns ``w, dw`` of shape ``(n, d, 3)``; ``dw`` is :math:`dN/dx` in grid units (divide by
         :math:`\Delta x` for physical units).
+
+        Docs: docs/mpm_cycle.md#interpolation-kernels
         """
         w = np.stack([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2], axis=-1)
         dw = np.stack([fx - 1.5, -2.0 * (fx - 1.0), fx - 0.5], axis=-1)
@@ -147,7 +149,10 @@ class Stencil:
         return stencil_offsets(self.base.shape[1], self.w.shape[2])
 
     def node_weight(self, offset):
-        r"""Weight :math:`w_{ip} = \prod_a N_a` of every particle to the node ``base + offset``."""
+        r"""Weight :math:`w_{ip} = \prod_a N_a` of every particle to the node ``base + offset``.
+
+        Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step, docs/mpm_cycle.md#interpolation-kernels
+        """
         d = len(offset)
         out = self.w[:, 0, offset[0]].copy()
         for a in range(1, d):
@@ -155,7 +160,10 @@ class Stencil:
         return out
 
     def node_gradient(self, offset):
-        r"""Gradient :math:`\nabla w_{ip}` (physical units) to the node ``base + offset``, shape (n, d)."""
+        r"""Gradient :math:`\nabla w_{ip}` (physical units) to the node ``base + offset``, shape (n, d).
+
+        Docs: docs/mpm_cycle.md#interpolation-kernels
+        """
         d = len(offset)
         grad = np.empty(self.fx.shape, dtype=self.w.dtype)
         for a in range(d):
@@ -172,7 +180,10 @@ class Stencil:
 
 
 def compute_stencil(kernel, x, origin, dx):
-    """Evaluate ``kernel`` for particle positions ``x`` (n, d) on the grid (origin, dx)."""
+    """Evaluate ``kernel`` for particle positions ``x`` (n, d) on the grid (origin, dx).
+
+    Docs: docs/mpm_cycle.md#interpolation-kernels
+    """
     dtype = x.dtype.type
     xi = (x - np.asarray(origin, dtype=x.dtype)) / dtype(dx)
     base = kernel.base_node(xi)

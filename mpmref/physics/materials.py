@@ -101,6 +101,10 @@ class FixedCorotated(ElasticSolid):
         return self.mu * np.sum((sigma - 1.0) ** 2, axis=1) + 0.5 * self.lam * (J - 1.0) ** 2
 
     def kirchhoff_stress(self, F):
+        r"""Kirchhoff stress :math:`\tau = 2\mu(F - R)F^T + \lambda(J - 1)J\,I` of each ``F`` (n, d, d).
+
+        Docs: docs/mpm_cycle.md#materials
+        """
         R, _ = polar_rotation(F)
         J = np.linalg.det(F)
         eye = np.eye(F.shape[1], dtype=F.dtype)
@@ -125,6 +129,10 @@ class NeoHookean(ElasticSolid):
         return 0.5 * self.mu * (np.einsum("nij,nij->n", F, F) - d) - self.mu * logJ + 0.5 * self.lam * logJ**2
 
     def kirchhoff_stress(self, F):
+        r"""Kirchhoff stress :math:`\tau = \mu(FF^T - I) + \lambda \ln J\,I` of each ``F`` (n, d, d).
+
+        Docs: docs/mpm_cycle.md#materials
+        """
         logJ = np.log(np.linalg.det(F))
         eye = np.eye(F.shape[1], dtype=F.dtype)
         return self.mu * (F @ F.transpose(0, 2, 1) - eye) + (self.lam * logJ)[:, None, None] * eye
@@ -153,6 +161,10 @@ class WeaklyCompressibleFluid:
     tracks = "J"
 
     def pressure(self, J):
+        r"""Tait pressure :math:`p = K(J^{-\gamma} - 1)` of each volume ratio ``J`` (n,).
+
+        Docs: docs/mpm_cycle.md#materials
+        """
         return self.K * (J ** (-self.gamma) - 1.0)
 
     def energy_density(self, J):
@@ -162,6 +174,10 @@ class WeaklyCompressibleFluid:
         return self.K * (J ** (1.0 - g) / (g - 1.0) + J - g / (g - 1.0))
 
     def kirchhoff_stress_from_J(self, J, dim):
+        r"""Kirchhoff stress :math:`\tau = -pJ\,I` (n, ``dim``, ``dim``) of each volume ratio ``J`` (n,).
+
+        Docs: docs/mpm_cycle.md#materials
+        """
         eye = np.eye(dim, dtype=J.dtype)
         return (-self.pressure(J) * J)[:, None, None] * eye
 

@@ -89,7 +89,10 @@ def mode_values(q, offset, modes):
 
 
 def mode_norms(norm, modes):
-    r""":math:`\sum_i w_{ip} s_r(x_i)^2 = \prod_a \langle q_{r_a}, q_{r_a}\rangle_a` per mode, shape (n, M)."""
+    r""":math:`\sum_i w_{ip} s_r(x_i)^2 = \prod_a \langle q_{r_a}, q_{r_a}\rangle_a` per mode, shape (n, M).
+
+    Docs: docs/mpm_cycle.md#polypic, docs/transfers.md#polypic
+    """
     out = np.ones((norm.shape[0], len(modes)), dtype=norm.dtype)
     for a in range(norm.shape[1]):
         out *= norm[:, a, modes[:, a]]

@@ -29,5 +29,7 @@ def cfl_time_step(cfl, dx, signal_speed):
     :math:`C` is the CFL number, :math:`c_p` each particle's current wave speed (elastic P-wave or fluid
     sound speed in its current state), :math:`|v_p|` its speed (Courant, Friedrichs & Lewy 1928; per
     particle as in Fang et al. 2018 §3). ``signal_speed`` is :math:`c_p + |v_p|` (array) or its maximum.
+
+    Docs: docs/mpm_cycle.md#time-step-cfl-rule
     """
     return cfl * dx / float(np.max(signal_speed, initial=1e-300))

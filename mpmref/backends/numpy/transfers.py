@@ -32,6 +32,9 @@ def mls_gradient_weight(stencil, w, dpos, offset):
     Hu et al. 2018 §4, leading to their Eq. 18: with it, the nodal force becomes
     :math:`f_i = -\sum_p V_p^0\, \tau_p\, w_{ip} D_p^{-1} (x_i - x_p)` and the velocity gradient
     :math:`\nabla v_p = \sum_i v_i\, (w_{ip} D_p^{-1}(x_i - x_p))^T = C_p`.
+
+    Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step, docs/mls_vs_classic.md#two-gradient-weights,
+    docs/mpm_cycle.md#p2g-particle-to-grid
     """
     return w[:, None] * dpos / stencil.inertia
 
@@ -41,6 +44,8 @@ def classic_gradient_weight(stencil, w, dpos, offset):
 
     The nodal force is :math:`f_i = -\sum_p V_p^0 P(F_p) F_p^T \nabla w_{ip}` and the velocity gradient
     :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T` (Stomakhin et al. 2013 §4).
+
+    Docs: docs/mls_vs_classic.md#two-gradient-weights
     """
     return stencil.node_gradient(offset)
 
@@ -71,6 +76,9 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None):
     :math:`\sum_r c_{pr} s_r(x_i)` of its higher modes, Fu et al. 2017 §4; Hu et al. 2018 Eq. 18 for
     the MLS force). :math:`g_{ip}` is the force discretisation's gradient weight
     (:func:`mls_gradient_weight` or :func:`classic_gradient_weight`).
+
+    Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step, docs/mls_vs_classic.md#two-gradient-weights,
+    docs/mpm_cycle.md#p2g-particle-to-grid, docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#pic, docs/transfers.md#polypic
 
     Parameters
     ----------
@@ -134,6 +142,8 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     ``(v, v_tilde)``; ``v_tilde`` (the velocity before forces) is what FLIP needs. Nodes without mass
     get zero velocity.
 
+    Docs: docs/mpm_cycle.md#grid-update
+
     Parameters
     ----------
     gs : GridState, dt : float, gravity : (d,) array
@@ -177,6 +187,11 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None):
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). Returns new
     :class:`~mpmref.state.Particles`; the input is not modified.
+
+    Docs: docs/mls_vs_classic.md#consistency-with-apics-affine-field, docs/mls_vs_classic.md#two-gradient-weights,
+    docs/mpm_cycle.md#g2p-grid-to-particle, docs/mpm_cycle.md#polypic,
+    docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#flipα, docs/transfers.md#pic,
+    docs/transfers.md#polypic
     """
     st, basis = prepared or prepare(particles, grid, kernel, spec)
     n, d = particles.x.shape
