@@ -1,16 +1,16 @@
 """Every valid scheme x force x kernel runs the jelly (through its impact on the floor) and the
 88-line snow scene; the measured stability limit is pinned as a finding.
 
-Findings (measured with these scenes, see the closing note of issue 3):
+Findings (measured with these scenes):
 * linear hat + classic force (PIC, FLIP): the cell-crossing instability (Bardenhagen & Kober 2004).
   A node at the body's edge can carry an arbitrarily small mass, so no fixed CFL number is stable:
   the jelly left the domain at t = 0.044 (CFL 0.5, still in free fall), 0.146 (0.25), 0.198 (0.1) s.
   It is caught as an InstabilityError at the step it happens: a velocity jumps by more than a cell per
-  step (step 230 at CFL 0.5), one step before particles leave the domain (before issue 13 it surfaced
-  there, at step 231, as a DomainExitError).
+  step (step 230 at CFL 0.5), one step before particles leave the domain (before the stability guard
+  existed it surfaced there, at step 231, as a DomainExitError).
 
-Issue 3 also pinned "PolyPIC + cubic + MLS force on snow88 needs dt <= 5e-5 (1e-4 fails at step 254)".
-Since the PolyPIC basis is built by the three-term recurrence and the cubic weights by products (issue 4),
+An earlier version pinned "PolyPIC + cubic + MLS force on snow88 needs dt <= 5e-5 (1e-4 fails at step 254)".
+Since the PolyPIC basis is built by the three-term recurrence and the cubic weights by products,
 that run completes at the example's 1e-4: the failure depended on the rounding of the cubic higher modes
 (their coefficients amplify round-off near vanishing weights; docs/conformance.md), so it is no longer
 pinned, and every method runs snow88 at the example's time step below: 300 steps, past the old failure at

@@ -1,6 +1,6 @@
-"""CPIC foundations (issue 12, spec part B1–B4): rigid polylines, the colored distance field, particle tags with
-sticky side memory, compatibility and the least-squares distance/normal — spec CPIC acceptance tests 1–3 and
-properties around them."""
+"""CPIC foundations (docs/cpic.md): rigid polylines, the colored distance field, particle tags with sticky side
+memory, compatibility and the least-squares distance/normal — the CPIC acceptance tests 1–3 and properties
+around them."""
 
 import numpy as np
 import pytest

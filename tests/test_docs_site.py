@@ -44,6 +44,27 @@ def toctree_entries():
     return [line.strip() for line in block.group(1).splitlines() if line.strip() and not line.startswith(":")]
 
 
+def test_readme_lists_every_example_with_a_line_on_what_it_shows():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    for example in sorted((ROOT / "examples").glob("*.toml")):
+        line = next((ln for ln in readme.splitlines() if f"`{example.name}`" in ln and ln.startswith("- ")), None)
+        assert line is not None, f"README.md does not list examples/{example.name}"
+        assert len(line.split(":", 1)[-1].split()) >= 4, f"README.md's line for {example.name} says too little"
+
+
+TRACKER_REFERENCE = re.compile(r"\bissues?\s+#?\d+|\.\./shared|DESIGN\.md|(?<![\w&/:])#\d+\b", re.IGNORECASE)
+
+
+def test_no_references_to_tracker_issues_or_files_outside_the_repository():
+    """Readers see the repository only: no "issue 12", "#12", "../shared" or design files it does not hold."""
+    files = [ROOT / "README.md", *(p for folder in ("docs", "mpmref", "verification", "tests", "examples")
+                                   for p in (ROOT / folder).rglob("*") if p.suffix in (".md", ".py", ".toml"))]
+    hits = [f"{path.relative_to(ROOT)}:{n}: {line.strip()}" for path in files if "_build" not in path.parts
+            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+            if TRACKER_REFERENCE.search(line) and path.name != "test_docs_site.py"]
+    assert not hits, "\n".join(hits)
+
+
 def test_every_page_is_in_the_table_of_contents_once():
     entries = toctree_entries()
     pages = sorted(p.stem for p in DOCS.glob("*.md") if p.stem != "index")

@@ -1,4 +1,4 @@
-"""Issue 13, the safety half: stability guard, domain-exit policies, CLI refusals and Ctrl-C, Numba warm-up."""
+"""The first hour, the safety half: stability guard, domain-exit policies, CLI refusals and Ctrl-C, Numba warm-up."""
 
 import os
 import re
@@ -24,7 +24,7 @@ JELLY = ROOT / "examples" / "jelly.toml"
 
 
 def stiff_jelly(policy="error"):
-    """The issue's example: examples/jelly.toml with E = 1e12 and a fixed Δt (CFL number 18 564 at step 1)."""
+    """The motivating example: examples/jelly.toml with E = 1e12 and a fixed Δt (CFL number 18 564 at step 1)."""
     src = dict(Scene.from_toml(JELLY).source)
     src["materials"] = {"jelly": dict(src["materials"]["jelly"], E=1e12)}
     src["time"] = {"dt": 2.5e-4, "steps": 20}

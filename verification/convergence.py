@@ -115,7 +115,7 @@ def pic_series(cfl):
 
 
 def contrast_series():
-    """The bar with the crude fixed end and the MMS at a large amplitude: the issue's two cautionary facts."""
+    """The bar with the crude fixed end and the MMS at a large amplitude: two cautionary facts."""
     zero = Series("bar", "apic", "classic", "quadratic", expected_rate=1.0, fixed_end="zero",
                   why="zeroing the nodes at x <= 0 pins the bar over the stencil's half-width: the boundary "
                       "moves by O(dx)")
@@ -133,7 +133,7 @@ class Params:
     ``cfl``: the CFL number (P-wave speed plus the largest analytic speed; PIC's bound constant is
     computed for it, rebuild :func:`pic_series` when changing it); ``ppa``: particles per cell per axis
     (regular lattice); ``rate_tolerance``: how far a fitted slope may sit from its expected rate (a fit over
-    three or four levels still carries the next error term: the issue's independent 1D computation found
+    three or four levels still carries the next error term: an independent 1D computation found
     1.8–2.0 for second-order schemes); ``vtk_cells``: the level of each problem's representative run.
     """
 

@@ -17,8 +17,8 @@ Parts (each on the backend the case is run with, the first on both):
   updates (ghosts included) and wall time of both runs, energy and position difference.
 
 Bounds: bit equality for one level; :math:`10^{-12}` relative for free fall (a few hundred steps of
-round-off); energy within 2 % of the synchronous curve and final positions within 0.5 Δx (the targets of
-the AsyncMPM issue, from the reference's reported agreement); at least 3× fewer particle updates on the
+round-off); energy within 2 % of the synchronous curve and final positions within 0.5 Δx (targets set
+from the AsyncMPM reference's reported agreement); at least 3× fewer particle updates on the
 2D stork (the talk reports 3.3× on its stork). No particle may be lost: the census raises otherwise.
 """
 
