@@ -24,7 +24,7 @@ from sphinx.pycode import ModuleAnalyzer
 from sphinx.util import logging
 
 logger = logging.getLogger(__name__)
-QUALNAME = re.compile(r"^(mpmref|verification)(\.\w+)+$")
+QUALNAME = re.compile(r"^(mpmref|verification|exercises)(\.\w+)+$")
 BACKLINK = re.compile(r"docs/(\w+)\.md#([\w-]+)")
 
 
