@@ -142,7 +142,7 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     ``(v, v_tilde)``; ``v_tilde`` (the velocity before forces) is what FLIP needs. Nodes without mass
     get zero velocity.
 
-    Docs: docs/mpm_cycle.md#grid-update
+    Docs: docs/mpm_cycle.md#from-the-continuum-to-the-cycle, docs/mpm_cycle.md#grid-update
 
     Parameters
     ----------
