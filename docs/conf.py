@@ -32,7 +32,7 @@ extensions = [
 root_doc = "index"
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}  # .rst: the generated API pages
 exclude_patterns = ["_build"]
-templates_path = ["_templates"]        # the API page of a module: its docstrings, then its submodules (private ones too)
+templates_path = ["_templates"]        # a module's API page: its docstrings, then its submodules (private too)
 
 myst_enable_extensions = ["dollarmath", "amsmath"]
 myst_heading_anchors = 3            # the GitHub-style heading anchors the pages already link to

@@ -30,7 +30,8 @@ PAGES = sorted(Path(__file__).resolve().parent.parent.glob("docs/*.md"))
 EQUATION = re.compile(r"^\$\$[ \t]*\n((?:(?!\$\$).)*?)^\$\$[ \t]*\((eq-[a-z0-9-]+)\)[ \t]*$", re.MULTILINE | re.DOTALL)
 HEADING = re.compile(r"^#{1,6}[ \t]+(.*?)[ \t]*#*[ \t]*$", re.MULTILINE)
 BACKLINK = re.compile(r"docs/(\w+\.md)#([\w-]+)")
-SOURCES = sorted(p for folder in ("mpmref", "verification") for p in (Path(__file__).resolve().parent.parent / folder).rglob("*.py"))
+SOURCES = sorted(p for folder in ("mpmref", "verification")
+                 for p in (Path(__file__).resolve().parent.parent / folder).rglob("*.py"))
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
@@ -155,7 +156,8 @@ def docstring_backlinks():
             if not isinstance(node, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)):
                 continue
             for page, slug in sorted(backlinks_of(ast.get_docstring(node, clean=False))):
-                out.append((module_name, names, page, slug, f"{path.relative_to(ROOT)}:{'.'.join(names) or '<module>'}"))
+                where = f"{path.relative_to(ROOT)}:{'.'.join(names) or '<module>'}"
+                out.append((module_name, names, page, slug, where))
     return out
 
 

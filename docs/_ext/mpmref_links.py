@@ -1,7 +1,8 @@
 """Links from the chapters to the code, and back, resolved when the site is built.
 
-The chapters link to code the way GitHub shows it: ``[`mpmref.physics.kernels.compute_stencil`](../mpmref/physics/kernels.py)``
-(link text: the object's qualified name; target: its source file). In the built site this extension points
+The chapters link to code the way GitHub shows it:
+``[`mpmref.physics.kernels.compute_stencil`](../mpmref/physics/kernels.py)`` (link text: the object's
+qualified name; target: its source file). In the built site this extension points
 such a link at the object's first line in the rendered source (``sphinx.ext.viewcode``), so that one
 click on an equation's implementation link shows the code. A link to a Python file without a qualified
 name opens the file's rendered source; a link to any other file in the repository (an example scene) opens

@@ -37,7 +37,7 @@ from mpmref.physics.materials import ElasticSolid, NeoHookean
 
 @dataclass(frozen=True)
 class StVenantKirchhoff(ElasticSolid):
-    r"""St. Venant–Kirchhoff elasticity: :math:`\Psi = \mu\operatorname{tr}(\mathcal E^2) + \tfrac{\lambda}{2}(\operatorname{tr}\mathcal E)^2`."""
+    r"""St. Venant–Kirchhoff elasticity in the Green strain (the energy and stress above)."""
 
     def green_strain(self, F):
         return 0.5 * (F.transpose(0, 2, 1) @ F - np.eye(F.shape[1]))

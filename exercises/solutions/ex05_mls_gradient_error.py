@@ -17,7 +17,8 @@ and :math:`M_3 = t(\tfrac14 - t^2)` (the nodes sit at :math:`-1-t, -t, 1-t` cell
 
 first order in :math:`\Delta x`, odd in :math:`t`, so its average over offsets spread evenly across a
 cell vanishes to this order. The next Taylor term, :math:`\tfrac16 v'''\,\Delta x^2 M_4/M_2`, is second
-order and bounds what remains (:math:`M_4 \le M_2` for this kernel). The cubic B-spline has :math:`M_3 = 0`: its error is second order.
+order and bounds what remains (:math:`M_4 \le M_2` for this kernel). The cubic B-spline has
+:math:`M_3 = 0`: its error is second order.
 
 Worked solution. Evaluate the kernel stencil with ``mpmref.physics.kernels.compute_stencil``, sum
 :math:`w_{ip} v_i (x_i - x_p)^T / D` over the stencil, and compare with the prediction.

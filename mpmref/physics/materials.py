@@ -103,7 +103,7 @@ class FixedCorotated(ElasticSolid):
     def kirchhoff_stress(self, F):
         r"""Kirchhoff stress :math:`\tau = 2\mu(F - R)F^T + \lambda(J - 1)J\,I` of each ``F`` (n, d, d).
 
-        Docs: docs/mpm_cycle.md#materials
+        Docs: docs/materials.md#fixed-corotated, docs/mpm_cycle.md#materials
         """
         R, _ = polar_rotation(F)
         J = np.linalg.det(F)
@@ -131,7 +131,7 @@ class NeoHookean(ElasticSolid):
     def kirchhoff_stress(self, F):
         r"""Kirchhoff stress :math:`\tau = \mu(FF^T - I) + \lambda \ln J\,I` of each ``F`` (n, d, d).
 
-        Docs: docs/mpm_cycle.md#materials
+        Docs: docs/materials.md#neo-hookean, docs/mpm_cycle.md#materials
         """
         logJ = np.log(np.linalg.det(F))
         eye = np.eye(F.shape[1], dtype=F.dtype)
@@ -176,7 +176,7 @@ class WeaklyCompressibleFluid:
     def kirchhoff_stress_from_J(self, J, dim):
         r"""Kirchhoff stress :math:`\tau = -pJ\,I` (n, ``dim``, ``dim``) of each volume ratio ``J`` (n,).
 
-        Docs: docs/mpm_cycle.md#materials
+        Docs: docs/materials.md#weakly-compressible-fluid-tait, docs/mpm_cycle.md#materials
         """
         eye = np.eye(dim, dtype=J.dtype)
         return (-self.pressure(J) * J)[:, None, None] * eye

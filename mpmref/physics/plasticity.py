@@ -95,14 +95,14 @@ class SnowPlasticity(LameParameters):
     def kirchhoff_stress(self, F, Jp):
         r"""Hardened fixed-corotated stress :math:`\tau = e^{\xi(1 - J_P)}\,\tau_{FC}(F_E)` (n, d, d).
 
-        Docs: docs/mpm_cycle.md#elastoplastic-materials
+        Docs: docs/materials.md#snow, docs/mpm_cycle.md#elastoplastic-materials
         """
         return self.hardening_factor(Jp)[:, None, None] * self._elastic().kirchhoff_stress(F)
 
     def return_map(self, F, Jp):
         """Clamp the elastic singular values; particles already inside keep ``F`` bit for bit.
 
-        Docs: docs/mpm_cycle.md#elastoplastic-materials
+        Docs: docs/materials.md#snow, docs/mpm_cycle.md#elastoplastic-materials
         """
         U, sigma, Vt = signed_svd(F)
         clamped = np.clip(sigma, 1.0 - self.theta_c, 1.0 + self.theta_s)
@@ -200,9 +200,9 @@ class DruckerPragerSand(LameParameters):
         return self.mu * np.sum(eps**2, axis=1) + 0.5 * self.lam * np.sum(eps, axis=1) ** 2
 
     def kirchhoff_stress(self, F, Jp):
-        r"""St. Venant–Kirchhoff stress in the Hencky strain, :math:`\tau = U(2\mu\epsilon + \lambda\operatorname{tr}(\epsilon)I)U^T`.
+        r"""Hencky-strain St. Venant–Kirchhoff stress :math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\,I)U^T`.
 
-        Docs: docs/mpm_cycle.md#elastoplastic-materials
+        Docs: docs/materials.md#sand, docs/mpm_cycle.md#elastoplastic-materials
         """
         U, eps, _ = self.hencky_strain(F)
         principal = 2.0 * self.mu * eps + self.lam * np.sum(eps, axis=1, keepdims=True)
@@ -211,7 +211,7 @@ class DruckerPragerSand(LameParameters):
     def return_map(self, F, Jp):
         """Klar et al. 2016 Algorithm 2 with the cohesion shift; unchanged particles keep ``F`` bit for bit.
 
-        Docs: docs/mpm_cycle.md#elastoplastic-materials
+        Docs: docs/materials.md#sand, docs/mpm_cycle.md#elastoplastic-materials
         """
         U, eps, Vt = self.hencky_strain(F)
         d = F.shape[1]

@@ -33,7 +33,8 @@ def mls_gradient_weight(stencil, w, dpos, offset):
     :math:`f_i = -\sum_p V_p^0\, \tau_p\, w_{ip} D_p^{-1} (x_i - x_p)` and the velocity gradient
     :math:`\nabla v_p = \sum_i v_i\, (w_{ip} D_p^{-1}(x_i - x_p))^T = C_p`.
 
-    Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step, docs/mls_vs_classic.md#two-gradient-weights,
+    Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step,
+    docs/mls_vs_classic.md#two-gradient-weights,
     docs/mpm_cycle.md#p2g-particle-to-grid
     """
     return w[:, None] * dpos / stencil.inertia
@@ -77,7 +78,8 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None):
     the MLS force). :math:`g_{ip}` is the force discretisation's gradient weight
     (:func:`mls_gradient_weight` or :func:`classic_gradient_weight`).
 
-    Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step, docs/mls_vs_classic.md#two-gradient-weights,
+    Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step,
+    docs/mls_vs_classic.md#two-gradient-weights,
     docs/mpm_cycle.md#p2g-particle-to-grid, docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#pic, docs/transfers.md#polypic
 
     Parameters
