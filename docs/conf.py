@@ -35,7 +35,7 @@ exclude_patterns = ["_build"]
 templates_path = ["_templates"]        # a module's API page: its docstrings, then its submodules (private too)
 
 myst_enable_extensions = ["dollarmath", "amsmath"]
-myst_heading_anchors = 3            # the GitHub-style heading anchors the pages already link to
+myst_heading_anchors = 6            # GitHub-style anchors for every heading level, as the pages link to them
 myst_dmath_double_inline = True
 
 autodoc_default_options = {"members": True, "undoc-members": True, "ignore-module-all": True}

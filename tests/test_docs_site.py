@@ -73,6 +73,24 @@ def test_every_page_is_in_the_table_of_contents_once():
 
 
 @pytest.mark.skipif(not HAS_SPHINX, reason="the docs extra is not installed: pip install -e '.[docs]'")
+def test_the_build_resolves_code_links_to_definitions_and_refuses_missing_ones():
+    sys.path.insert(0, str(DOCS / "_ext"))
+    try:
+        from mpmref_links import anchor_in
+    finally:
+        sys.path.remove(str(DOCS / "_ext"))
+    kernels = ROOT / "mpmref" / "physics" / "kernels.py"
+    report = ROOT / "mpmref" / "conformance" / "report.py"
+    assert anchor_in("mpmref.physics.kernels.Stencil.node_weight", "mpmref.physics.kernels", kernels) == \
+        "Stencil.node_weight"
+    assert anchor_in("mpmref.conformance.check", "mpmref.conformance.report", report) == "check"  # re-export
+    assert anchor_in("mpmref.physics.kernels", "mpmref.physics.kernels", kernels) == ""
+    assert anchor_in("mpmref.physics.kernels.no_such_function", "mpmref.physics.kernels", kernels) is None
+    assert anchor_in("mpmref.physics.kernels.compute_stencil", "mpmref.physics.materials",
+                     ROOT / "mpmref" / "physics" / "materials.py") is None
+
+
+@pytest.mark.skipif(not HAS_SPHINX, reason="the docs extra is not installed: pip install -e '.[docs]'")
 def test_site_builds_with_warnings_as_errors(tmp_path):
     out = tmp_path / "html"
     run = subprocess.run([sys.executable, str(DOCS / "build.py"), "--no-open", "--out", str(out)],
