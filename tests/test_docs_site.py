@@ -24,11 +24,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_docs import QUALNAME, resolve, slugs
+from test_docs import resolve, slugs
 
 PAGES = sorted(Path(__file__).resolve().parent.parent.glob("docs/*.md"))
 EQUATION = re.compile(r"^\$\$[ \t]*\n((?:(?!\$\$).)*?)^\$\$[ \t]*\((eq-[a-z0-9-]+)\)[ \t]*$", re.MULTILINE | re.DOTALL)
 HEADING = re.compile(r"^#{1,6}[ \t]+(.*?)[ \t]*#*[ \t]*$", re.MULTILINE)
+CODE_LINK = re.compile(r"\[`((?:mpmref|verification|exercises)(?:\.\w+)+)`\]\([^)]+\.py\)")
 BACKLINK = re.compile(r"docs/(\w+\.md)#([\w-]+)")
 SOURCES = sorted(p for folder in ("mpmref", "verification")
                  for p in (Path(__file__).resolve().parent.parent / folder).rglob("*.py"))
@@ -124,7 +125,7 @@ def numbered_equations(page):
         section = [slug for start, slug in headings if start < m.start()][-1]
         after = text[m.end():].lstrip("\n").split("\n\n", 1)[0]
         code = after.split("Code:", 1)[1] if "Code:" in after else ""
-        names = [QUALNAME.match(f"`{q}`").group(1) for q, _ in re.findall(r"\[`([\w.]+)`\]\(([^)]+)\)", code)]
+        names = CODE_LINK.findall(code)
         out.append((m.group(2), section, names))
     return out
 

@@ -96,6 +96,8 @@ def gain_bound(t, elastic, e0):
 
     from the modified energy :math:`\tilde H = H - \tfrac{\Delta t}{2}\dot V` (module docstring).
 
+    Docs: docs/verification.md#energy-colliding-disks-and-an-oscillating-jelly
+
     Parameters
     ----------
     t : (n+1,) times;  elastic : (n+1,) elastic energy :math:`V`;  e0 : initial total energy

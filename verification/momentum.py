@@ -130,6 +130,8 @@ def roundoff_bound(steps, n_particles, ppc, support, dim, eps=np.finfo(np.float6
     :math:`Q` sums :math:`N` particle terms once more. :math:`S` is the sum of the terms' magnitudes
     (:math:`\sum_p m_p |v_p|` for :math:`P`; :math:`\sum_p m_p (|x_p| |v_p| + D |C_p|)` for :math:`L`).
 
+    Docs: docs/verification.md#momentum-a-spinning-drifting-disk
+
     Parameters
     ----------
     steps : int                  :math:`n`, steps taken
@@ -149,6 +151,8 @@ def spin_loss_rate(mass, x, center, inertia):
     spin that part carries :math:`m_p D (C_{yx} - C_{xy}) = 2\omega\, m_p D` per particle (Jiang et al.
     2015 §5.3, the angular momentum of the affine term), out of :math:`L = I\omega`,
     :math:`I = \sum_p m_p |x_p - x_c|^2`, :math:`M = \sum_p m_p`.
+
+    Docs: docs/verification.md#momentum-a-spinning-drifting-disk
 
     Parameters
     ----------
