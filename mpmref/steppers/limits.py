@@ -30,6 +30,6 @@ def cfl_time_step(cfl, dx, signal_speed):
     sound speed in its current state), :math:`|v_p|` its speed (Courant, Friedrichs & Lewy 1928; per
     particle as in Fang et al. 2018 §3). ``signal_speed`` is :math:`c_p + |v_p|` (array) or its maximum.
 
-    Docs: docs/mpm_cycle.md#time-step-cfl-rule
+    Docs: docs/mpm_cycle.md#time-step-cfl-rule, docs/scenes.md#time
     """
     return cfl * dx / float(np.max(signal_speed, initial=1e-300))
