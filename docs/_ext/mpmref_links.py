@@ -170,4 +170,5 @@ def setup(app):
     app.connect("doctree-resolved", resolve_sections)
     app.connect("build-finished", copy_repo_files)
     app.connect("build-finished", check_code_anchors)
-    return {"version": "1", "parallel_read_safe": True, "parallel_write_safe": True}
+    # the links collected while reading live in two sets on the environment, not merged across processes
+    return {"version": "1", "parallel_read_safe": False, "parallel_write_safe": True}
