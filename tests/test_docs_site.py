@@ -102,6 +102,8 @@ def test_site_builds_with_warnings_as_errors(tmp_path):
     assert 'href="./_modules/mpmref/backends/numpy/transfers.html#mls_gradient_weight"' in cycle
     source = (out / "_modules" / "mpmref" / "backends" / "numpy" / "transfers.html").read_text(encoding="utf-8")
     assert 'id="mls_gradient_weight"' in source
+    # and back: the function's docstring links to the section that derives it, in one click
+    assert '<a href="../../../../mls_vs_classic.html#two-gradient-weights">' in source
 
 
 # ------------------------------------------------------------------------------------ equation links

@@ -10,7 +10,7 @@ a copy of the file placed beside the site. A qualified name that does not name a
 linked file, or a file that does not exist, is a build error.
 
 Back-links: in a docstring paragraph that starts with ``Docs:``, each ``docs/PAGE.md#anchor`` becomes a link
-to that section of the site.
+to that section of the site, both on the API page and in the rendered source.
 """
 
 import ast
@@ -139,6 +139,24 @@ def resolve_sections(app, doctree, docname):
         ref["refuri"] = app.builder.get_relative_uri(docname, page) + "#" + slugs[slug][1]
 
 
+def backlinks_in_source_pages(app, pagename, templatename, context, doctree):
+    """In the rendered source (``_modules/...``), ``docs/PAGE.md#anchor`` in a docstring links to that
+    section too, so the way back from a line of code to its equation is one click."""
+    if not pagename.startswith("_modules/") or "body" not in context:
+        return
+
+    def link(match):
+        page, slug = match.group(1), match.group(2)
+        slugs = app.env.metadata.get(page, {}).get("myst_slugs", {})
+        if slug not in slugs:
+            logger.warning("%s: back-link to docs/%s.md#%s: no such page or heading", pagename, page, slug)
+            return match.group(0)
+        uri = posixpath.relpath(page, posixpath.dirname(pagename)) + ".html#" + slugs[slug][1]
+        return f'<a href="{uri}">{match.group(0)}</a>'
+
+    context["body"] = BACKLINK.sub(link, context["body"])
+
+
 def check_code_anchors(app, exception):
     """Every code link lands on a rendered source page, and on the object's anchor there."""
     if exception is not None or app.builder.format != "html":
@@ -168,6 +186,7 @@ def setup(app):
     app.connect("autodoc-process-docstring", backlinks_in_docstring)
     app.add_role("docs-section", docs_section_role)
     app.connect("doctree-resolved", resolve_sections)
+    app.connect("html-page-context", backlinks_in_source_pages)
     app.connect("build-finished", copy_repo_files)
     app.connect("build-finished", check_code_anchors)
     # the links collected while reading live in two sets on the environment, not merged across processes
