@@ -288,9 +288,13 @@ def test_meshio_refusals_name_the_mesh_field(tmp_path):
     assert info.value.field == "rigid_bodies[1].mesh"
     points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
     meshio.write_points_cells(tmp_path / "tet.vtk", points, [("tetra", np.array([[0, 1, 2, 3]]))])
-    with pytest.raises(SceneError, match="triangle cells") as info:
+    with pytest.raises(SceneError, match="tetra cells") as info:
         read_trimesh(tmp_path / "tet.vtk", index=1)
     assert info.value.field == "rigid_bodies[1].mesh"
+    quads = np.array([[0, 1, 2, 3]])
+    meshio.write_points_cells(tmp_path / "quad.obj", points, [("triangle", np.array([[0, 2, 1]])), ("quad", quads)])
+    with pytest.raises(SceneError, match="quad cells; triangulate") as info:
+        read_trimesh(tmp_path / "quad.obj", index=1)
     meshio.write_points_cells(tmp_path / "open.obj", points, [("triangle", np.array([[0, 2, 1], [0, 1, 3]]))])
     with pytest.raises(SceneError, match="watertight") as info:
         read_trimesh(tmp_path / "open.obj", closed=True, index=1)

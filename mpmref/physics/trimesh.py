@@ -198,8 +198,9 @@ def validate_trimesh(vertices, triangles, closed=False, index=0, domain=None):
 def read_trimesh(path, closed=False, index=0, domain=None, base_dir="."):
     """Read a triangle mesh with meshio (``mesh = "file"``) and validate it (:func:`validate_trimesh`).
 
-    Every ``triangle`` cell block of the file is used; other cells are ignored. meshio's STL reader merges
-    coincident points, so a closed STL surface reads back watertight.
+    The file's surface must be made of ``triangle`` cells (``vertex`` and ``line`` cells are ignored; quads,
+    polygons or volume cells are refused). meshio's STL reader merges coincident points, so a closed STL
+    surface reads back watertight.
 
     Parameters
     ----------
@@ -210,8 +211,9 @@ def read_trimesh(path, closed=False, index=0, domain=None, base_dir="."):
     Raises
     ------
     SceneError
-        naming ``rigid_bodies[index].mesh`` when the file cannot be read, holds no triangles, or its mesh is
-        refused by :func:`validate_trimesh` (the message then says which check failed).
+        naming ``rigid_bodies[index].mesh`` when the file cannot be read, holds no triangles or cells other
+        than triangles (vertices and lines aside), or its mesh is refused by :func:`validate_trimesh` (the
+        message then says which check failed).
     """
     import meshio
 
@@ -222,9 +224,11 @@ def read_trimesh(path, closed=False, index=0, domain=None, base_dir="."):
         mesh = meshio.read(path)
     except Exception as exc:  # meshio raises several types for unreadable files
         raise SceneError(where, str(path), f"a triangle mesh readable by meshio ({exc})") from None
+    others = sorted({c.type for c in mesh.cells} - {"triangle", "vertex", "line"})
     blocks = [c.data for c in mesh.cells if c.type == "triangle"]
-    if not blocks:
-        raise SceneError(where, str(path), "a mesh file with triangle cells")
+    if others or not blocks:
+        found = f"it has {', '.join(others)} cells; triangulate it" if others else "it has none"
+        raise SceneError(where, str(path), f"a surface of triangle cells ({found})")
     points = np.asarray(mesh.points, dtype=np.float64)
     if points.shape[1] != 3:
         raise SceneError(where, str(path), f"a mesh with 3D points (it has {points.shape[1]} coordinates)")
