@@ -104,8 +104,9 @@ def _edge_defect(triangles):
     edges = _directed_edges(triangles)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     if np.any(counts > 1):
-        a, b = unique[np.argmax(counts > 1)].tolist()
-        return (f"edge ({a}, {b}) is traversed in the same direction by {int(counts.max())} triangles "
+        first = int(np.argmax(counts > 1))
+        a, b = unique[first].tolist()
+        return (f"edge ({a}, {b}) is traversed in the same direction by {int(counts[first])} triangles "
                 f"(inconsistent orientation, or more than two triangles on one edge)")
     return None
 
