@@ -213,12 +213,12 @@ def test_tetrahedron_solid():
     vertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
     tet = validate_trimesh(vertices, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], closed=True)
     rho = 2.5
-    props = mass_properties(tet, rho)
+    mass, center, inertia = mass_properties(tet, rho)
     m = rho / 6
-    assert props.mass == pytest.approx(m, rel=1e-14)
-    assert np.allclose(props.center, 0.25, atol=1e-15)
+    assert mass == pytest.approx(m, rel=1e-14)
+    assert np.allclose(center, 0.25, atol=1e-15)
     expected = m * (3 / 40 * np.eye(3) + (1 - np.eye(3)) / 80)
-    assert np.allclose(props.inertia, expected, rtol=0, atol=1e-15)
+    assert np.allclose(inertia, expected, rtol=0, atol=1e-15)
 
 
 def test_thin_rectangular_plate():

@@ -22,6 +22,7 @@ reference code (spec B1).
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -240,9 +241,8 @@ def read_trimesh(path, closed=False, index=0, domain=None, base_dir="."):
 
 
 # ------------------------------------------------------------------------------------------- mass properties
-@dataclass(frozen=True)
-class MassProperties:
-    """Mass, centre of mass and inertia tensor of a rigid body.
+class MassProperties(NamedTuple):
+    """Mass, centre of mass and inertia tensor of a rigid body (unpacks as ``mass, center, inertia``).
 
     Attributes
     ----------
