@@ -45,7 +45,13 @@ class TransferSpec(NamedTuple):
     flip_alpha : float
         The FLIP fraction (0 unless ``flip``).
     mls : bool
-        The MLS force and velocity gradient.
+        The MLS force (P2G).
+    gradient : str
+        The velocity gradient of the ``F``/``J`` update: ``mls`` (:math:`C_p`) or ``classic``
+        (:math:`\sum_i v_i \nabla w_{ip}^T`); declared as ``method.velocity_gradient``, which follows
+        ``method.force`` unless set.
+    mls_gradient : bool
+        ``gradient == "mls"`` (G2P).
     tracks_F, tracks_J, tracks_Jp : bool
         Deformation state the materials need.
     """
@@ -61,6 +67,8 @@ class TransferSpec(NamedTuple):
     flip: bool
     flip_alpha: float
     mls: bool
+    gradient: str
+    mls_gradient: bool
     tracks_F: bool
     tracks_J: bool
     tracks_Jp: bool
@@ -74,5 +82,6 @@ def resolve(method, dim, materials):
         support=get_kernel(method.kernel).support, dim=dim,
         affine=transfer in ("apic", "polypic"), polypic=transfer == "polypic", flip=transfer == "flip",
         flip_alpha=float(method.flip_alpha) if transfer == "flip" else 0.0, mls=method.force == "mls",
+        gradient=method.velocity_gradient, mls_gradient=method.velocity_gradient == "mls",
         tracks_F=any(m.tracks == "F" for m in materials), tracks_J=any(m.tracks == "J" for m in materials),
         tracks_Jp=any(getattr(m, "plastic", False) for m in materials))
