@@ -108,6 +108,41 @@ def init_env(app, env, docnames):
     env.mpmref_code_links = {link for link in env.mpmref_code_links if link[0] not in docnames}
 
 
+FIELD_SECTIONS = {"Parameters", "Other Parameters", "Attributes", "Returns", "Yields", "Raises"}
+COMPACT_FIELD = re.compile(r"^(\S.*?\S)\s{2,}(\S.*)$")
+
+
+def compact_fields(app, what, name, obj, options, lines):
+    """Give napoleon the numpydoc layout of the sources' compact fields.
+
+    The sources often write a field on one line, ``tau : (n, d, d) array   Kirchhoff stress``, or a group
+    without a type, ``index, domain   as in validate_trimesh``, with continuation lines aligned under
+    the description. numpydoc wants the description on its own indented lines; this moves it there (the
+    text is unchanged) so that the rendered field shows name, type and description apart.
+    """
+    out, section, indent = [], None, 0
+    for index, line in enumerate(lines):
+        stripped = line.strip()
+        following = lines[index + 1].strip() if index + 1 < len(lines) else ""
+        if stripped and following and set(following) == {"-"} and len(following) >= len(stripped):
+            section, indent = stripped, len(line) - len(line.lstrip())
+            out.append(line)
+            continue
+        if section in FIELD_SECTIONS and stripped and not set(stripped) == {"-"}:
+            depth = len(line) - len(line.lstrip())
+            match = COMPACT_FIELD.match(stripped)
+            if depth == indent and match:
+                out += [" " * indent + match.group(1), " " * (indent + 4) + match.group(2)]
+                continue
+            if depth > indent:
+                out.append(" " * (indent + 4) + stripped)
+                continue
+            if depth < indent:
+                section = None
+        out.append(line)
+    lines[:] = out
+
+
 def backlinks_in_docstring(app, what, name, obj, options, lines):
     """The paragraph ``Docs: docs/PAGE.md#anchor, ...`` of a docstring -> links to those sections."""
     in_docs = False
@@ -183,6 +218,7 @@ def copy_repo_files(app, exception):
 def setup(app):
     app.connect("env-before-read-docs", init_env)
     app.connect("doctree-read", rewrite_code_links, priority=400)  # before Sphinx collects downloads
+    app.connect("autodoc-process-docstring", compact_fields, priority=400)  # before napoleon reads them
     app.connect("autodoc-process-docstring", backlinks_in_docstring)
     app.add_role("docs-section", docs_section_role)
     app.connect("doctree-resolved", resolve_sections)
