@@ -158,6 +158,7 @@ class MethodSpec:
     pushing_force: float = 0.0
     penalty: float = 0.0
     momentum_exact: bool = False
+    ghost_force: bool = True
 
 
 @dataclass(frozen=True)
@@ -352,7 +353,7 @@ def _cell_size_field(g):
 
 def _parse_method(m):
     _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "coupling", "pushing_force", "penalty",
-                           "momentum_exact"})
+                           "momentum_exact", "ghost_force"})
     scheme = _choice(m, "scheme", "method", SCHEMES, default="mls")
     force = _choice(m, "force", "method", FORCES, default="mls")
     kernel = _choice(m, "kernel", "method", tuple(KERNELS), default="quadratic")
@@ -368,7 +369,7 @@ def _parse_coupling(m, scheme):
     """The CPIC options of ``[method]`` (spec B7-B8): coupling, pushing force, penalty, exact variant."""
     coupling = _choice(m, "coupling", "method", COUPLINGS, default="none")
     if coupling == "none":
-        for key in ("pushing_force", "penalty", "momentum_exact"):
+        for key in ("pushing_force", "penalty", "momentum_exact", "ghost_force"):
             if key in m:
                 _fail(f"method.{key}", m[key], "only with method.coupling = 'cpic'")
         return {}
@@ -378,9 +379,10 @@ def _parse_coupling(m, scheme):
                "PolyPIC's higher modes are projected from all stencil nodes, and ghost velocities at incompatible "
                "nodes define no modes")
         _fail("method.scheme", scheme, f"one of {list(CPIC_SCHEMES)} with method.coupling = 'cpic' ({why})")
-    exact = m.get("momentum_exact", False)
-    if not isinstance(exact, bool):
-        _fail("method.momentum_exact", exact, "true or false")
+    exact, ghost_force = m.get("momentum_exact", False), m.get("ghost_force", True)
+    for key, value in (("momentum_exact", exact), ("ghost_force", ghost_force)):
+        if not isinstance(value, bool):
+            _fail(f"method.{key}", value, "true or false")
     if exact and scheme != "pic":
         _fail("method.momentum_exact", exact, f"false with method.scheme = '{scheme}' (the exact variant needs PIC: "
               "the affine term is not given to bodies at incompatible nodes)")
@@ -388,7 +390,7 @@ def _parse_coupling(m, scheme):
     if exact and push != 0.0:
         _fail("method.pushing_force", push, "0 with method.momentum_exact = true (the pushing force injects momentum "
               "that no body receives)")
-    return {"coupling": coupling, "pushing_force": push, "momentum_exact": exact,
+    return {"coupling": coupling, "pushing_force": push, "momentum_exact": exact, "ghost_force": ghost_force,
             "penalty": _number(m, "penalty", "method", default=0.0, lo=0.0)}
 
 
