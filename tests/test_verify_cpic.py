@@ -49,3 +49,13 @@ def _passing(params, impact):
     friction = {"stopped": True, "distance": 1.0, "expected": 1.0}
     return {"params": params, "no_crossing": {"drop": clean, "sand": clean, "impact": impact},
             "exact": {"drift": 0.0, "plate_v": -1.0}, "cut": {"components": 2, "crossings": 0}, "friction": friction}
+
+
+@pytest.mark.slow
+def test_baselines_cpic_cuts_without_losing_mass_where_removal_loses_it():
+    params = case.Params.quick()
+    cpic = case.baseline(params, "cpic")
+    removed = case.baseline(params, "remove", 1.0)
+    assert cpic["crossings"] == 0 and cpic["mass_lost"] == 0.0 and cpic["components"] == 2
+    # 1 dx = 2 of the 20 particle columns of the block (ppc 4 at 32 cells): 10 % of its mass
+    assert removed["mass_lost"] == pytest.approx(0.1, abs=1e-12)

@@ -170,7 +170,7 @@ def g2p(particles, v_grid, grid, kernel, spec, dt, prepared, contact, rigid, pus
     lo, hi = PENALTY_WINDOW
     pushed = particles.near & (particles.phi > lo * grid.dx) & (particles.phi < hi * grid.dx) & (penalty > 0.0)
     dv = np.where(pushed[:, None], penalty * particles.phi[:, None] * particles.normal, 0.0)
-    new = new.with_(v=new.v - dv)
+    new = new.with_(v=(new.v - dv).astype(new.v.dtype))
     body = _nearest_tagged_body(contact, particles)
     J, L = body_impulses(len(rigid.angle), body[pushed], new.x[pushed],
                          particles.mass[pushed, None] * dv[pushed], rigid.position)
