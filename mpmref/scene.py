@@ -154,11 +154,16 @@ class MethodSpec:
     force: str
     kernel: str
     flip_alpha: float
+    velocity_gradient: str = ""  # "" follows ``force`` (see ``_parse_method``)
     coupling: str = "none"
     pushing_force: float = 0.0
     penalty: float = 0.0
     momentum_exact: bool = False
     ghost_force: bool = True
+
+    def __post_init__(self):
+        if not self.velocity_gradient:
+            object.__setattr__(self, "velocity_gradient", self.force)
 
 
 @dataclass(frozen=True)
@@ -352,15 +357,17 @@ def _cell_size_field(g):
 
 
 def _parse_method(m):
-    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "coupling", "pushing_force", "penalty",
-                           "momentum_exact", "ghost_force"})
+    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "velocity_gradient", "coupling",
+                           "pushing_force", "penalty", "momentum_exact", "ghost_force"})
     scheme = _choice(m, "scheme", "method", SCHEMES, default="mls")
     force = _choice(m, "force", "method", FORCES, default="mls")
+    gradient = _choice(m, "velocity_gradient", "method", FORCES, default=force)
     kernel = _choice(m, "kernel", "method", tuple(KERNELS), default="quadratic")
     if "flip_alpha" in m and scheme != "flip":
         _fail("method.flip_alpha", m["flip_alpha"], f"only with method.scheme = 'flip' (scheme is '{scheme}')")
     alpha = _number(m, "flip_alpha", "method", default=0.95 if scheme == "flip" else 0.0, lo=0.0, hi=1.0)
-    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha, **_parse_coupling(m, scheme))
+    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha, velocity_gradient=gradient,
+                      **_parse_coupling(m, scheme))
     _check_combination(spec)
     return spec
 
@@ -402,9 +409,11 @@ def _check_combination(spec):
     if spec.kernel == "linear" and spec.scheme in ("apic", "polypic", "mls"):
         _fail("method.kernel", "linear", f"'quadratic' or 'cubic' with method.scheme = '{spec.scheme}' (an affine "
               "scheme needs a constant inertia D_p, which the linear hat does not have)")
-    if spec.kernel == "linear" and spec.force == "mls":
-        _fail("method.force", "mls", "'classic' with method.kernel = 'linear' (the MLS force needs a constant D_p = k dx^2 I; the "
-              "linear hat's D_p varies with position and is singular on nodes)")
+    for field in ("force", "velocity_gradient"):
+        if spec.kernel == "linear" and getattr(spec, field) == "mls":
+            _fail(f"method.{field}", "mls", "'classic' with method.kernel = 'linear' (the MLS force and velocity "
+                  "gradient need a constant D_p = k dx^2 I; the linear hat's D_p varies with position and is "
+                  "singular on nodes)")
 
 
 def _parse_materials(mats):
