@@ -409,9 +409,10 @@ def _reference_push(result):
 def _rotor(result):
     rotor = result["rotor"]
     return [Finding("rotor: particles that crossed the spinning plate (any step)", rotor["crossings"],
-                    f"{rotor['far_side']} of {rotor['n']} are on the far side at the end: a plate sweeping through "
-                    "material pushes it only through ghost velocities, the pushing force and the penalty, so grazing "
-                    "particles cross its line by a fraction of a cell before their kept tag brings them back.")]
+                    f"of {rotor['n']}: a plate sweeping through material pushes it only through ghost velocities, "
+                    "the pushing force and the penalty, so grazing particles cross its line by a fraction of a cell "
+                    "before their kept tag brings them back (the far-side count means nothing for a plate that "
+                    "turns half a revolution).")]
 
 
 def _reference_ghosts(result):
@@ -471,7 +472,7 @@ def _friction_plot(result, path):
 
 def table(result):
     nc = result["no_crossing"]
-    rows = ["| run | particles | steps | crossings (per step) | on the far side at the end |", "|---|---|---|---|---|"]
+    rows = ["| run | particles | steps | crossings (per step) | on the far side at the end* |", "|---|---|---|---|---|"]
     for name, r in (("jelly onto a segment", nc["drop"]), ("blade through sand", nc["sand"]),
                     *((("blade through sand, f_push 2e4", nc["sand_2e4"]),) if "sand_2e4" in nc else ()),
                     ("hard impact", nc["impact"]),
@@ -479,7 +480,9 @@ def table(result):
                                                                             result["default"]),
                     ("jelly onto a wedge blade", result["cut"]), ("block sliding (friction)", result["friction"])):
         rows.append(f"| {name} | {r['n']} | {r['steps']} | {r['crossings']} | {r['far_side']} |")
-    return "\n".join(rows)
+    return "\n".join(rows + ["", "*side at the end against side at the start, for particles projecting onto a "
+                              "segment both times: for the moving blade it also counts sand that flowed under "
+                              "the blade's lower end, which is inside the layer."])
 
 
 def baseline_table(result):
