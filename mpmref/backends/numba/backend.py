@@ -75,7 +75,8 @@ class NumbaBackend:
 
     def __init__(self, scene):
         if scene.rigid_bodies:
-            raise SceneError("rigid_bodies", f"{len(scene.rigid_bodies)} bodies", "none with backend 'numba' (CPIC "
+            n = len(scene.rigid_bodies)
+            raise SceneError("rigid_bodies", f"{n} bod{'y' if n == 1 else 'ies'}", "none with backend 'numba' (CPIC "
                              "coupling runs on the NumPy reference backend only for now; use backend 'numpy')")
         self.scene = scene
         grid = scene.grid
