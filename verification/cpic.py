@@ -75,7 +75,7 @@ class Params:
 
     @classmethod
     def quick(cls):
-        return cls(cells=32, drop_t_end=0.6, sand_t_end=0.15, ball_t_end=0.16, cut_t_end=0.6, friction_t_end=0.45,
+        return cls(cells=32, drop_t_end=0.5, sand_t_end=0.15, ball_t_end=0.1, cut_t_end=0.6, friction_t_end=0.45,
                    extended=False)
 
     @classmethod
