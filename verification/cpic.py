@@ -40,12 +40,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mpmref import SceneBuilder, Simulation
 from mpmref.bodies import sample_particles
 from mpmref.io.atomic import write_text_atomic
+from mpmref.io.vtk import write_polylines_vtp
 from mpmref.physics.rigid import segment_frame, validate_polyline
 from mpmref.physics.rigid_dynamics import current_shapes
 
@@ -268,8 +270,6 @@ def run_watching(scene, frames, every_step=None, particles=None, shapes=None):
 def components(x, link):
     """Number of connected components of particles ``x`` linked when closer than ``link``."""
     pairs = cKDTree(x).query_pairs(link, output_type="ndarray")
-    from scipy.sparse import coo_matrix
-
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(x), len(x)))
     return int(connected_components(graph, directed=False)[0])
 
@@ -496,7 +496,7 @@ def baseline_table(result):
 
 
 def report(result, out_dir):
-    """Plots, the VTK series of each run, and ``cpic.md``."""
+    """Plots, the VTK series of each run with its bodies' final pose (``rigid_bodies_end.vtp``), and ``cpic.md``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = [_momentum_plot(result, out / "momentum.png"), _friction_plot(result, out / "friction.png")]
@@ -505,6 +505,8 @@ def report(result, out_dir):
             "cut": result["cut"], "friction": result["friction"]}
     for key, r in runs.items():
         paths.append(write_series(out / "vtk" / key, r["frames"]))
+        paths.append(out / "vtk" / key / "rigid_bodies_end.vtp")  # the bodies where the run ends
+        write_polylines_vtp(paths[-1], [(b.vertices, b.segments) for b in r["bodies"]])
     baselines = (f"## Baselines: the same block over a vertical cut line\n\n{baseline_table(result)}\n\n"
                  if result["baselines"] else "")
     text = (f"# CPIC (backend numpy)\n\n{table(result)}\n\n{baselines}"
