@@ -21,6 +21,9 @@ from .physics.colliders import Ball, Box, Collider, Cylinder, Plane
 from .physics.kernels import KERNELS, get_kernel
 from .physics.catalogue import MATERIALS as MATERIAL_TYPES
 from .physics.materials import lame_parameters
+from .physics.rigid import validate_polyline
+from .physics.rigid_dynamics import (CONTACT_TYPES, MOTIONS, RigidBody, area_mass_properties, encode_friction,
+                                     line_mass_properties)
 from .physics.scheme import resolve
 from .state import Grid
 
@@ -36,7 +39,17 @@ AXES = "xyz"
 STEPPINGS = ("sync", "async")
 
 TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "colliders", "gravity", "boundary", "time",
-            "output", "name"}
+            "output", "name", "rigid_bodies"}
+COUPLINGS = ("none", "cpic")
+#: schemes CPIC is defined for (spec B6-B7 are written for PIC, APIC and MLS-MPM)
+CPIC_SCHEMES = ("pic", "apic", "mls")
+RIGID_COMMON_KEYS = {"vertices", "segments", "closed", "motion", "type", "friction"}
+#: keys each rigid-body motion accepts besides the common ones
+RIGID_MOTION_KEYS = {
+    "fixed": set(),
+    "scripted": {"velocity", "angular_velocity", "center", "keyframes"},
+    "dynamic": {"density", "velocity", "angular_velocity", "gravity"},
+}
 COLLIDER_SHAPES = ("plane", "box", "disk", "sphere", "cylinder")
 MATERIAL_KEYS = {
     "fixed_corotated": {"type", "E", "nu", "rho"},
@@ -142,6 +155,11 @@ class MethodSpec:
     kernel: str
     flip_alpha: float
     velocity_gradient: str = ""  # "" follows ``force`` (see ``_parse_method``)
+    coupling: str = "none"
+    pushing_force: float = 0.0
+    penalty: float = 0.0
+    momentum_exact: bool = False
+    ghost_force: bool = True
 
     def __post_init__(self):
         if not self.velocity_gradient:
@@ -211,6 +229,7 @@ class Scene:
     output: OutputSpec
     source: dict = field(repr=False)
     base_dir: Path = field(default_factory=Path.cwd, repr=False)
+    rigid_bodies: list = field(default_factory=list)  # RigidBody objects (CPIC coupling)
 
     @cached_property
     def transfer(self):
@@ -241,6 +260,7 @@ class Scene:
         gravity = _vector(data, "gravity", "", dim, default=[0.0] * dim)
         boundary = _parse_boundary(data.get("boundary", {}), dim, grid)
         time = _parse_time(data.get("time", {}))
+        rigid_bodies = _parse_rigid_bodies(data.get("rigid_bodies", []), dim, grid, method, time)
         output = _parse_output(data.get("output", {}))
         limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
                                    "transfer": resolve(method, dim, list(materials.values())),
@@ -252,7 +272,7 @@ class Scene:
             _fail("name", name, "a non-empty string without path separators")
         return cls(name=name, dim=dim, dtype=dtype, grid=grid, method=method, materials=materials,
                    bodies=bodies, colliders=colliders, gravity=gravity, boundary=boundary, time=time, output=output,
-                   source=data, base_dir=Path(base_dir) if base_dir else Path.cwd())
+                   source=data, base_dir=Path(base_dir) if base_dir else Path.cwd(), rigid_bodies=rigid_bodies)
 
     # ------------------------------------------------------------------------------- derived
     @property
@@ -337,7 +357,8 @@ def _cell_size_field(g):
 
 
 def _parse_method(m):
-    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "velocity_gradient"})
+    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "velocity_gradient", "coupling",
+                           "pushing_force", "penalty", "momentum_exact", "ghost_force"})
     scheme = _choice(m, "scheme", "method", SCHEMES, default="mls")
     force = _choice(m, "force", "method", FORCES, default="mls")
     gradient = _choice(m, "velocity_gradient", "method", FORCES, default=force)
@@ -345,9 +366,39 @@ def _parse_method(m):
     if "flip_alpha" in m and scheme != "flip":
         _fail("method.flip_alpha", m["flip_alpha"], f"only with method.scheme = 'flip' (scheme is '{scheme}')")
     alpha = _number(m, "flip_alpha", "method", default=0.95 if scheme == "flip" else 0.0, lo=0.0, hi=1.0)
-    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha, velocity_gradient=gradient)
+    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha, velocity_gradient=gradient,
+                      **_parse_coupling(m, scheme))
     _check_combination(spec)
     return spec
+
+
+def _parse_coupling(m, scheme):
+    """The CPIC options of ``[method]`` (spec B7-B8): coupling, pushing force, penalty, exact variant."""
+    coupling = _choice(m, "coupling", "method", COUPLINGS, default="none")
+    if coupling == "none":
+        for key in ("pushing_force", "penalty", "momentum_exact", "ghost_force"):
+            if key in m:
+                _fail(f"method.{key}", m[key], "only with method.coupling = 'cpic'")
+        return {}
+    if scheme not in CPIC_SCHEMES:
+        why = ("FLIP's increment needs every stencil node's velocity before and after forces, and a CPIC particle "
+               "has no such node on the far side of a body" if scheme == "flip" else
+               "PolyPIC's higher modes are projected from all stencil nodes, and ghost velocities at incompatible "
+               "nodes define no modes")
+        _fail("method.scheme", scheme, f"one of {list(CPIC_SCHEMES)} with method.coupling = 'cpic' ({why})")
+    exact, ghost_force = m.get("momentum_exact", False), m.get("ghost_force", True)
+    for key, value in (("momentum_exact", exact), ("ghost_force", ghost_force)):
+        if not isinstance(value, bool):
+            _fail(f"method.{key}", value, "true or false")
+    if exact and scheme != "pic":
+        _fail("method.momentum_exact", exact, f"false with method.scheme = '{scheme}' (the exact variant needs PIC: "
+              "the affine term is not given to bodies at incompatible nodes)")
+    push = _number(m, "pushing_force", "method", default=0.0 if exact else 2e4, lo=0.0)
+    if exact and push != 0.0:
+        _fail("method.pushing_force", push, "0 with method.momentum_exact = true (the pushing force injects momentum "
+              "that no body receives)")
+    return {"coupling": coupling, "pushing_force": push, "momentum_exact": exact, "ghost_force": ghost_force,
+            "penalty": _number(m, "penalty", "method", default=0.0, lo=0.0)}
 
 
 def _check_combination(spec):
@@ -450,6 +501,101 @@ def _parse_bodies(bodies, dim, materials):
         p["rotation_center"] = _vector(b, "rotation_center", path, dim)
         out.append(BodySpec(index=i, shape=shape, material=material, params=p))
     return out
+
+
+def _parse_rigid_bodies(bodies, dim, grid, method, time):
+    """The ``[[rigid_bodies]]`` (CPIC): validated 2D polylines with their motion and contact per side."""
+    if not isinstance(bodies, list):
+        _fail("rigid_bodies", bodies, "an array of tables, e.g. [[rigid_bodies]]")
+    if bodies and method.coupling != "cpic":
+        _fail("method.coupling", method.coupling, "'cpic' when the scene has [[rigid_bodies]]")
+    if method.coupling == "cpic" and not bodies:
+        _fail("method.coupling", "cpic", "'none' in a scene without [[rigid_bodies]]")
+    if bodies and dim != 2:
+        _fail("rigid_bodies", f"{len(bodies)} bodies in a {dim}D scene", "rigid bodies only in 2D scenes for now")
+    if bodies and time.stepping != "sync":
+        _fail("time.stepping", time.stepping, "'sync' in a scene with [[rigid_bodies]] (CPIC runs in the synchronous "
+              "step)")
+    return [_parse_rigid_body(b, i, grid) for i, b in enumerate(bodies)]
+
+
+def _parse_rigid_body(b, i, grid):
+    path = f"rigid_bodies[{i}]"
+    if not isinstance(b, dict):
+        _fail(path, b, "a table")
+    motion = _choice(b, "motion", path, MOTIONS, default="fixed")
+    _section(b, path, RIGID_COMMON_KEYS | RIGID_MOTION_KEYS[motion])
+    closed = b.get("closed", False)
+    if not isinstance(closed, bool):
+        _fail(f"{path}.closed", closed, "true or false")
+    shape = validate_polyline(b.get("vertices"), b.get("segments"), closed=closed, index=i)
+    lo, hi = grid.origin, grid.origin + np.array(grid.cells) * grid.dx
+    outside = np.nonzero(np.any((shape.vertices < lo) | (shape.vertices > hi), axis=1))[0]
+    if outside.size:
+        k = int(outside[0])
+        _fail(f"{path}.vertices", shape.vertices[k].tolist(), f"inside the domain [{lo.tolist()}, {hi.tolist()}] "
+              f"(vertex {k} is outside)")
+    friction = _contact_sides(b, path)
+    params = {"shape": shape, "motion": motion, "friction": friction, "center": shape.vertices.mean(axis=0)}
+    if motion == "scripted":
+        params.update(_script(b, path, shape))
+    elif motion == "dynamic":
+        params.update(_dynamic(b, path, shape))
+    return RigidBody(**params)
+
+
+def _contact_sides(b, path):
+    """The encoded friction of side 0 and side 1 from ``type`` and ``friction`` (each one value or two)."""
+    kinds = b.get("type", "separate")
+    kinds = [kinds, kinds] if isinstance(kinds, str) else kinds
+    if not isinstance(kinds, list) or len(kinds) != 2 or any(k not in CONTACT_TYPES for k in kinds):
+        _fail(f"{path}.type", b.get("type"), f"one of {list(CONTACT_TYPES)}, or a list of two (side 0, side 1)")
+    mu = b.get("friction", 0.0)
+    mu = [mu, mu] if not isinstance(mu, list) else mu
+    if len(mu) != 2 or any(isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c < 0
+                           for c in mu):
+        _fail(f"{path}.friction", b.get("friction"), "a number >= 0, or a list of two (side 0, side 1)")
+    return np.array([encode_friction(k, c) for k, c in zip(kinds, mu)])
+
+
+def _script(b, path, shape):
+    center = _vector(b, "center", path, 2, default=shape.vertices.mean(axis=0))
+    if "keyframes" not in b:
+        return {"center": center, "velocity": _vector(b, "velocity", path, 2, default=[0.0, 0.0]),
+                "angular_velocity": _number(b, "angular_velocity", path, default=0.0)}
+    for key in ("velocity", "angular_velocity"):
+        if key in b:
+            _fail(f"{path}.{key}", b[key], "absent when keyframes are given (the keyframes set the motion)")
+    frames = b["keyframes"]
+    if not isinstance(frames, list) or len(frames) < 2:
+        _fail(f"{path}.keyframes", frames, "a list of at least two tables {time, offset, angle}")
+    out = []
+    for k, f in enumerate(frames):
+        where = f"{path}.keyframes[{k}]"
+        _section(f, where, {"time", "offset", "angle"})
+        t = _number(f, "time", where, required=True, lo=0.0)
+        if out and t <= out[-1][0]:
+            _fail(f"{where}.time", t, f"greater than the previous keyframe's time {out[-1][0]}")
+        out.append((t, _vector(f, "offset", where, 2, default=[0.0, 0.0]), _number(f, "angle", where, default=0.0)))
+    return {"center": center, "keyframes": tuple(out)}
+
+
+def _dynamic(b, path, shape):
+    density = _number(b, "density", path, required=True, lo=0.0, lo_open=True)
+    gravity = b.get("gravity", True)
+    if not isinstance(gravity, bool):
+        _fail(f"{path}.gravity", gravity, "true or false")
+    if shape.closed:
+        starts = np.bincount(shape.segments[:, 0], minlength=len(shape.vertices))
+        if np.any(starts != 1):
+            _fail(f"{path}.segments", shape.segments.tolist(), "consistently oriented segments for a closed dynamic "
+                  "body (each vertex starts exactly one segment)")
+        mass, center, inertia = area_mass_properties(shape, density)
+    else:
+        mass, center, inertia = line_mass_properties(shape, density)
+    return {"mass": mass, "center": center, "inertia": inertia, "gravity": gravity,
+            "velocity": _vector(b, "velocity", path, 2, default=[0.0, 0.0]),
+            "angular_velocity": _number(b, "angular_velocity", path, default=0.0)}
 
 
 def _parse_colliders(colliders, dim):
@@ -614,6 +760,12 @@ class SceneBuilder:
         self._data.setdefault("colliders", []).append({"shape": shape, "type": type, "friction": friction,
                                                        **{k: list(v) if isinstance(v, (tuple, np.ndarray)) else v
                                                           for k, v in params.items()}})
+        return self
+
+    def rigid_body(self, vertices, segments, **params):
+        """Add a ``[[rigid_bodies]]`` entry (CPIC; see docs/cpic.md for the keys)."""
+        entry = {"vertices": np.asarray(vertices).tolist(), "segments": np.asarray(segments).tolist(), **params}
+        self._data.setdefault("rigid_bodies", []).append(entry)
         return self
 
     def gravity(self, g):

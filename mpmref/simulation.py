@@ -12,6 +12,7 @@ from .domain import apply_domain_exit, outside
 from .errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
 from .physics.materials import material_groups
+from .physics.rigid_dynamics import current_shapes
 from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 from .steppers import make_stepper
 
@@ -263,6 +264,8 @@ class Simulation:
         out = {k: data[k] for k in fields}
         if p.level is not None:  # asynchronous stepping: log2 of each particle's last step in ticks
             out["dt_level"] = p.level.astype(np.int32)
+        if p.tag_A is not None:  # CPIC: tags packed as the reference does, distance and near flag
+            out.update({"side": pack_tags(p.tag_A, p.tag_T), "distance": p.phi, "near": p.near.astype(np.int8)})
         return out
 
     def volume_ratio(self):
@@ -294,8 +297,11 @@ class Simulation:
     def write_output(self):
         """Write a particle frame (and grid frame), a diagnostics row and, if enabled, a checkpoint."""
         out = self.output
+        rigid = self.state.rigid
+        polylines = None if rigid is None else [(b.vertices, b.segments)
+                                                for b in current_shapes(self.scene.rigid_bodies, rigid)]
         out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
-                        self.grid_data() if self.scene.output.grid else None)
+                        self.grid_data() if self.scene.output.grid else None, polylines)
         out.write_diagnostics(self.diagnostics())
         if self.scene.output.checkpoint:
             out.save_checkpoint(self.state, self._meta("output"))
@@ -320,6 +326,12 @@ class Simulation:
         sim.state = state
         sim.output.restore(meta["output"])
         return sim
+
+
+def pack_tags(A, T):
+    """CPIC tags (n, nb) packed per particle as the reference code does: bit ``2r+1`` = A, bit ``2r`` = T (int32)."""
+    shifts = 2 * np.arange(A.shape[1])
+    return ((A.astype(np.int64) << (shifts + 1)) | (T.astype(np.int64) << shifts)).sum(axis=1).astype(np.int32)
 
 
 def _progress(steps, t_end, t0, enabled):

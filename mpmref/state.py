@@ -29,6 +29,10 @@ class Particles:
                          (default ``0 .. n-1``)
     level : (n,) int64   asynchronous stepping only: the exponent ``k`` of the particle's last step of
                          ``2^k`` ticks, or ``None``
+    tag_A, tag_T : (n, nb) bool   CPIC (scenes with rigid bodies) only: the particle's affinity and side tag per
+                         body, kept from step to step (:func:`mpmref.physics.cdf.update_tags`), or ``None``
+    phi, normal, near : (n,), (n, d), (n,) bool   CPIC only: the particle's signed distance, normal and ``near``
+                         flag reconstructed at the start of its last step (:func:`mpmref.physics.cdf.reconstruct`)
     """
 
     x: np.ndarray
@@ -43,6 +47,11 @@ class Particles:
     modes: np.ndarray | None = None
     id: np.ndarray | None = None
     level: np.ndarray | None = None
+    tag_A: np.ndarray | None = None
+    tag_T: np.ndarray | None = None
+    phi: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    near: np.ndarray | None = None
 
     def __post_init__(self):
         if self.id is None:
@@ -151,11 +160,17 @@ class Grid:
 
 @dataclass
 class GridState:
-    """Grid quantities after P2G: node mass (N,), momentum (N, d) and internal force (N, d)."""
+    """Grid quantities after P2G: node mass (N,), momentum (N, d) and internal force (N, d).
+
+    With CPIC, also what particles did not give incompatible nodes (N, d): ``rejected_momentum`` and
+    ``rejected_force`` (:func:`mpmref.backends.numpy.transfers.p2g`); ``None`` otherwise.
+    """
 
     mass: np.ndarray
     momentum: np.ndarray
     force: np.ndarray
+    rejected_momentum: np.ndarray | None = None
+    rejected_force: np.ndarray | None = None
 
 
 @dataclass
@@ -173,6 +188,8 @@ class State:
     deleted : int           particles removed at the domain edge so far
     clamped : int           particles clamped back inside at the domain edge so far (a particle each time)
     stepper : dict          the stepper's own arrays (e.g. block levels), saved with checkpoints
+    rigid : RigidState or None   the rigid bodies' pose, velocity and received impulse (CPIC scenes only;
+                            :class:`mpmref.physics.rigid_dynamics.RigidState`), saved with checkpoints
     """
 
     particles: Particles
@@ -183,6 +200,7 @@ class State:
     deleted: int = 0
     clamped: int = 0
     stepper: dict = field(default_factory=dict)
+    rigid: object = None
 
     def clock(self):
         """The scalar fields as a JSON-ready dict (what a checkpoint stores besides arrays)."""

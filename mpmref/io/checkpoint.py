@@ -1,6 +1,7 @@
 """Checkpoints: the whole :class:`~mpmref.state.State` plus the run's bookkeeping, in one ``.npz`` written atomically.
 
-Arrays are stored bit for bit (particles with their ids, and the stepper's own arrays), so a run resumed
+Arrays are stored bit for bit (particles with their ids and CPIC tags, the stepper's own arrays and the rigid
+bodies' state), so a run resumed
 from a checkpoint continues exactly as the original, synchronous or asynchronous.
 """
 
@@ -8,6 +9,7 @@ import json
 
 import numpy as np
 
+from ..physics.rigid_dynamics import RigidState
 from ..state import Particles, State
 from .atomic import atomic_path
 
@@ -16,6 +18,8 @@ def save_checkpoint(path, state, meta):
     """Write ``state`` and the JSON-serialisable ``meta`` dict to ``path`` atomically."""
     arrays = {f"particles.{k}": v for k, v in state.particles.arrays().items()}
     arrays.update({f"stepper.{k}": np.asarray(v) for k, v in state.stepper.items()})
+    if state.rigid is not None:
+        arrays.update({f"rigid.{k}": v for k, v in state.rigid.arrays().items()})
     meta = {**meta, "clock": state.clock()}
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
@@ -28,4 +32,6 @@ def load_checkpoint(path):
         meta = json.loads(str(data["meta"]))
         particles = {k.split(".", 1)[1]: data[k] for k in data.files if k.startswith("particles.")}
         stepper = {k.split(".", 1)[1]: data[k] for k in data.files if k.startswith("stepper.")}
-    return State(particles=Particles(**particles), stepper=stepper, **meta["clock"]), meta
+        rigid = {k.split(".", 1)[1]: data[k] for k in data.files if k.startswith("rigid.")}
+    return State(particles=Particles(**particles), stepper=stepper, rigid=RigidState(**rigid) if rigid else None,
+                 **meta["clock"]), meta

@@ -6,12 +6,12 @@ from pathlib import Path
 
 from .atomic import write_text_atomic
 from .checkpoint import load_checkpoint, save_checkpoint
-from .vtk import write_grid_vti, write_particles_vtu, write_pvd
+from .vtk import write_grid_vti, write_particles_vtu, write_polylines_vtp, write_pvd
 
 CHECKPOINT_NAME = "checkpoint.npz"
 #: the files a run writes into its folder (``last_good_*`` only when it fails)
-RUN_FILE_PATTERNS = ("particles_*.vtu", "grid_*.vti", "particles.pvd", "grid.pvd", "diagnostics.csv",
-                     CHECKPOINT_NAME, "last_good_*.npz")
+RUN_FILE_PATTERNS = ("particles_*.vtu", "grid_*.vti", "rigid_bodies_*.vtp", "particles.pvd", "grid.pvd",
+                     "rigid_bodies.pvd", "diagnostics.csv", CHECKPOINT_NAME, "last_good_*.npz")
 
 
 def run_files(folder):
@@ -39,13 +39,15 @@ class RunOutput:
         self.scene = scene
         self.particle_series = []  # [(time, file)]
         self.grid_series = []
+        self.rigid_series = []
         self.rows = []  # diagnostics rows (dicts)
 
     @property
     def checkpoint_path(self):
         return self.dir / CHECKPOINT_NAME
 
-    def write_frame(self, step, time, x, point_data, grid_data=None):
+    def write_frame(self, step, time, x, point_data, grid_data=None, polylines=None):
+        """Write one frame: particles, and the grid (``grid_data``) and rigid bodies (``polylines``) if given."""
         name = f"particles_{step:06d}.vtu"
         write_particles_vtu(self.dir / name, x, point_data)
         self.particle_series.append((time, name))
@@ -56,6 +58,11 @@ class RunOutput:
             write_grid_vti(self.dir / gname, g.origin, g.dx, g.node_shape, grid_data)
             self.grid_series.append((time, gname))
             write_pvd(self.dir / "grid.pvd", self.grid_series)
+        if polylines is not None:
+            rname = f"rigid_bodies_{step:06d}.vtp"
+            write_polylines_vtp(self.dir / rname, polylines)
+            self.rigid_series.append((time, rname))
+            write_pvd(self.dir / "rigid_bodies.pvd", self.rigid_series)
 
     def write_diagnostics(self, row):
         self.rows.append(row)
@@ -66,11 +73,13 @@ class RunOutput:
         write_text_atomic(self.dir / "diagnostics.csv", buf.getvalue())
 
     def bookkeeping(self):
-        return {"particle_series": self.particle_series, "grid_series": self.grid_series, "rows": self.rows}
+        return {"particle_series": self.particle_series, "grid_series": self.grid_series,
+                "rigid_series": self.rigid_series, "rows": self.rows}
 
     def restore(self, book):
         self.particle_series = [tuple(e) for e in book["particle_series"]]
         self.grid_series = [tuple(e) for e in book["grid_series"]]
+        self.rigid_series = [tuple(e) for e in book.get("rigid_series", [])]
         self.rows = list(book["rows"])
 
     def save_checkpoint(self, state, meta, path=None):

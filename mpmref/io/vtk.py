@@ -51,6 +51,44 @@ def write_grid_vti(path, origin, dx, node_shape, point_data):
         img.save(str(tmp))
 
 
+def write_polylines_vtp(path, polylines):
+    """Write 2D polylines as one VTK PolyData file (ASCII ``.vtp``; line cells, cell data ``body``), atomically.
+
+    ``polylines`` is a list of ``(vertices (n, 2), segments (m, 2))``, one per body; the ``body`` cell
+    array holds each segment's body index.
+    """
+    points, lines, body, offset = [], [], [], 0
+    for r, (vertices, segments) in enumerate(polylines):
+        points.append(_pad3(np.asarray(vertices, dtype=np.float64)))
+        lines.append(np.asarray(segments, dtype=np.int64) + offset)
+        body.append(np.full(len(segments), r, dtype=np.int64))
+        offset += len(vertices)
+    points, lines, body = np.concatenate(points), np.concatenate(lines), np.concatenate(body)
+
+    def ascii(a, fmt):
+        return " ".join(fmt % v for v in np.ravel(a))
+
+    text = f"""<?xml version="1.0"?>
+<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">
+  <PolyData>
+    <Piece NumberOfPoints="{len(points)}" NumberOfVerts="0" NumberOfLines="{len(lines)}" NumberOfStrips="0" NumberOfPolys="0">
+      <Points>
+        <DataArray type="Float64" NumberOfComponents="3" format="ascii">{ascii(points, "%.17g")}</DataArray>
+      </Points>
+      <Lines>
+        <DataArray type="Int64" Name="connectivity" format="ascii">{ascii(lines, "%d")}</DataArray>
+        <DataArray type="Int64" Name="offsets" format="ascii">{ascii(2 * np.arange(1, len(lines) + 1), "%d")}</DataArray>
+      </Lines>
+      <CellData Scalars="body">
+        <DataArray type="Int64" Name="body" format="ascii">{ascii(body, "%d")}</DataArray>
+      </CellData>
+    </Piece>
+  </PolyData>
+</VTKFile>
+"""
+    write_text_atomic(path, text)
+
+
 def write_pvd(path, entries):
     """Write a ParaView collection file listing ``entries`` = [(time, relative_file), ...], atomically."""
     lines = ['<?xml version="1.0"?>',

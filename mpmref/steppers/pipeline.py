@@ -2,13 +2,15 @@ r"""The MPM step, written once: the stages of a backend composed in order.
 
 .. math::
 
-    \text{prepare} \to \text{P2G} \to [\text{hooks on } (m_i, (mv)_i, f_i)] \to \text{grid update}
-    \to \text{G2P} \to \text{return map}
+    \text{prepare} \to [\text{CPIC contact}] \to \text{P2G} \to [\text{hooks on } (m_i, (mv)_i, f_i)]
+    \to \text{grid update} \to \text{G2P} \to \text{return map} \to [\text{rigid step}]
 
 Every stepper advances particles with :func:`substep` (the synchronous one for all particles at once, the
 asynchronous one for the particles of a group of blocks plus their ghosts). :class:`Hooks` let a caller
 add what a special step needs without rewriting it: a body force per unit mass, and grid folds applied to
-the grid state before the grid update (e.g. the symmetry planes of the convergence case).
+the grid state before the grid update (e.g. the symmetry planes of the convergence case). A scene with
+rigid bodies couples them by CPIC (Hu et al. 2018 §4–5; docs/cpic.md) in the same step: the bracketed
+stages, and P2G and G2P that respect compatibility.
 """
 
 from dataclasses import dataclass
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..physics.kernels import compute_stencil
+from ..physics.rigid_dynamics import apply_impulses, begin_step, end_step
 
 
 @dataclass(frozen=True)
@@ -54,20 +57,50 @@ def nodal_body_force(particles, grid, kernel, b):
     return f
 
 
-def substep(backend, particles, dt, time, hooks=NO_HOOKS):
+def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
     """One symplectic-Euler MPM step of ``particles`` from ``time`` with step ``dt``; returns new particles.
 
     The only place the stages are composed: prepare, P2G, the hooks, grid update (gravity, walls and
     colliders at ``time``), G2P and the return map. ``particles`` is not modified.
+
+    With rigid bodies (``rigid``, a :class:`~mpmref.physics.rigid_dynamics.RigidState`), the step couples
+    them by CPIC and returns ``(particles, rigid)``: the colored distance field of the bodies where they
+    are and the particles' sticky tags (``cpic_contact``), P2G to compatible nodes only, the impulses of
+    incompatible nodes on the bodies, G2P with ghost velocities and the penalty (``cpic_g2p``), then the
+    rigid step (spec B2-B7 of the reference code, written up in docs/cpic.md).
     """
     scene = backend.scene
     with backend.running(particles.n):
         prepared = backend.prepare(particles)  # the stencil is shared: particles do not move until G2P
-        grid_state = backend.p2g(particles, prepared)
+        contact = None
+        if rigid is not None:
+            rigid = begin_step(scene.rigid_bodies, rigid, time, dt)
+            particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
+        grid_state = backend.p2g(particles, prepared) if contact is None else backend.p2g(particles, prepared, contact)
         if hooks.body_force is not None:
             f = nodal_body_force(particles, scene.grid, scene.kernel, hooks.body_force(particles, time))
             grid_state.force += f.astype(grid_state.force.dtype)
         for fold in hooks.grid_folds:
             fold(grid_state, scene.grid)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
-        return backend.return_map(backend.g2p(particles, v_grid, v_tilde, dt, prepared))
+        if contact is None:
+            return backend.return_map(backend.g2p(particles, v_grid, v_tilde, dt, prepared))
+        return _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time)
+
+
+def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time):
+    r"""The CPIC end of :func:`substep`: impulses, G2P with ghosts, the rigid step; returns ``(particles, rigid)``.
+
+    The impulses that incompatible nodes did not take in P2G change the dynamic bodies' velocities before
+    G2P (the reference's order), or, with ``method.momentum_exact``, after it: then the bodies' velocity
+    is the same in P2G and G2P, and particles plus bodies keep their total linear momentum exactly (spec
+    B8). The penalty's impulses are applied after G2P; then every body moves to ``time + dt``.
+    """
+    bodies, scene = backend.scene.rigid_bodies, backend.scene
+    J, L = backend.cpic_impulses(grid_state, contact, rigid, dt)
+    exact = scene.method.momentum_exact
+    seen = rigid if exact else apply_impulses(bodies, rigid, J, L)  # the bodies G2P sees
+    new, (J_pen, L_pen) = backend.cpic_g2p(particles, v_grid, dt, prepared, contact, seen)
+    new = backend.return_map(new)
+    after = (J + J_pen, L + L_pen) if exact else (J_pen, L_pen)
+    return new, end_step(bodies, apply_impulses(bodies, seen, *after), time, dt, scene.gravity)

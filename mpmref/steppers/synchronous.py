@@ -2,6 +2,9 @@
 
 from dataclasses import replace
 
+import numpy as np
+
+from ..physics import rigid_dynamics
 from ..state import State
 from .limits import cfl_time_step, signal_speeds
 from .pipeline import NO_HOOKS, substep
@@ -19,7 +22,11 @@ class SynchronousStepper:
         self.scene, self.backend, self.hooks = scene, backend, hooks
 
     def initial_state(self, particles):
-        return State(particles=particles, tick_length=self.scene.time.dt)
+        bodies = self.scene.rigid_bodies
+        if not bodies:
+            return State(particles=particles, tick_length=self.scene.time.dt)
+        return State(particles=with_cpic_tags(particles, len(bodies)), tick_length=self.scene.time.dt,
+                     rigid=rigid_dynamics.initial_state(bodies))
 
     def time_step(self, particles):
         t = self.scene.time
@@ -38,17 +45,33 @@ class SynchronousStepper:
             dt = self.time_step(state.particles)
             if t_end is not None:
                 dt = min(dt, t_end - state.time)
-        particles = substep(self.backend, state.particles, dt, state.time, self.hooks)
-        return replace(state, particles=particles, step=state.step + 1, time=state.time + dt, tick=state.tick + 1)
+        rigid = state.rigid
+        if rigid is None:
+            particles = substep(self.backend, state.particles, dt, state.time, self.hooks)
+        else:
+            particles, rigid = substep(self.backend, state.particles, dt, state.time, self.hooks, rigid)
+        return replace(state, particles=particles, step=state.step + 1, time=state.time + dt, tick=state.tick + 1,
+                       rigid=rigid)
 
     def updates(self, old, new):
         """Particle updates made between two states: every particle once per step."""
         return old.particles.n * (new.step - old.step)
 
     def diagnostics(self, state):
-        """Stepper columns of ``diagnostics.csv`` (none for synchronous stepping)."""
-        return {}
+        """Stepper columns of ``diagnostics.csv``: the rigid bodies' (none without bodies)."""
+        if state.rigid is None:
+            return {}
+        return rigid_dynamics.diagnostics(self.scene.rigid_bodies, state.rigid)
 
     def summary(self, state):
         """Stepper figures for the run summary (none for synchronous stepping)."""
         return {}
+
+
+def with_cpic_tags(particles, n_bodies):
+    """``particles`` with CPIC's per-particle state allocated where it is missing (no tags, not near)."""
+    if particles.tag_A is not None:
+        return particles
+    n, d = particles.x.shape
+    return particles.with_(tag_A=np.zeros((n, n_bodies), dtype=bool), tag_T=np.zeros((n, n_bodies), dtype=bool),
+                           phi=np.zeros(n), normal=np.zeros((n, d)), near=np.zeros(n, dtype=bool))

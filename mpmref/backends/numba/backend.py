@@ -5,6 +5,7 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 
+from ...errors import SceneError
 from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
@@ -73,6 +74,10 @@ class NumbaBackend:
     name = "numba"
 
     def __init__(self, scene):
+        if scene.rigid_bodies:
+            n = len(scene.rigid_bodies)
+            raise SceneError("rigid_bodies", f"{n} bod{'y' if n == 1 else 'ies'}", "none with backend 'numba' (CPIC "
+                             "coupling runs on the NumPy reference backend only for now; use backend 'numpy')")
         self.scene = scene
         grid = scene.grid
         self.dtype = scene.dtype

@@ -3,7 +3,7 @@
 from ...physics.catalogue import MATERIALS
 from ...physics.materials import kirchhoff_stress_of
 from ..base import MaterialTable, serial_context
-from . import transfers
+from . import cpic, transfers
 
 
 def _stress_kernel(material, particles, idx, tau):
@@ -48,9 +48,10 @@ class NumpyBackend:
     def prepare(self, particles):
         return transfers.prepare(particles, self.scene.grid, self.kernel, self.scene.transfer)
 
-    def p2g(self, particles, prepared=None):
-        return transfers.p2g(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.transfer,
-                             prepared)
+    def p2g(self, particles, prepared=None, contact=None):
+        tau = self.stress(particles) if contact is None else contact.tau  # CPIC computed it for the ghosts
+        return transfers.p2g(particles, tau, self.scene.grid, self.kernel, self.scene.transfer,
+                             prepared, contact)
 
     def grid_update(self, grid_state, dt, time=0.0):
         return transfers.grid_update(grid_state, self.scene.grid, dt, self.gravity, self.scene.boundary.walls,
@@ -59,3 +60,17 @@ class NumpyBackend:
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
         return transfers.g2p(particles, v_grid, v_tilde, self.scene.grid, self.kernel, self.scene.transfer, dt,
                              prepared)
+
+    # CPIC stages (scenes with rigid bodies; :mod:`.cpic`)
+    def cpic_contact(self, particles, prepared, rigid, dt):
+        return cpic.contact(particles, prepared, self.scene.rigid_bodies, rigid, self.scene.grid, dt, self.gravity,
+                            self.stress(particles), transfers.GRADIENT_WEIGHTS[self.scene.transfer.force],
+                            self.scene.method.ghost_force)
+
+    def cpic_impulses(self, grid_state, contact, rigid, dt):
+        return cpic.impulses(grid_state, contact, rigid, dt)
+
+    def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid):
+        m = self.scene.method
+        return cpic.g2p(particles, v_grid, self.scene.grid, self.kernel, self.scene.transfer, dt, prepared, contact,
+                        rigid, m.pushing_force, m.penalty)

@@ -64,7 +64,7 @@ def prepare(particles, grid, kernel, spec):
     return st, (polypic_basis(st, grid) if spec.polypic else None)
 
 
-def p2g(particles, tau, grid, kernel, spec, prepared=None):
+def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None):
     r"""Particle to grid: node mass, momentum and internal force.
 
     .. math::
@@ -90,6 +90,10 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None):
     kernel : kernel object  (``mpmref.physics.kernels``)
     spec : TransferSpec    the resolved scheme (:mod:`mpmref.physics.scheme`)
     prepared : output of :func:`prepare` for these particles (computed here if ``None``)
+    contact : CPIC only (:class:`mpmref.backends.numpy.cpic.Contact`): particles give mass, momentum and
+        force only to compatible nodes; what they would have given an incompatible node is collected there
+        as ``rejected_momentum`` :math:`\sum_p m_p w_{ip}(v^*_p - \tilde v_i)` and ``rejected_force``
+        :math:`-\sum_p V_p^0 \tau_p g_{ip}` (Hu et al. 2018 §4–5; spec B6)
     """
     st, basis = prepared or prepare(particles, grid, kernel, spec)
     gradient_weight = GRADIENT_WEIGHTS[spec.force]
@@ -98,10 +102,19 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None):
     mass = np.zeros(n_nodes)
     momentum = np.zeros((n_nodes, grid.dim))
     force = np.zeros((n_nodes, grid.dim))
-    for offset in st.offsets:
+    rejected_momentum = np.zeros((n_nodes, grid.dim)) if contact is not None else None
+    rejected_force = np.zeros((n_nodes, grid.dim)) if contact is not None else None
+    for k, offset in enumerate(st.offsets):
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
         dpos = st.node_offset_vector(offset)
+        gw = gradient_weight(st, w, dpos, offset)
+        if contact is not None:
+            keep = contact.compatible[k]
+            rejected = w * m * ~keep
+            rejected_momentum += scatter(idx, rejected[:, None] * (contact.v_star - contact.ghost[k]), n_nodes)
+            rejected_force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gw * ~keep[:, None]), n_nodes)
+            w, gw = w * keep, gw * keep[:, None]
         p_mom = particles.v
         if spec.affine:
             p_mom = p_mom + np.einsum("nab,nb->na", particles.C, dpos)
@@ -109,9 +122,10 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None):
             p_mom = p_mom + np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]), particles.modes)
         mass += scatter(idx, w * m, n_nodes)
         momentum += scatter(idx, (w * m)[:, None] * p_mom, n_nodes)
-        force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gradient_weight(st, w, dpos, offset)), n_nodes)
+        force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gw), n_nodes)
     dtype = particles.x.dtype
-    return GridState(mass=mass.astype(dtype), momentum=momentum.astype(dtype), force=force.astype(dtype))
+    return GridState(mass=mass.astype(dtype), momentum=momentum.astype(dtype), force=force.astype(dtype),
+                     rejected_momentum=rejected_momentum, rejected_force=rejected_force)
 
 
 def polypic_basis(stencil, grid):
@@ -169,7 +183,7 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     return v, v_tilde
 
 
-def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None):
+def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost=None):
     r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
     .. math::
@@ -188,7 +202,9 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None):
     classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``spec.gradient`` chooses it, independently of
     the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are the projections of
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
-    ``prepared`` is the output of :func:`prepare` (computed here if ``None``). Returns new
+    ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
+    ``(compatible (K, n), ghost velocities (K, n, d))``: at a node incompatible with the particle, its ghost
+    velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; spec B7). Returns new
     :class:`~mpmref.state.Particles`; the input is not modified.
 
     Docs: docs/mls_vs_classic.md#consistency-with-apics-affine-field, docs/mls_vs_classic.md#two-gradient-weights,
@@ -205,10 +221,10 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None):
     grad_v = np.zeros((n, d, d), dtype=dtype) if not spec.mls_gradient else None
     dv_flip = np.zeros((n, d), dtype=dtype) if spec.flip else None
     modes = np.zeros_like(particles.modes) if basis is not None else None
-    for offset in st.offsets:
+    for k, offset in enumerate(st.offsets):
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
-        vi = v_grid[idx]
+        vi = v_grid[idx] if ghost is None else np.where(ghost[0][k][:, None], v_grid[idx], ghost[1][k])
         v_pic += w[:, None] * vi
         if need_B:
             B += np.einsum("na,nb->nab", w[:, None] * vi, st.node_offset_vector(offset))

@@ -1,0 +1,307 @@
+r"""Rigid-body motion for CPIC in 2D: the declared bodies, their state, scripts, impulses and integration.
+
+A body is a :class:`~mpmref.physics.rigid.Polyline` declared at time 0 with a reference point
+:math:`\mathbf c_0` (its centre of mass for a dynamic body, the declared ``center`` or the vertex centroid
+otherwise). Its pose at a later time is a translation of the reference point to :math:`\mathbf c` and a
+rotation by :math:`\theta` about it:
+
+.. math:: \mathbf x = \mathbf c + R(\theta)(\mathbf x^0 - \mathbf c_0),
+
+and the velocity of a point :math:`\mathbf x` of the body is
+:math:`\mathbf v_r(\mathbf x) = \mathbf v + \omega \hat{\mathbf z} \times (\mathbf x - \mathbf c)`.
+
+Motions:
+
+* ``fixed``: never moves (infinite mass and inertia);
+* ``scripted``: a constant velocity and angular velocity, or piecewise-linear keyframes of offset and
+  angle; infinite mass and inertia (Hu et al. 2018 §6; spec B1). Its velocity over a step is the finite
+  difference of the script over that step;
+* ``dynamic``: mass and inertia from a density per unit length (an open, zero-thickness body) or per unit
+  area (a closed one); moved by the impulses it receives from the material and by gravity (spec B6–B7).
+
+Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
+Discontinuity and Two-Way Rigid Body Coupling", §5 (two-way coupling: the rigid body receives the momentum
+the material could not give to the grid); the integration order is the spec's reference code's (B7).
+"""
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .rigid import Polyline
+
+MOTIONS = ("fixed", "scripted", "dynamic")
+CONTACT_TYPES = ("sticky", "slip", "separate")
+
+
+@dataclass(frozen=True)
+class RigidBody:
+    """A declared rigid body (static facts; what moves is in :class:`RigidState`).
+
+    Attributes
+    ----------
+    shape : Polyline            the geometry at time 0
+    motion : str                ``"fixed"``, ``"scripted"`` or ``"dynamic"``
+    center : (2,) array         reference point :math:`\\mathbf c_0` (centre of mass if dynamic)
+    mass, inertia : float       :math:`M` and :math:`I` about the centre (``inf`` unless dynamic)
+    velocity : (2,) array       initial (dynamic) or constant (scripted) velocity
+    angular_velocity : float    initial (dynamic) or constant (scripted) angular velocity
+    keyframes : tuple           scripted keyframes ``(time, offset (2,), angle)``, sorted; empty if none
+    gravity : bool              a dynamic body feels the scene's gravity
+    friction : (2,) array       the encoded friction value :math:`\\mu` of side 0 and side 1 (:func:`encode_friction`)
+    """
+
+    shape: Polyline
+    motion: str
+    center: np.ndarray
+    mass: float = np.inf
+    inertia: float = np.inf
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    angular_velocity: float = 0.0
+    keyframes: tuple = ()
+    gravity: bool = False
+    friction: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+@dataclass
+class RigidState:
+    """What changes of every body, as arrays over bodies (saved bit for bit in checkpoints).
+
+    Attributes
+    ----------
+    position : (nb, 2)          reference point :math:`\\mathbf c`
+    angle : (nb,)               rotation :math:`\\theta` since time 0
+    velocity : (nb, 2)          :math:`\\mathbf v` (over the current step, for a scripted body)
+    angular_velocity : (nb,)    :math:`\\omega`
+    impulse : (nb, 2)           linear impulse received from the material since time 0
+    angular_impulse : (nb,)     angular impulse about the reference point received since time 0
+    """
+
+    position: np.ndarray
+    angle: np.ndarray
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+    impulse: np.ndarray
+    angular_impulse: np.ndarray
+
+    def arrays(self):
+        """Mapping of field name to array (what a checkpoint stores)."""
+        return dict(self.__dict__)
+
+    def with_(self, **changes):
+        return replace(self, **changes)
+
+
+def encode_friction(kind, coefficient):
+    r"""The one number :math:`\mu` of the friction projection (:func:`friction_projection`) for a contact type.
+
+    ``sticky`` -> :math:`-1`; ``separate`` with coefficient :math:`c` -> :math:`c \ge 0`; ``slip`` with
+    coefficient :math:`c` -> :math:`-c - 2 \le -2` (spec B5's encoding of the talk's Eq. 25 types).
+    """
+    if kind == "sticky":
+        return -1.0
+    return float(coefficient) if kind == "separate" else -float(coefficient) - 2.0
+
+
+def friction_projection(v, v_body, normal, mu):
+    r"""The friction projection :math:`\Pi(\mathbf v; \mathbf v_b, \mathbf n, \mu)` of velocities against a body.
+
+    With :math:`\mathbf u = \mathbf v - \mathbf v_b`, :math:`u_n = \mathbf n\cdot\mathbf u`,
+    :math:`\mathbf u_t = \mathbf u - u_n \mathbf n`:
+
+    * :math:`\mu = -1` (sticky): :math:`\Pi = \mathbf v_b`;
+    * otherwise, with :math:`\mu' = \mu` if :math:`\mu \ge 0` (separate) and :math:`\mu' = -\mu - 2` if
+      :math:`\mu \le -2` (slip),
+
+      .. math:: \mathbf u_t' = \max(|\mathbf u_t| + \mu' \min(u_n, 0),\ 0)\, \frac{\mathbf u_t}{|\mathbf u_t|},
+                \qquad \Pi = \mathbf v_b + \mathbf u_t' + \begin{cases} \max(u_n, 0)\,\mathbf n & \mu \ge 0 \\
+                0 & \mu \le -2. \end{cases}
+
+    This is the talk's Eq. 25 (sticky, slip, separate with Coulomb friction) applied to a particle's
+    velocity relative to a body (Hu et al. 2018 §5; spec B5).
+
+    Parameters
+    ----------
+    v, v_body : (..., 2) arrays     velocity :math:`\mathbf v` and body velocity :math:`\mathbf v_b`
+    normal : (..., 2) array         unit normal :math:`\mathbf n` pointing to the particle's side (or 0)
+    mu : (...) array                encoded friction (:func:`encode_friction`)
+    """
+    u = v - v_body
+    un = np.einsum("...d,...d->...", normal, u)
+    ut = u - un[..., None] * normal
+    ut_norm = np.linalg.norm(ut, axis=-1)
+    coeff = np.where(mu >= 0.0, mu, -mu - 2.0)
+    scale = np.maximum(ut_norm + coeff * np.minimum(un, 0.0), 0.0) / np.where(ut_norm > 0.0, ut_norm, 1.0)
+    normal_part = np.where((mu >= 0.0)[..., None], np.maximum(un, 0.0)[..., None] * normal, 0.0)
+    out = v_body + scale[..., None] * ut + normal_part
+    return np.where((mu == -1.0)[..., None], v_body, out)
+
+
+# ------------------------------------------------------------------------------------ mass properties
+def line_mass_properties(shape, density):
+    r"""Mass, centre and inertia of a zero-thickness polyline of linear density :math:`\rho`.
+
+    .. math:: M = \rho \sum_k \ell_k, \quad \mathbf c = \frac{\rho}{M}\sum_k \ell_k \mathbf m_k, \quad
+              I = \rho \sum_k \left(\frac{\ell_k^3}{12} + \ell_k |\mathbf m_k - \mathbf c|^2\right)
+
+    (:math:`\mathbf m_k` the segment midpoints; a thin rod's inertia plus the parallel-axis term). Spec B1:
+    thin shells take mass and inertia from their length.
+    """
+    lengths = shape.lengths
+    mid = 0.5 * (shape.starts + shape.ends)
+    mass = density * lengths.sum()
+    center = density * (lengths[:, None] * mid).sum(axis=0) / mass
+    inertia = density * np.sum(lengths**3 / 12.0 + lengths * np.sum((mid - center) ** 2, axis=1))
+    return float(mass), center, float(inertia)
+
+
+def area_mass_properties(shape, density):
+    r"""Mass, centre and inertia of the region enclosed by a closed polyline of areal density :math:`\rho`.
+
+    With :math:`\mathbf a_k \times \mathbf b_k` the cross product of segment :math:`k`'s end points
+    (Green's theorem, the shoelace formulas):
+
+    .. math:: A = \tfrac12 \sum_k \mathbf a_k\times\mathbf b_k, \quad
+              \mathbf c = \frac{1}{6A}\sum_k (\mathbf a_k + \mathbf b_k)(\mathbf a_k\times\mathbf b_k), \quad
+              I_0 = \frac{\rho}{12}\sum_k (\mathbf a_k\times\mathbf b_k)(|\mathbf a_k|^2 + \mathbf a_k\cdot\mathbf b_k
+              + |\mathbf b_k|^2),
+
+    :math:`M = \rho |A|`, :math:`I = |I_0| - M|\mathbf c|^2` (parallel axis). The segments must be
+    consistently oriented (each vertex starts one segment and ends one). Spec B1: solid bodies take
+    mass from their enclosed area.
+    """
+    a, b = shape.starts, shape.ends
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    area = 0.5 * cross.sum()
+    center = ((a + b) * cross[:, None]).sum(axis=0) / (6.0 * area)
+    i0 = density / 12.0 * np.sum(cross * (np.sum(a * a, axis=1) + np.sum(a * b, axis=1) + np.sum(b * b, axis=1)))
+    mass = density * abs(area)
+    return float(mass), center, float(abs(i0) - mass * center @ center)
+
+
+# ------------------------------------------------------------------------------------------ state
+def initial_state(bodies):
+    """The :class:`RigidState` at time 0 of the declared ``bodies``."""
+    nb = len(bodies)
+    return RigidState(position=np.array([b.center for b in bodies], dtype=np.float64).reshape(nb, 2),
+                      angle=np.zeros(nb),
+                      velocity=np.array([b.velocity if b.motion != "fixed" else np.zeros(2) for b in bodies],
+                                        dtype=np.float64).reshape(nb, 2),
+                      angular_velocity=np.array([b.angular_velocity if b.motion != "fixed" else 0.0
+                                                 for b in bodies], dtype=np.float64),
+                      impulse=np.zeros((nb, 2)), angular_impulse=np.zeros(nb))
+
+
+def rotation(theta):
+    """The 2D rotation matrix :math:`R(\\theta)`."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def posed_shape(body, position, angle):
+    r"""The body's polyline at pose (``position``, ``angle``): :math:`\mathbf x = \mathbf c + R(\theta)(\mathbf x^0 - \mathbf c_0)`."""
+    vertices = position + (body.shape.vertices - body.center) @ rotation(angle).T
+    return Polyline(vertices=vertices, segments=body.shape.segments, closed=body.shape.closed)
+
+
+def current_shapes(bodies, state):
+    """Every body's polyline where the state puts it."""
+    return [posed_shape(b, state.position[r], state.angle[r]) for r, b in enumerate(bodies)]
+
+
+def scripted_pose(body, t):
+    r"""Offset of the reference point from :math:`\mathbf c_0` and angle of a scripted body at time ``t``.
+
+    Constant rates: :math:`(\mathbf v t,\ \omega t)`. Keyframes :math:`(t_k, \mathbf o_k, \theta_k)`:
+    linear interpolation between them, held constant before the first and after the last.
+    """
+    if not body.keyframes:
+        return body.velocity * t, body.angular_velocity * t
+    times = np.array([k[0] for k in body.keyframes])
+    offsets = np.array([k[1] for k in body.keyframes])
+    angles = np.array([k[2] for k in body.keyframes])
+    offset = np.array([np.interp(t, times, offsets[:, a]) for a in range(2)])
+    return offset, float(np.interp(t, times, angles))
+
+
+def begin_step(bodies, state, time, dt):
+    """The state with each scripted body's velocity over the step ``[time, time + dt]`` (finite difference)."""
+    velocity, omega = state.velocity.copy(), state.angular_velocity.copy()
+    for r, body in enumerate(bodies):
+        if body.motion == "scripted":
+            (o0, a0), (o1, a1) = scripted_pose(body, time), scripted_pose(body, time + dt)
+            velocity[r], omega[r] = (o1 - o0) / dt, (a1 - a0) / dt
+    return state.with_(velocity=velocity, angular_velocity=omega)
+
+
+def point_velocity(state, body_ids, x):
+    r"""Velocity :math:`\mathbf v_r + \omega_r \hat{\mathbf z}\times(\mathbf x - \mathbf c_r)` of body ``body_ids`` at ``x`` (..., 2)."""
+    r = state.position[body_ids]
+    w = state.angular_velocity[body_ids][..., None]
+    rel = x - r
+    return state.velocity[body_ids] + w * np.stack([-rel[..., 1], rel[..., 0]], axis=-1)
+
+
+def body_impulses(n_bodies, body_ids, x, impulse, position):
+    r"""Sum impulses :math:`\mathbf J` applied at points ``x`` to bodies ``body_ids``: linear and angular.
+
+    Returns ``(J, L)``: :math:`\mathbf J_r = \sum \mathbf J` and :math:`L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J`
+    about each body's reference point (spec B6, "after all particles").
+    """
+    rel = x - position[body_ids]
+    torque = rel[:, 0] * impulse[:, 1] - rel[:, 1] * impulse[:, 0]
+    J = np.stack([np.bincount(body_ids, weights=impulse[:, a], minlength=n_bodies) for a in range(2)], axis=1)
+    return J, np.bincount(body_ids, weights=torque, minlength=n_bodies)
+
+
+def apply_impulses(bodies, state, J, L):
+    r"""Record impulses ``J`` (nb, 2) and angular impulses ``L`` (nb,) and change the dynamic bodies' velocities.
+
+    .. math:: \mathbf v_r \mathrel{+}= \mathbf J_r / M_r, \qquad \omega_r \mathrel{+}= L_r / I_r
+
+    (spec B6). Fixed and scripted bodies have infinite mass: they only record what they received.
+    """
+    inv_m = np.array([1.0 / b.mass for b in bodies])
+    inv_i = np.array([1.0 / b.inertia for b in bodies])
+    return state.with_(velocity=state.velocity + J * inv_m[:, None],
+                       angular_velocity=state.angular_velocity + L * inv_i,
+                       impulse=state.impulse + J, angular_impulse=state.angular_impulse + L)
+
+
+def end_step(bodies, state, time, dt, gravity):
+    r"""Move every body to ``time + dt`` (spec B7, the rigid step after G2P).
+
+    Dynamic: :math:`\mathbf c \mathrel{+}= \Delta t\,\mathbf v`, :math:`\theta \mathrel{+}= \Delta t\,\omega`,
+    then the gravity impulse :math:`\mathbf v \mathrel{+}= \mathbf g \Delta t` (if the body feels gravity).
+    Scripted: the script's pose at ``time + dt``. Fixed: unchanged.
+    """
+    position, angle, velocity = state.position.copy(), state.angle.copy(), state.velocity.copy()
+    for r, body in enumerate(bodies):
+        if body.motion == "dynamic":
+            position[r] += dt * velocity[r]
+            angle[r] += dt * state.angular_velocity[r]
+            if body.gravity:
+                velocity[r] += dt * gravity
+        elif body.motion == "scripted":
+            offset, angle[r] = scripted_pose(body, time + dt)
+            position[r] = body.center + offset
+    return state.with_(position=position, angle=angle, velocity=velocity)
+
+
+def momentum(bodies, state):
+    """Linear momentum :math:`\\sum_r M_r \\mathbf v_r` of the dynamic bodies (finite mass), shape (2,)."""
+    return sum((b.mass * state.velocity[r] for r, b in enumerate(bodies) if b.motion == "dynamic"), np.zeros(2))
+
+
+def diagnostics(bodies, state):
+    """Per body ``r``: ``rigid{r}_`` position, angle, velocity, angular velocity and impulse received (dict)."""
+    out = {}
+    for r in range(len(bodies)):
+        out.update({f"rigid{r}_x": state.position[r, 0], f"rigid{r}_y": state.position[r, 1],
+                    f"rigid{r}_angle": state.angle[r], f"rigid{r}_vx": state.velocity[r, 0],
+                    f"rigid{r}_vy": state.velocity[r, 1], f"rigid{r}_omega": state.angular_velocity[r],
+                    f"rigid{r}_impulse_x": state.impulse[r, 0], f"rigid{r}_impulse_y": state.impulse[r, 1],
+                    f"rigid{r}_angular_impulse": state.angular_impulse[r]})
+    p = momentum(bodies, state)
+    out.update({"rigid_momentum_x": p[0], "rigid_momentum_y": p[1]})
+    return out
