@@ -1,6 +1,6 @@
 """Sphinx configuration of the mpmref documentation site.
 
-Build it with ``python -m mpmref.docs_build`` (after ``pip install -e '.[docs]'``). The Markdown pages in
+Build it with ``python docs/build.py`` (after ``pip install -e '.[docs]'``). The Markdown pages in
 this folder are the chapters, read by MyST-Parser as they are; ``api.md`` documents every module with
 autodoc and napoleon; ``sphinx.ext.viewcode`` renders the source with line numbers, and the local
 extension ``_ext/mpmref_links.py`` turns each link whose text is a qualified name into a link to that
@@ -27,11 +27,12 @@ extensions = [
     "sphinx.ext.viewcode",
     "sphinx.ext.mathjax",
     "mpmref_links",
+    "mpmref_figures",
 ]
 
 root_doc = "index"
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}  # .rst: the generated API pages
-exclude_patterns = ["_build"]
+exclude_patterns = ["_build", "_generated"]  # _generated: fragments that figures.md includes
 templates_path = ["_templates"]        # a module's API page: its docstrings, then its submodules (private too)
 
 myst_enable_extensions = ["dollarmath", "amsmath"]
