@@ -5,12 +5,11 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 
-from ...errors import SceneError
 from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
-from . import materials, transfers
+from . import cpic, materials, transfers
 from .blocks import sort_into_blocks
 from .stencil import BASE_SHIFT
 
@@ -74,9 +73,6 @@ class NumbaBackend:
     name = "numba"
 
     def __init__(self, scene):
-        if scene.rigid_bodies:
-            raise SceneError("rigid_bodies", f"{len(scene.rigid_bodies)} bodies", "none with backend 'numba' (CPIC "
-                             "coupling runs on the NumPy reference backend only for now; use backend 'numpy')")
         self.scene = scene
         grid = scene.grid
         self.dtype = scene.dtype
@@ -123,9 +119,12 @@ class NumbaBackend:
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
         return self.materials.return_map(particles)
 
-    def p2g(self, particles, prepared=None):
-        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent)."""
+    def p2g(self, particles, prepared=None, contact=None):
+        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent);
+        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`)."""
         blocks = prepared or self.prepare(particles)
+        if contact is not None:
+            return cpic.p2g(self, particles, blocks, contact)
         n, d = particles.x.shape
         N = self.scene.grid.n_nodes
         gs = GridState(mass=np.zeros(N, dtype=self.dtype), momentum=np.zeros((N, d), dtype=self.dtype),
@@ -167,6 +166,16 @@ class NumbaBackend:
             if getattr(particles, name) is not None:
                 changes[name] = array
         return particles.with_(**changes)
+
+    # ------------------------------------------------------------------ CPIC stages (:mod:`.cpic`)
+    def cpic_contact(self, particles, prepared, rigid, dt):
+        return cpic.contact(self, particles, rigid, dt)
+
+    def cpic_impulses(self, grid_state, contact, rigid, dt):
+        return cpic.impulses(grid_state, contact, rigid, dt)
+
+    def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid):
+        return cpic.g2p(self, particles, v_grid, dt, prepared or self.prepare(particles), contact, rigid)
 
     # ------------------------------------------------------------------ warm-up
     def warm_up(self, particles, per_material=2):

@@ -1,0 +1,638 @@
+r"""CPIC stages of the Numba backend (2D): the colored distance field, the particles' tags and distance,
+P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, compiled.
+
+The equations are those of the NumPy reference (:mod:`mpmref.backends.numpy.cpic`,
+:mod:`mpmref.physics.cdf`, :func:`mpmref.physics.rigid_dynamics.friction_projection`); Hu et al. 2018,
+SIGGRAPH, §4–5, as the spec's reference code does (spec B2–B8). What differs is only how the work is laid
+out:
+
+* the field is rasterised body by body, sample by sample, in the reference's order (so that its
+  deterministic tie rules — the nearest element decides a node's side, the lower body id wins a tie in
+  distance — give the same bits);
+* per particle, the contact keeps a bit mask of the compatible nodes of its transfer stencil instead of
+  ``(K, n)`` arrays; ghost velocities are formed inside P2G and G2P from the node's nearest body, the
+  particle's normal and friction, and the bodies' velocities of that stage;
+* P2G runs block-parallel by colour (:mod:`.blocks`), so each node receives its contributions, the rejected
+  momentum and force included, in a fixed order for any thread count;
+* impulses are reduced serially, node by node (P2G's) and particle by particle (the penalty's, written per
+  particle by the parallel G2P first): the same bits for any thread count, no atomics.
+
+Only the posing of the bodies' polylines and their surface samples (a few points per body, not per node or
+particle) stay in NumPy (:func:`mpmref.physics.rigid_dynamics.current_shapes`,
+:func:`mpmref.physics.rigid.surface_samples`).
+"""
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numba import njit, prange
+
+from ...physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, TAG_THRESHOLD, ColoredDistanceField
+from ...physics.rigid import surface_samples
+from ...physics.rigid_dynamics import current_shapes
+from ..numpy.cpic import PENALTY_WINDOW
+from ...state import GridState
+from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
+from .transfers import SOURCE_DIGEST
+
+
+@dataclass
+class Contact:
+    """What the Numba CPIC transfers of one step need.
+
+    Attributes
+    ----------
+    cdf : ColoredDistanceField  the field of the bodies at the start of the step
+    mask : (n,) int64           bit ``k`` set iff node ``base + offset_k`` of the transfer stencil is compatible
+    support : int               nodes per axis of the transfer stencil (``K = support**2`` offsets)
+    friction : (nb, 2)          encoded friction of each body's side 0 and side 1
+    v_star : (n, 2)             the particle's velocity with this step's gravity
+    rigid : RigidState          the bodies as P2G sees them (their velocities give P2G's ghost velocities)
+    """
+
+    cdf: ColoredDistanceField
+    mask: np.ndarray
+    support: int
+    friction: np.ndarray
+    v_star: np.ndarray
+    rigid: object
+
+    @property
+    def compatible(self):
+        """``(K, n)`` bool: node ``k`` of particle ``p``'s stencil is compatible (the reference's layout)."""
+        k = np.arange(self.support**2, dtype=np.int64)
+        return ((self.mask[None, :] >> k[:, None]) & 1).astype(bool)
+
+
+# ------------------------------------------------------------------------------------------ the field
+def body_samples(bodies, rigid, dx):
+    """Surface samples of every body where ``rigid`` puts it, concatenated body by body.
+
+    Returns ``(x (k, 2), segment (k,) global segment index, start (nb + 1,) first sample of each body,
+    seg_a (m, 2), seg_b (m, 2))``.
+    """
+    xs, segs, starts, seg_a, seg_b = [], [], [0], [], []
+    offset = 0
+    for shape in current_shapes(bodies, rigid):
+        x, seg = surface_samples(shape, dx)
+        xs.append(x)
+        segs.append(seg + offset)
+        starts.append(starts[-1] + len(x))
+        seg_a.append(shape.starts)
+        seg_b.append(shape.ends)
+        offset += len(shape.segments)
+    return (np.concatenate(xs), np.concatenate(segs), np.array(starts, dtype=np.int64), np.concatenate(seg_a),
+            np.concatenate(seg_b))
+
+
+def build_cdf(bodies, rigid, shape, origin, dx):
+    """The colored distance field (:func:`mpmref.physics.cdf.build_cdf`), rasterised by :func:`rasterise`."""
+    x, seg, start, seg_a, seg_b = body_samples(bodies, rigid, dx)
+    n_nodes = int(np.prod(shape))
+    d = np.full(n_nodes, np.inf)
+    nearest = np.full(n_nodes, -1, dtype=np.int64)
+    A = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
+    T = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
+    rasterise(x, seg, start, seg_a, seg_b, np.asarray(origin, dtype=np.float64), float(dx),
+              np.array(shape, dtype=np.int64), d, nearest, A, T)
+    return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=tuple(shape),
+                               origin=np.asarray(origin, dtype=np.float64), dx=float(dx))
+
+
+@njit(cache=True)
+def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
+    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` (see :func:`mpmref.physics.cdf.build_cdf`).
+
+    For every sample :math:`s` of body :math:`r` and node :math:`i` of its 3 × 3 quadratic stencil, with
+    the node's edge parameter :math:`\sigma` and signed offset :math:`h` in the frame of the sample's
+    segment :math:`(\mathbf a, \mathbf b)`,
+
+    .. math:: \sigma = \frac{(\mathbf x_i - \mathbf a)\cdot \mathbf e}{|\mathbf e|^2}, \qquad
+              h = \frac{(\mathbf x_i - \mathbf a) \times \mathbf e}{|\mathbf e|}\ (\text{i.e. } (\mathbf x_i -
+              \mathbf a)\cdot \mathbf n,\ \mathbf n = \hat{\mathbf z}\times\hat{\mathbf e}), \qquad \mathbf e =
+              \mathbf b - \mathbf a,
+
+    if :math:`-0.02 \le \sigma \le 1.02`: :math:`d_{ir} = \min(d_{ir}, |h|)`, :math:`A_{ir} = 1`; then
+    :math:`T_{ir} = [h < 0]` from the pairs at :math:`d_{ir}` (the last in the reference's order, offsets
+    outer and samples inner, wins), and node :math:`i`'s nearest body is the first body with the
+    smallest :math:`d_{ir}`. Hu et al. 2018 §4; spec B2.
+    """
+    n_nodes = d.shape[0]
+    n_bodies = start.shape[0] - 1
+    d_r = np.full(n_nodes, np.inf)
+    cap = 9 * (start[n_bodies] - start[0])
+    pair_node = np.empty(cap, dtype=np.int64)
+    pair_h = np.empty(cap)
+    for r in range(n_bodies):
+        count = 0
+        for k in range(9):
+            oi, oj = k // 3, k % 3
+            for s in range(start[r], start[r + 1]):
+                b0, f0, w0, dw0 = quadratic_axis((x[s, 0] - origin[0]) / dx)
+                b1, f1, w1, dw1 = quadratic_axis((x[s, 1] - origin[1]) / dx)
+                i0, i1 = b0 + oi, b1 + oj
+                if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+                    continue
+                flat = i0 * shape[1] + i1
+                e0 = seg_b[seg[s], 0] - seg_a[seg[s], 0]
+                e1 = seg_b[seg[s], 1] - seg_a[seg[s], 1]
+                length2 = e0 * e0 + e1 * e1
+                r0 = (origin[0] + i0 * dx) - seg_a[seg[s], 0]
+                r1 = (origin[1] + i1 * dx) - seg_a[seg[s], 1]
+                sigma = (r0 * e0 + r1 * e1) / length2
+                if sigma < -EDGE_MARGIN or sigma > 1.0 + EDGE_MARGIN:
+                    continue
+                h = (r1 * e0 - r0 * e1) / np.sqrt(length2)
+                pair_node[count] = flat
+                pair_h[count] = h
+                count += 1
+                d_r[flat] = min(d_r[flat], abs(h))
+                A[flat, r] = True
+        for c in range(count):
+            if abs(pair_h[c]) == d_r[pair_node[c]]:
+                T[pair_node[c], r] = pair_h[c] < 0.0
+        for c in range(count):
+            flat = pair_node[c]
+            if d_r[flat] < d[flat]:
+                d[flat] = d_r[flat]
+                nearest[flat] = r
+        for c in range(count):
+            d_r[pair_node[c]] = np.inf
+
+
+# -------------------------------------------------------------------- tags, distance and compatibility
+@njit(parallel=True, cache=True)
+def tag_particles(x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near):
+    r"""Sticky tags, least-squares distance and normal of every particle (2D, quadratic stencil).
+
+    Tags (:func:`mpmref.physics.cdf.update_tags`): :math:`N_{pr} = \bigvee_i A_{ir}`; an existing tag is
+    kept while :math:`N_{pr} = 1`; a newly near body tags the particle if :math:`S_0 + S_1 > 10^{-7}`, with
+    :math:`S_s = \sum_{i: A_{ir} = 1, T_{ir} = s} w_{ip} d_i`, on side :math:`[S_1 > S_0]`.
+
+    Distance and normal (:func:`mpmref.physics.cdf.reconstruct`): minimise
+    :math:`\sum_i w_{ip}(\mathbf n\cdot\mathbf z_i + c - y_i)^2` over the stencil nodes that carry a body,
+    :math:`\mathbf z_i = (\mathbf x_i - \mathbf x_p)/\Delta x`, :math:`y_i = \pm d_i/\Delta x` (``+`` if
+    compatible, ``-`` if exactly one shared body's side differs, skipped otherwise); ``near`` iff
+    :math:`|\det M| > 3\cdot 10^{-3}`, then :math:`\phi_p = c\,\Delta x` and :math:`\mathbf n_p = \mathbf n/|\mathbf n|`
+    (0 if :math:`|\mathbf n|^2 \le 10^{-4}`). Hu et al. 2018 §4; spec B3.
+    """
+    n, n_bodies = tag_A.shape
+    for p in prange(n):
+        b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
+        b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
+        near_r = np.zeros(n_bodies, dtype=np.bool_)
+        S0 = np.zeros(n_bodies)
+        S1 = np.zeros(n_bodies)
+        for k in range(9):
+            i0, i1 = b0 + k // 3, b1 + k % 3
+            if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+                continue
+            flat = i0 * shape[1] + i1
+            w = w0[k // 3] * w1[k % 3]
+            for r in range(n_bodies):
+                if A[flat, r]:
+                    near_r[r] = True
+                    if T[flat, r]:
+                        S1[r] += w * d[flat]
+                    else:
+                        S0[r] += w * d[flat]
+        tagged = False
+        for r in range(n_bodies):
+            a = tag_A[p, r] and near_r[r]
+            t = tag_T[p, r] and a
+            if near_r[r] and not a and S0[r] + S1[r] > TAG_THRESHOLD:
+                a, t = True, S1[r] > S0[r]
+            A_new[p, r], T_new[p, r] = a, t
+            tagged = tagged or a
+        phi[p], normal[p, 0], normal[p, 1], near[p] = 0.0, 0.0, 0.0, False
+        if tagged:
+            reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_new, T_new, phi, normal, near)
+
+
+@njit(cache=True)
+def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p, phi, normal, near):
+    """The weighted least-squares fit of :func:`tag_particles` for one tagged particle."""
+    n_bodies = A_p.shape[1]
+    M = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    for k in range(9):
+        i0, i1 = b0 + k // 3, b1 + k % 3
+        if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+            continue
+        flat = i0 * shape[1] + i1
+        has_body = False
+        differing = 0
+        for r in range(n_bodies):
+            if A[flat, r]:
+                has_body = True
+                if A_p[p, r] and T[flat, r] != T_p[p, r]:
+                    differing += 1
+        if not has_body or differing > 1:
+            continue
+        y = d[flat] / dx
+        if differing == 1:
+            y = -y
+        w = w0[k // 3] * w1[k % 3]
+        z = (((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx, 1.0)
+        for a in range(3):
+            for b in range(3):
+                M[a, b] += w * z[a] * z[b]
+            rhs[a] += (w * y) * z[a]
+    det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+           + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+    if not abs(det) > DET_THRESHOLD_2D:
+        return
+    sol = solve3(M, rhs)
+    phi[p] = sol[2] * dx
+    norm2 = sol[0] * sol[0] + sol[1] * sol[1]
+    if norm2 > NORMAL_THRESHOLD:
+        length = np.sqrt(norm2)
+        normal[p, 0], normal[p, 1] = sol[0] / length, sol[1] / length
+    near[p] = True
+
+
+@njit(cache=True)
+def solve3(M, rhs):
+    """Solve the 3 × 3 system ``M s = rhs`` by Gaussian elimination with partial pivoting (LAPACK's getrf/getrs)."""
+    a = M.copy()
+    b = rhs.copy()
+    for c in range(3):
+        piv = c
+        for r in range(c + 1, 3):
+            if abs(a[r, c]) > abs(a[piv, c]):
+                piv = r
+        if piv != c:
+            for j in range(3):
+                a[c, j], a[piv, j] = a[piv, j], a[c, j]
+            b[c], b[piv] = b[piv], b[c]
+        inv = 1.0 / a[c, c]
+        for r in range(c + 1, 3):
+            factor = a[r, c] * inv
+            for j in range(c + 1, 3):
+                a[r, j] -= factor * a[c, j]
+            b[r] -= factor * b[c]
+    out = np.empty(3)
+    for r in range(2, -1, -1):
+        s = b[r]
+        for j in range(r + 1, 3):
+            s -= a[r, j] * out[j]
+        out[r] = s / a[r, r]
+    return out
+
+
+@lru_cache(maxsize=None)
+def mask_kernel(KERNEL, S):
+    """Compatibility masks on the transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``); see
+    :func:`compatibility_masks`."""
+    SOURCES = SOURCE_DIGEST
+
+    @njit(parallel=True, cache=True)
+    def masks(x, origin, dx, strides, A, T, A_p, T_p, out):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        n, n_bodies = A_p.shape
+        for p in prange(n):
+            b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
+            b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+            tagged = False
+            for r in range(n_bodies):
+                tagged = tagged or A_p[p, r]
+            mask = (1 << (S * S)) - 1
+            if tagged:
+                for k in range(S * S):
+                    idx = (b0 + k // S) * strides[0] + (b1 + k % S) * strides[1]
+                    for r in range(n_bodies):
+                        if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
+                            mask &= ~(1 << k)
+                            break
+            out[p] = mask
+
+    return masks
+
+
+# ------------------------------------------------------------------------------- ghost velocities
+@njit(cache=True, inline="always")
+def ghost_velocity(v0, v1, node_x0, node_x1, r, position, velocity, omega, n0, n1, mu):
+    r"""The friction projection :math:`\Pi(\mathbf v; \mathbf v_r(\mathbf x_i), \mathbf n, \mu)` against body ``r``.
+
+    :math:`\mathbf v_r(\mathbf x) = \mathbf v_r + \omega_r\hat{\mathbf z}\times(\mathbf x - \mathbf c_r)`;
+    :math:`\mathbf u = \mathbf v - \mathbf v_r(\mathbf x_i)`, :math:`u_n = \mathbf n\cdot\mathbf u`,
+    :math:`\mathbf u_t = \mathbf u - u_n\mathbf n`; sticky (:math:`\mu = -1`): :math:`\mathbf v_r(\mathbf x_i)`;
+    otherwise :math:`\mathbf v_r(\mathbf x_i) + \max(|\mathbf u_t| + \mu'\min(u_n, 0), 0)\,\mathbf u_t/|\mathbf u_t|`
+    plus :math:`\max(u_n, 0)\mathbf n` if :math:`\mu \ge 0` (:math:`\mu' = \mu`; slip: :math:`\mu' = -\mu - 2`).
+    The talk's Eq. 25 (Hu et al. 2018 §5; spec B5); see :func:`mpmref.physics.rigid_dynamics.friction_projection`.
+    """
+    rel0 = node_x0 - position[r, 0]
+    rel1 = node_x1 - position[r, 1]
+    vb0 = velocity[r, 0] + omega[r] * -rel1
+    vb1 = velocity[r, 1] + omega[r] * rel0
+    if mu == -1.0:
+        return vb0, vb1
+    u0, u1 = v0 - vb0, v1 - vb1
+    un = n0 * u0 + n1 * u1
+    ut0, ut1 = u0 - un * n0, u1 - un * n1
+    ut_norm = np.sqrt(ut0 * ut0 + ut1 * ut1)
+    coeff = mu if mu >= 0.0 else -mu - 2.0
+    scale = max(ut_norm + coeff * min(un, 0.0), 0.0) / (ut_norm if ut_norm > 0.0 else 1.0)
+    g0, g1 = vb0 + scale * ut0, vb1 + scale * ut1
+    if mu >= 0.0:
+        g0 += max(un, 0.0) * n0
+        g1 += max(un, 0.0) * n1
+    return g0, g1
+
+
+@njit(cache=True, inline="always")
+def node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, v0, v1, position, velocity, omega):
+    """Ghost velocity of incompatible node ``idx`` for particle ``p``: the friction projection against the
+    node's nearest body if the particle is ``near``, else the particle's own velocity ``(v0, v1)``."""
+    if not near[p]:
+        return v0, v1
+    r = max(node_body[idx], 0)
+    mu = friction[r, 1] if tag_T[p, r] else friction[r, 0]
+    return ghost_velocity(v0, v1, nx0, nx1, r, position, velocity, omega, normal[p, 0], normal[p, 1], mu)
+
+
+# ------------------------------------------------------------------------------------------------ P2G
+@lru_cache(maxsize=None)
+def p2g_kernel(KERNEL, S, AFFINE, MLS):
+    r"""CPIC P2G kernel (2D): mass, momentum and force to compatible nodes; rejected momentum and force at
+    the others (see :func:`mpmref.backends.numpy.transfers.p2g` with a contact).
+
+    At compatible nodes as plain P2G; at an incompatible node :math:`i`
+
+    .. math:: \mathbf J^m_i \mathrel{+}= m_p w_{ip}(\mathbf v^*_p - \tilde{\mathbf v}_i), \qquad
+              \mathbf J^f_i \mathrel{-}= V_p^0 \tau_p g_{ip}
+
+    with the ghost velocity :math:`\tilde{\mathbf v}_i` (:func:`node_ghost`). Block-parallel by colour.
+    """
+    SOURCES = SOURCE_DIGEST
+
+    @njit(parallel=True, cache=True)
+    def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
+            mask, v_star, node_body, near, normal, tag_T, friction, position, velocity, omega,
+            grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        full = (1 << (S * S)) - 1
+        for colour in range(colour_start.shape[0] - 1):
+            first = colour_start[colour]
+            for bi in prange(colour_start[colour + 1] - first):
+                block = colour_blocks[first + bi]
+                for q in range(block_start[block], block_start[block + 1]):
+                    p = order[q]
+                    m = mass[p]
+                    s00, s01 = vol0[p] * tau[p, 0, 0], vol0[p] * tau[p, 0, 1]
+                    s10, s11 = vol0[p] * tau[p, 1, 0], vol0[p] * tau[p, 1, 1]
+                    b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
+                    b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                    base = b0 * strides[0] + b1 * strides[1]
+                    mk = mask[p]
+                    for i in range(S):
+                        d0 = (i - f0) * dx
+                        for j in range(S):
+                            d1 = (j - f1) * dx
+                            w = w0[i] * w1[j]
+                            if MLS:
+                                g0, g1 = w * d0 / inertia, w * d1 / inertia
+                            else:
+                                g0, g1 = dw0[i] / dx * w1[j], dw1[j] / dx * w0[i]
+                            idx = base + i * strides[0] + j * strides[1]
+                            f_0 = s00 * g0 + s01 * g1
+                            f_1 = s10 * g0 + s11 * g1
+                            if mk == full or (mk >> (i * S + j)) & 1:
+                                wm = w * m
+                                mom0, mom1 = v[p, 0], v[p, 1]
+                                if AFFINE:
+                                    mom0 += C[p, 0, 0] * d0 + C[p, 0, 1] * d1
+                                    mom1 += C[p, 1, 0] * d0 + C[p, 1, 1] * d1
+                                grid_mass[idx] += wm
+                                grid_momentum[idx, 0] += wm * mom0
+                                grid_momentum[idx, 1] += wm * mom1
+                                grid_force[idx, 0] -= f_0
+                                grid_force[idx, 1] -= f_1
+                            else:
+                                nx0 = origin[0] + (b0 + i) * dx
+                                nx1 = origin[1] + (b1 + j) * dx
+                                gh0, gh1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
+                                                      v_star[p, 0], v_star[p, 1], position, velocity, omega)
+                                wm = w * m
+                                rejected_momentum[idx, 0] += wm * (v_star[p, 0] - gh0)
+                                rejected_momentum[idx, 1] += wm * (v_star[p, 1] - gh1)
+                                rejected_force[idx, 0] -= f_0
+                                rejected_force[idx, 1] -= f_1
+
+    return p2g
+
+
+# ------------------------------------------------------------------------------------------- impulses
+@njit(cache=True)
+def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, origin, dx, position, J, L):
+    r"""Impulses on the bodies from the incompatible nodes, summed node by node in node order.
+
+    :math:`\mathbf J_i = \mathbf J^m_i + \Delta t\,\mathbf J^f_i` at node :math:`i`; its nearest body
+    :math:`r` receives :math:`\mathbf J_i` and :math:`(\mathbf x_i - \mathbf c_r)\times\mathbf J_i` (spec B6,
+    "after all particles"). ``J`` (nb, 2) and ``L`` (nb,) are accumulated into.
+    """
+    for i in range(rejected_momentum.shape[0]):
+        j0 = rejected_momentum[i, 0] + dt * rejected_force[i, 0]
+        j1 = rejected_momentum[i, 1] + dt * rejected_force[i, 1]
+        if j0 == 0.0 and j1 == 0.0:
+            continue
+        r = node_body[i]
+        rel0 = (origin[0] + (i // node_shape[1]) * dx) - position[r, 0]
+        rel1 = (origin[1] + (i % node_shape[1]) * dx) - position[r, 1]
+        J[r, 0] += j0
+        J[r, 1] += j1
+        L[r] += rel0 * j1 - rel1 * j0
+
+
+@njit(cache=True)
+def particle_impulses(x_new, impulse, body, position, J, L):
+    """Sum the penalty impulses ``impulse`` (n, 2) on bodies ``body`` (``-1``: none) at ``x_new``, in particle order."""
+    for p in range(impulse.shape[0]):
+        if body[p] < 0:
+            continue
+        r = body[p]
+        rel0 = x_new[p, 0] - position[r, 0]
+        rel1 = x_new[p, 1] - position[r, 1]
+        J[r, 0] += impulse[p, 0]
+        J[r, 1] += impulse[p, 1]
+        L[r] += rel0 * impulse[p, 1] - rel1 * impulse[p, 0]
+
+
+# ------------------------------------------------------------------------------------------------ G2P
+@lru_cache(maxsize=None)
+def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
+    r"""CPIC G2P kernel (2D): G2P with ghost velocities, ``C_p := 0`` for near particles, and the penalty
+    (see :func:`mpmref.backends.numpy.cpic.g2p`).
+
+    At an incompatible node the particle sees :math:`\tilde{\mathbf v}_i + \mathbf n_p\Delta t\,\Delta x\,f_{push}`
+    (the push for near particles only) instead of :math:`\mathbf v_i`; then :math:`\mathbf v_p = \sum_i w_{ip}
+    \tilde{\mathbf v}_i`, :math:`C_p`, :math:`F_p` or :math:`J_p`, :math:`\mathbf x_p` as plain G2P. A near
+    particle with :math:`-0.3\Delta x < \phi_p < -0.05\Delta x` loses :math:`\Delta\mathbf v = k\phi_p\mathbf n_p`;
+    ``impulse[p]`` gets :math:`m_p\Delta\mathbf v` and ``impulse_body[p]`` the nearest body of its stencil
+    (the body of its stencil node closest to a body, first in stencil order; 0 if none), ``-1`` if not pushed.
+    Block-parallel gather; every particle writes only its own rows.
+    """
+    NEED_B = AFFINE or MLS
+    SOURCES = SOURCE_DIGEST
+    LO, HI = PENALTY_WINDOW
+
+    @njit(parallel=True, cache=True)
+    def g2p(x, v_star, F, J, mass, origin, dx, inertia, dt, strides, order, block_start, blocks, v_grid,
+            mask, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega, push, penalty,
+            x_new, v_new, C_new, F_new, J_new, impulse, impulse_body):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        full = (1 << (S * S)) - 1
+        for bi in prange(blocks.shape[0]):
+            block = blocks[bi]
+            for q in range(block_start[block], block_start[block + 1]):
+                p = order[q]
+                b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
+                b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                base = b0 * strides[0] + b1 * strides[1]
+                mk = mask[p]
+                push0, push1 = 0.0, 0.0
+                if near[p]:
+                    push0, push1 = normal[p, 0] * (dt * dx * push), normal[p, 1] * (dt * dx * push)
+                vp0, vp1 = 0.0, 0.0
+                B00, B01, B10, B11 = 0.0, 0.0, 0.0, 0.0
+                G00, G01, G10, G11 = 0.0, 0.0, 0.0, 0.0
+                best_d, best_body = np.inf, -1
+                for i in range(S):
+                    d0 = (i - f0) * dx
+                    for j in range(S):
+                        d1 = (j - f1) * dx
+                        w = w0[i] * w1[j]
+                        idx = base + i * strides[0] + j * strides[1]
+                        if node_body[idx] >= 0 and node_d[idx] < best_d:
+                            best_d, best_body = node_d[idx], node_body[idx]
+                        if mk == full or (mk >> (i * S + j)) & 1:
+                            vi0, vi1 = v_grid[idx, 0], v_grid[idx, 1]
+                        else:
+                            nx0 = origin[0] + (b0 + i) * dx
+                            nx1 = origin[1] + (b1 + j) * dx
+                            vi0, vi1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
+                                                  v_star[p, 0], v_star[p, 1], position, velocity, omega)
+                            vi0 += push0
+                            vi1 += push1
+                        vp0 += w * vi0
+                        vp1 += w * vi1
+                        if NEED_B:
+                            B00 += (w * vi0) * d0
+                            B01 += (w * vi0) * d1
+                            B10 += (w * vi1) * d0
+                            B11 += (w * vi1) * d1
+                        if not MLS:
+                            g0, g1 = dw0[i] / dx * w1[j], dw1[j] / dx * w0[i]
+                            G00 += vi0 * g0
+                            G01 += vi0 * g1
+                            G10 += vi1 * g0
+                            G11 += vi1 * g1
+                if MLS:
+                    G00, G01, G10, G11 = B00 / inertia, B01 / inertia, B10 / inertia, B11 / inertia
+                x_new[p, 0] = x[p, 0] + dt * vp0
+                x_new[p, 1] = x[p, 1] + dt * vp1
+                dv0, dv1 = 0.0, 0.0
+                impulse_body[p] = -1
+                impulse[p, 0], impulse[p, 1] = 0.0, 0.0
+                if near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
+                    dv0, dv1 = penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1]
+                    impulse[p, 0], impulse[p, 1] = mass[p] * dv0, mass[p] * dv1
+                    impulse_body[p] = max(best_body, 0)
+                v_new[p, 0] = vp0 - dv0
+                v_new[p, 1] = vp1 - dv1
+                if AFFINE:
+                    if near[p]:
+                        C_new[p, 0, 0], C_new[p, 0, 1], C_new[p, 1, 0], C_new[p, 1, 1] = 0.0, 0.0, 0.0, 0.0
+                    else:
+                        C_new[p, 0, 0], C_new[p, 0, 1] = B00 / inertia, B01 / inertia
+                        C_new[p, 1, 0], C_new[p, 1, 1] = B10 / inertia, B11 / inertia
+                if TRACKS_F:
+                    F_new[p, 0, 0] = F[p, 0, 0] + (dt * G00 * F[p, 0, 0] + dt * G01 * F[p, 1, 0])
+                    F_new[p, 0, 1] = F[p, 0, 1] + (dt * G00 * F[p, 0, 1] + dt * G01 * F[p, 1, 1])
+                    F_new[p, 1, 0] = F[p, 1, 0] + (dt * G10 * F[p, 0, 0] + dt * G11 * F[p, 1, 0])
+                    F_new[p, 1, 1] = F[p, 1, 1] + (dt * G10 * F[p, 0, 1] + dt * G11 * F[p, 1, 1])
+                if TRACKS_J:
+                    J_new[p] = J[p] * (1.0 + dt * (G00 + G11))
+
+    return g2p
+
+
+# --------------------------------------------------------------------------- the stages, for the backend
+def contact(backend, particles, rigid, dt):
+    """The step's :class:`Contact` and the particles with their new tags, distance, normal and ``near`` flag
+    (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
+    scene, spec = backend.scene, backend.cfg
+    grid, bodies = scene.grid, scene.rigid_bodies
+    cdf = build_cdf(bodies, rigid, grid.node_shape, grid.origin, grid.dx)
+    x = np.ascontiguousarray(particles.x, dtype=np.float64)
+    n, nb = particles.n, len(bodies)
+    A, T = np.empty((n, nb), dtype=np.bool_), np.empty((n, nb), dtype=np.bool_)
+    phi, normal, near = np.empty(n), np.empty((n, 2)), np.empty(n, dtype=np.bool_)
+    shape = np.array(grid.node_shape, dtype=np.int64)
+    tag_particles(x, cdf.origin, cdf.dx, shape, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
+                  np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near)
+    mask = np.empty(n, dtype=np.int64)
+    mask_kernel(KERNEL_CODES[spec.kernel], spec.support)(x, cdf.origin, cdf.dx, grid.strides, cdf.A, cdf.T, A, T,
+                                                         mask)
+    friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
+    c = Contact(cdf=cdf, mask=mask, support=spec.support, friction=friction,
+                v_star=particles.v + dt * backend.gravity.astype(particles.v.dtype), rigid=rigid)
+    return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
+
+
+def p2g(backend, particles, blocks, contact):
+    """CPIC P2G (:func:`p2g_kernel`): a :class:`~mpmref.state.GridState` with ``rejected_momentum`` and
+    ``rejected_force``."""
+    spec, N = backend.cfg, backend.scene.grid.n_nodes
+    d = particles.dim
+    gs = GridState(mass=np.zeros(N, dtype=backend.dtype), momentum=np.zeros((N, d), dtype=backend.dtype),
+                   force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
+                   rejected_force=np.zeros((N, d)))
+    rigid, cdf = contact.rigid, contact.cdf
+    kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
+    kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
+           backend.stress(particles), backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
+           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.mask, contact.v_star, cdf.body,
+           particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
+           rigid.angular_velocity, gs.mass, gs.momentum, gs.force, gs.rejected_momentum, gs.rejected_force)
+    return gs
+
+
+def impulses(grid_state, contact, rigid, dt):
+    """Impulses ``(J (nb, 2), L (nb,))`` of the incompatible nodes on the bodies (:func:`node_impulses`)."""
+    nb = len(rigid.angle)
+    J, L = np.zeros((nb, 2)), np.zeros(nb)
+    cdf = contact.cdf
+    node_impulses(grid_state.rejected_momentum, grid_state.rejected_force, dt, cdf.body,
+                  np.array(cdf.shape, dtype=np.int64), cdf.origin, cdf.dx, rigid.position, J, L)
+    return J, L
+
+
+def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
+    """CPIC G2P (:func:`g2p_kernel`) with the bodies ``rigid`` as G2P sees them; returns ``(new particles,
+    (J, L))``, the penalty's impulses on the bodies summed in particle order (:func:`particle_impulses`)."""
+    spec, method = backend.cfg, backend.scene.method
+    n, d = particles.x.shape
+    empty = backend._empty
+    x_new, v_new = empty(n, d), empty(n, d)
+    C_new = empty(n, d, d) if particles.C is not None else empty(0, d, d)
+    F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
+    J_new = empty(n) if particles.J is not None else empty(0)
+    impulse, impulse_body = np.empty((n, d)), np.empty(n, dtype=np.int64)
+    kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.tracks_F, spec.tracks_J)
+    cdf = contact.cdf
+    kernel(particles.x, contact.v_star, backend._or_empty(particles.F, 0, d, d), backend._or_empty(particles.J, 0),
+           particles.mass, backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
+           blocks.block_start, blocks.colour_blocks, v_grid, contact.mask, cdf.body, cdf.d, particles.near,
+           particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
+           rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
+           J_new, impulse, impulse_body)
+    nb = len(rigid.angle)
+    J, L = np.zeros((nb, 2)), np.zeros(nb)
+    particle_impulses(x_new, impulse, impulse_body, rigid.position, J, L)
+    changes = {"x": x_new, "v": v_new}
+    for name, array in (("C", C_new), ("F", F_new), ("J", J_new)):
+        if getattr(particles, name) is not None:
+            changes[name] = array
+    return particles.with_(**changes), (J, L)
