@@ -63,8 +63,8 @@ float64). See :func:`.report.relative_error`.
 from .cases import Case, make_cases, valid_methods
 from .cli import add_parser
 from .report import CaseResult, Report, check, relative_error, stage_functions
-from .stages import STAGES
+from .stages import ALL_STAGES, CPIC_STAGES, STAGES
 from .vectors import export, load_vectors
 
-__all__ = ["STAGES", "Case", "CaseResult", "Report", "add_parser", "check", "export", "load_vectors", "make_cases",
+__all__ = ["ALL_STAGES", "CPIC_STAGES", "STAGES", "Case", "CaseResult", "Report", "add_parser", "check", "export", "load_vectors", "make_cases",
            "relative_error", "stage_functions", "valid_methods"]
