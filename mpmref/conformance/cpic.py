@@ -63,14 +63,17 @@ def cpic_scene_dict(scene_dict, method):
 
 
 def random_cpic_state(scene, rng, flat):
-    """Add previous tags and a random state of the bodies to the particle state ``flat`` (in place)."""
+    """Add previous tags and a random state of the bodies to the particle state ``flat`` (in place): poses
+    near the declared ones, velocities N(0, 1) and angular velocities N(0, 2²) (zero for a fixed body)."""
     n, nb = len(flat["x"]), len(scene.rigid_bodies)
     flat["tag_A"] = rng.random((n, nb)) < 0.5
     flat["tag_T"] = flat["tag_A"] & (rng.random((n, nb)) < 0.5)
     center = np.array([b.center for b in scene.rigid_bodies])
+    moving = np.array([b.motion != "fixed" for b in scene.rigid_bodies])
     flat.update({"rigid_position": center + 0.01 * rng.standard_normal((nb, 2)),
-                 "rigid_angle": 0.05 * rng.standard_normal(nb), "rigid_velocity": rng.standard_normal((nb, 2)),
-                 "rigid_angular_velocity": 2.0 * rng.standard_normal(nb), "rigid_impulse": np.zeros((nb, 2)),
+                 "rigid_angle": 0.05 * rng.standard_normal(nb),
+                 "rigid_velocity": rng.standard_normal((nb, 2)) * moving[:, None],
+                 "rigid_angular_velocity": 2.0 * rng.standard_normal(nb) * moving, "rigid_impulse": np.zeros((nb, 2)),
                  "rigid_angular_impulse": np.zeros(nb)})
     return flat
 

@@ -183,7 +183,8 @@ class NumbaBackend:
 
         Runs one full step (prepare, stress, P2G, grid update, G2P, return map) on a copy of the first
         ``per_material`` particles of each material, with Δt = 0, so that compilation is not counted in
-        a run's timings. ``particles`` is not modified.
+        a run's timings, and with rigid bodies the CPIC stages too (:func:`.cpic.warm_up`). ``particles``
+        is not modified.
         """
         from ...steppers.pipeline import substep
 
@@ -191,3 +192,5 @@ class NumbaBackend:
         for _, idx in material_groups(self.materials.materials, particles):
             keep[idx[:per_material]] = True
         substep(self, particles.select(keep), 0.0, 0.0)
+        if self.scene.rigid_bodies:
+            cpic.warm_up(self, particles.select(keep))

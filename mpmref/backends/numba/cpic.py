@@ -30,7 +30,7 @@ from numba import njit, prange
 
 from ...physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, TAG_THRESHOLD, ColoredDistanceField
 from ...physics.rigid import surface_samples
-from ...physics.rigid_dynamics import current_shapes
+from ...physics.rigid_dynamics import current_shapes, initial_state
 from ..numpy.cpic import PENALTY_WINDOW
 from ...state import GridState
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
@@ -636,3 +636,17 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
         if getattr(particles, name) is not None:
             changes[name] = array
     return particles.with_(**changes), (J, L)
+
+
+def warm_up(backend, particles):
+    """Compile (or load) the CPIC kernels by running the contact, P2G, impulse and G2P stages once on
+    ``particles`` with Δt = 0, the bodies where they were declared; nothing is returned or kept."""
+    n, nb = particles.n, len(backend.scene.rigid_bodies)
+    if particles.tag_A is None:
+        particles = particles.with_(tag_A=np.zeros((n, nb), dtype=np.bool_), tag_T=np.zeros((n, nb), dtype=np.bool_))
+    rigid = initial_state(backend.scene.rigid_bodies)
+    blocks = backend.prepare(particles)
+    particles, c = contact(backend, particles, rigid, 0.0)
+    gs = p2g(backend, particles, blocks, c)
+    impulses(gs, c, rigid, 0.0)
+    g2p(backend, particles, np.zeros_like(gs.momentum), 0.0, blocks, c, rigid)
