@@ -36,10 +36,13 @@ from ...state import GridState
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
 
+#: particles per parallel work item of :func:`tag_kernel` (each item allocates its scratch once)
+CHUNK = 256
+
 
 @dataclass
 class Contact:
-    """What the Numba CPIC transfers of one step need.
+    r"""What the Numba CPIC transfers of one step need.
 
     Attributes
     ----------
@@ -47,7 +50,8 @@ class Contact:
     mask : (n,) int64           bit ``k`` set iff node ``base + offset_k`` of the transfer stencil is compatible
     support : int               nodes per axis of the transfer stencil (``K = support**2`` offsets)
     friction : (nb, 2)          encoded friction of each body's side 0 and side 1
-    v_star : (n, 2)             the particle's velocity with this step's gravity
+    gravity_dv : (2,)           this step's gravity velocity :math:`\mathbf g\Delta t` (a particle's
+                                :math:`\mathbf v^*_p = \mathbf v_p + \mathbf g\Delta t` is formed where needed)
     rigid : RigidState          the bodies as P2G sees them (their velocities give P2G's ghost velocities)
     """
 
@@ -55,7 +59,7 @@ class Contact:
     mask: np.ndarray
     support: int
     friction: np.ndarray
-    v_star: np.ndarray
+    gravity_dv: np.ndarray
     rigid: object
 
     @property
@@ -162,9 +166,55 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
 
 
 # -------------------------------------------------------------------- tags, distance and compatibility
-@njit(parallel=True, cache=True)
-def tag_particles(x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near):
-    r"""Sticky tags, least-squares distance and normal of every particle (2D, quadratic stencil).
+@lru_cache(maxsize=None)
+def tag_kernel(KERNEL, S):
+    r"""Sticky tags, least-squares distance and normal of every particle (2D, quadratic stencil), and the
+    compatibility mask of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
+
+    The returned ``tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
+    mask)`` fills the last six arrays (:func:`tag_particle`, :func:`compatibility_mask`).
+    """
+    SOURCES = SOURCE_DIGEST
+
+    @njit(parallel=True, cache=True)
+    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, mask):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        n, n_bodies = tag_A.shape
+        n_chunks = (n + CHUNK - 1) // CHUNK
+        for c in prange(n_chunks):
+            near_r = np.empty(n_bodies, dtype=np.bool_)  # scratch, one set per chunk of particles
+            S0, S1 = np.empty(n_bodies), np.empty(n_bodies)
+            M, rhs = np.empty((3, 3)), np.empty(3)
+            for p in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+                mask[p] = (1 << (S * S)) - 1
+                if tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
+                                near_r, S0, S1, M, rhs):
+                    b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
+                    b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                    mask[p] = compatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
+
+    return tags
+
+
+@njit(cache=True, inline="always")
+def compatibility_mask(p, b0, b1, S, strides, A, T, A_p, T_p):
+    r"""Bit ``k`` set iff node ``(b0 + k // S, b1 + k % S)`` is compatible with particle ``p``: no body
+    :math:`r` with :math:`A_{ir} = A_{pr} = 1` and :math:`T_{ir} \ne T_{pr}` (Hu et al. 2018 §4; spec B4)."""
+    mask = (1 << (S * S)) - 1
+    for k in range(S * S):
+        idx = (b0 + k // S) * strides[0] + (b1 + k % S) * strides[1]
+        for r in range(A_p.shape[1]):
+            if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
+                mask &= ~(1 << k)
+                break
+    return mask
+
+
+@njit(cache=True, inline="always")
+def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, near_r, S0, S1, M,
+                 rhs):
+    r"""Tags, distance, normal and ``near`` of particle ``p``; returns whether it is tagged (``near_r``,
+    ``S0``, ``S1``, ``M``, ``rhs``: scratch arrays).
 
     Tags (:func:`mpmref.physics.cdf.update_tags`): :math:`N_{pr} = \bigvee_i A_{ir}`; an existing tag is
     kept while :math:`N_{pr} = 1`; a newly near body tags the particle if :math:`S_0 + S_1 > 10^{-7}`, with
@@ -177,45 +227,59 @@ def tag_particles(x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi
     :math:`|\det M| > 3\cdot 10^{-3}`, then :math:`\phi_p = c\,\Delta x` and :math:`\mathbf n_p = \mathbf n/|\mathbf n|`
     (0 if :math:`|\mathbf n|^2 \le 10^{-4}`). Hu et al. 2018 §4; spec B3.
     """
-    n, n_bodies = tag_A.shape
-    for p in prange(n):
-        b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
-        b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
-        near_r = np.zeros(n_bodies, dtype=np.bool_)
-        S0 = np.zeros(n_bodies)
-        S1 = np.zeros(n_bodies)
-        for k in range(9):
-            i0, i1 = b0 + k // 3, b1 + k % 3
-            if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
-                continue
-            flat = i0 * shape[1] + i1
-            w = w0[k // 3] * w1[k % 3]
-            for r in range(n_bodies):
-                if A[flat, r]:
-                    near_r[r] = True
-                    if T[flat, r]:
-                        S1[r] += w * d[flat]
-                    else:
-                        S0[r] += w * d[flat]
-        tagged = False
+    n_bodies = tag_A.shape[1]
+    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
+    phi[p], normal[p, 0], normal[p, 1], near[p] = 0.0, 0.0, 0.0, False
+    for r in range(n_bodies):
+        A_new[p, r], T_new[p, r] = False, False
+    if not in_band(b0, b1, shape, d):  # far from every body: no tags (the common case, kept cheap)
+        return False
+    near_r[:] = False
+    S0[:] = 0.0
+    S1[:] = 0.0
+    for k in range(9):
+        i0, i1 = b0 + k // 3, b1 + k % 3
+        if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+            continue
+        flat = i0 * shape[1] + i1
+        w = w0[k // 3] * w1[k % 3]
         for r in range(n_bodies):
-            a = tag_A[p, r] and near_r[r]
-            t = tag_T[p, r] and a
-            if near_r[r] and not a and S0[r] + S1[r] > TAG_THRESHOLD:
-                a, t = True, S1[r] > S0[r]
-            A_new[p, r], T_new[p, r] = a, t
-            tagged = tagged or a
-        phi[p], normal[p, 0], normal[p, 1], near[p] = 0.0, 0.0, 0.0, False
-        if tagged:
-            reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_new, T_new, phi, normal, near)
+            if A[flat, r]:
+                near_r[r] = True
+                if T[flat, r]:
+                    S1[r] += w * d[flat]
+                else:
+                    S0[r] += w * d[flat]
+    tagged = False
+    for r in range(n_bodies):
+        a = tag_A[p, r] and near_r[r]
+        t = tag_T[p, r] and a
+        if near_r[r] and not a and S0[r] + S1[r] > TAG_THRESHOLD:
+            a, t = True, S1[r] > S0[r]
+        A_new[p, r], T_new[p, r] = a, t
+        tagged = tagged or a
+    if tagged:
+        reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_new, T_new, phi, normal, near, M, rhs)
+    return tagged
+
+
+@njit(cache=True, inline="always")
+def in_band(b0, b1, shape, d):
+    """Whether a node of the 3 × 3 stencil at base node ``(b0, b1)`` is in some body's band (finite ``d``)."""
+    for k in range(9):
+        i0, i1 = b0 + k // 3, b1 + k % 3
+        if 0 <= i0 < shape[0] and 0 <= i1 < shape[1] and d[i0 * shape[1] + i1] < np.inf:
+            return True
+    return False
 
 
 @njit(cache=True)
-def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p, phi, normal, near):
-    """The weighted least-squares fit of :func:`tag_particles` for one tagged particle."""
+def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p, phi, normal, near, M, rhs):
+    """The weighted least-squares fit of :func:`tag_particle` for one tagged particle (``M``, ``rhs``: scratch)."""
     n_bodies = A_p.shape[1]
-    M = np.zeros((3, 3))
-    rhs = np.zeros(3)
+    M[:] = 0.0
+    rhs[:] = 0.0
     for k in range(9):
         i0, i1 = b0 + k // 3, b1 + k % 3
         if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
@@ -234,29 +298,38 @@ def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p
         if differing == 1:
             y = -y
         w = w0[k // 3] * w1[k % 3]
-        z = (((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx, 1.0)
-        for a in range(3):
-            for b in range(3):
-                M[a, b] += w * z[a] * z[b]
-            rhs[a] += (w * y) * z[a]
+        z0, z1 = ((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx  # (x_i - x_p) / dx, as the reference forms it
+        wz0, wz1, wy = w * z0, w * z1, w * y
+        M[0, 0] += wz0 * z0
+        M[0, 1] += wz0 * z1
+        M[0, 2] += wz0
+        M[1, 0] += wz1 * z0
+        M[1, 1] += wz1 * z1
+        M[1, 2] += wz1
+        M[2, 0] += w * z0
+        M[2, 1] += w * z1
+        M[2, 2] += w
+        rhs[0] += wy * z0
+        rhs[1] += wy * z1
+        rhs[2] += wy
     det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
     if not abs(det) > DET_THRESHOLD_2D:
         return
-    sol = solve3(M, rhs)
-    phi[p] = sol[2] * dx
-    norm2 = sol[0] * sol[0] + sol[1] * sol[1]
+    n0, n1, c = solve3(M, rhs)
+    phi[p] = c * dx
+    norm2 = n0 * n0 + n1 * n1
     if norm2 > NORMAL_THRESHOLD:
         length = np.sqrt(norm2)
-        normal[p, 0], normal[p, 1] = sol[0] / length, sol[1] / length
+        normal[p, 0], normal[p, 1] = n0 / length, n1 / length
     near[p] = True
 
 
 @njit(cache=True)
 def solve3(M, rhs):
-    """Solve the 3 × 3 system ``M s = rhs`` by Gaussian elimination with partial pivoting (LAPACK's getrf/getrs)."""
-    a = M.copy()
-    b = rhs.copy()
+    """Solve the 3 × 3 system ``M s = rhs`` by Gaussian elimination with partial pivoting (LAPACK's getrf/getrs),
+    overwriting ``M`` and ``rhs``; returns ``s`` as a tuple."""
+    a, b = M, rhs
     for c in range(3):
         piv = c
         for r in range(c + 1, 3):
@@ -272,42 +345,10 @@ def solve3(M, rhs):
             for j in range(c + 1, 3):
                 a[r, j] -= factor * a[c, j]
             b[r] -= factor * b[c]
-    out = np.empty(3)
-    for r in range(2, -1, -1):
-        s = b[r]
-        for j in range(r + 1, 3):
-            s -= a[r, j] * out[j]
-        out[r] = s / a[r, r]
-    return out
-
-
-@lru_cache(maxsize=None)
-def mask_kernel(KERNEL, S):
-    """Compatibility masks on the transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``); see
-    :func:`compatibility_masks`."""
-    SOURCES = SOURCE_DIGEST
-
-    @njit(parallel=True, cache=True)
-    def masks(x, origin, dx, strides, A, T, A_p, T_p, out):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
-        n, n_bodies = A_p.shape
-        for p in prange(n):
-            b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-            b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-            tagged = False
-            for r in range(n_bodies):
-                tagged = tagged or A_p[p, r]
-            mask = (1 << (S * S)) - 1
-            if tagged:
-                for k in range(S * S):
-                    idx = (b0 + k // S) * strides[0] + (b1 + k % S) * strides[1]
-                    for r in range(n_bodies):
-                        if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
-                            mask &= ~(1 << k)
-                            break
-            out[p] = mask
-
-    return masks
+    s2 = b[2] / a[2, 2]
+    s1 = (b[1] - a[1, 2] * s2) / a[1, 1]
+    s0 = ((b[0] - a[0, 1] * s1) - a[0, 2] * s2) / a[0, 0]
+    return s0, s1, s2
 
 
 # ------------------------------------------------------------------------------- ghost velocities
@@ -369,7 +410,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
 
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
-            mask, v_star, node_body, near, normal, tag_T, friction, position, velocity, omega,
+            mask, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega,
             grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         full = (1 << (S * S)) - 1
@@ -412,15 +453,29 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                             else:
                                 nx0 = origin[0] + (b0 + i) * dx
                                 nx1 = origin[1] + (b1 + j) * dx
+                                vs0, vs1 = v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1]
                                 gh0, gh1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
-                                                      v_star[p, 0], v_star[p, 1], position, velocity, omega)
+                                                      vs0, vs1, position, velocity, omega)
                                 wm = w * m
-                                rejected_momentum[idx, 0] += wm * (v_star[p, 0] - gh0)
-                                rejected_momentum[idx, 1] += wm * (v_star[p, 1] - gh1)
+                                rejected_momentum[idx, 0] += wm * (vs0 - gh0)
+                                rejected_momentum[idx, 1] += wm * (vs1 - gh1)
                                 rejected_force[idx, 0] -= f_0
                                 rejected_force[idx, 1] -= f_1
 
     return p2g
+
+
+@njit(cache=True, inline="always")
+def nearest_body(base, S, strides, node_body, node_d):
+    """The nearest body of the stencil node at ``base`` closest to a body (the first such node in stencil
+    order), or 0 if no node has a body: the body that receives a particle's penalty impulse."""
+    best_d, best_body = np.inf, 0
+    for i in range(S):
+        for j in range(S):
+            idx = base + i * strides[0] + j * strides[1]
+            if node_body[idx] >= 0 and node_d[idx] < best_d:
+                best_d, best_body = node_d[idx], node_body[idx]
+    return best_body
 
 
 # ------------------------------------------------------------------------------------------- impulses
@@ -478,7 +533,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
     LO, HI = PENALTY_WINDOW
 
     @njit(parallel=True, cache=True)
-    def g2p(x, v_star, F, J, mass, origin, dx, inertia, dt, strides, order, block_start, blocks, v_grid,
+    def g2p(x, v, gravity_dv, F, J, mass, origin, dx, inertia, dt, strides, order, block_start, blocks, v_grid,
             mask, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega, push, penalty,
             x_new, v_new, C_new, F_new, J_new, impulse, impulse_body):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
@@ -497,22 +552,20 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
                 vp0, vp1 = 0.0, 0.0
                 B00, B01, B10, B11 = 0.0, 0.0, 0.0, 0.0
                 G00, G01, G10, G11 = 0.0, 0.0, 0.0, 0.0
-                best_d, best_body = np.inf, -1
                 for i in range(S):
                     d0 = (i - f0) * dx
                     for j in range(S):
                         d1 = (j - f1) * dx
                         w = w0[i] * w1[j]
                         idx = base + i * strides[0] + j * strides[1]
-                        if node_body[idx] >= 0 and node_d[idx] < best_d:
-                            best_d, best_body = node_d[idx], node_body[idx]
                         if mk == full or (mk >> (i * S + j)) & 1:
                             vi0, vi1 = v_grid[idx, 0], v_grid[idx, 1]
                         else:
                             nx0 = origin[0] + (b0 + i) * dx
                             nx1 = origin[1] + (b1 + j) * dx
                             vi0, vi1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
-                                                  v_star[p, 0], v_star[p, 1], position, velocity, omega)
+                                                  v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], position,
+                                                  velocity, omega)
                             vi0 += push0
                             vi1 += push1
                         vp0 += w * vi0
@@ -538,7 +591,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
                 if near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
                     dv0, dv1 = penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1]
                     impulse[p, 0], impulse[p, 1] = mass[p] * dv0, mass[p] * dv1
-                    impulse_body[p] = max(best_body, 0)
+                    impulse_body[p] = nearest_body(base, S, strides, node_body, node_d)
                 v_new[p, 0] = vp0 - dv0
                 v_new[p, 1] = vp1 - dv1
                 if AFFINE:
@@ -570,14 +623,13 @@ def contact(backend, particles, rigid, dt):
     A, T = np.empty((n, nb), dtype=np.bool_), np.empty((n, nb), dtype=np.bool_)
     phi, normal, near = np.empty(n), np.empty((n, 2)), np.empty(n, dtype=np.bool_)
     shape = np.array(grid.node_shape, dtype=np.int64)
-    tag_particles(x, cdf.origin, cdf.dx, shape, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
-                  np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near)
     mask = np.empty(n, dtype=np.int64)
-    mask_kernel(KERNEL_CODES[spec.kernel], spec.support)(x, cdf.origin, cdf.dx, grid.strides, cdf.A, cdf.T, A, T,
-                                                         mask)
+    tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
+        x, cdf.origin, cdf.dx, shape, grid.strides, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
+        np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, mask)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, mask=mask, support=spec.support, friction=friction,
-                v_star=particles.v + dt * backend.gravity.astype(particles.v.dtype), rigid=rigid)
+                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid)
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
@@ -593,7 +645,7 @@ def p2g(backend, particles, blocks, contact):
     kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            backend.stress(particles), backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
-           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.mask, contact.v_star, cdf.body,
+           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.mask, contact.gravity_dv, cdf.body,
            particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, gs.mass, gs.momentum, gs.force, gs.rejected_momentum, gs.rejected_force)
     return gs
@@ -622,7 +674,7 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     impulse, impulse_body = np.empty((n, d)), np.empty(n, dtype=np.int64)
     kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.tracks_F, spec.tracks_J)
     cdf = contact.cdf
-    kernel(particles.x, contact.v_star, backend._or_empty(particles.F, 0, d, d), backend._or_empty(particles.J, 0),
+    kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d), backend._or_empty(particles.J, 0),
            particles.mass, backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
            blocks.block_start, blocks.colour_blocks, v_grid, contact.mask, cdf.body, cdf.d, particles.near,
            particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
