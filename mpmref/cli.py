@@ -94,7 +94,8 @@ def _format_summary(summary, out_dir):
         f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
         f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls change it)",
         f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + gravitational)",
-        f"outputs          {out_dir} (open particles.pvd in ParaView)",
+        f"outputs          {out_dir} (open particles.pvd in ParaView"
+        f"{', with rigid_bodies.pvd for the rigid bodies' if 'rigid0_x' in final else ''})",
     ]
     if "particle_updates" in summary:
         lines.insert(3, f"particle updates {summary['particle_updates']} ({summary['ghost_updates']} of them ghosts); "

@@ -154,10 +154,16 @@ class MethodSpec:
     force: str
     kernel: str
     flip_alpha: float
+    velocity_gradient: str = ""  # "" follows ``force`` (see ``_parse_method``)
     coupling: str = "none"
     pushing_force: float = 0.0
     penalty: float = 0.0
     momentum_exact: bool = False
+    ghost_force: bool = True
+
+    def __post_init__(self):
+        if not self.velocity_gradient:
+            object.__setattr__(self, "velocity_gradient", self.force)
 
 
 @dataclass(frozen=True)
@@ -351,15 +357,17 @@ def _cell_size_field(g):
 
 
 def _parse_method(m):
-    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "coupling", "pushing_force", "penalty",
-                           "momentum_exact"})
+    _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "velocity_gradient", "coupling",
+                           "pushing_force", "penalty", "momentum_exact", "ghost_force"})
     scheme = _choice(m, "scheme", "method", SCHEMES, default="mls")
     force = _choice(m, "force", "method", FORCES, default="mls")
+    gradient = _choice(m, "velocity_gradient", "method", FORCES, default=force)
     kernel = _choice(m, "kernel", "method", tuple(KERNELS), default="quadratic")
     if "flip_alpha" in m and scheme != "flip":
         _fail("method.flip_alpha", m["flip_alpha"], f"only with method.scheme = 'flip' (scheme is '{scheme}')")
     alpha = _number(m, "flip_alpha", "method", default=0.95 if scheme == "flip" else 0.0, lo=0.0, hi=1.0)
-    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha, **_parse_coupling(m, scheme))
+    spec = MethodSpec(scheme=scheme, force=force, kernel=kernel, flip_alpha=alpha, velocity_gradient=gradient,
+                      **_parse_coupling(m, scheme))
     _check_combination(spec)
     return spec
 
@@ -368,7 +376,7 @@ def _parse_coupling(m, scheme):
     """The CPIC options of ``[method]`` (spec B7-B8): coupling, pushing force, penalty, exact variant."""
     coupling = _choice(m, "coupling", "method", COUPLINGS, default="none")
     if coupling == "none":
-        for key in ("pushing_force", "penalty", "momentum_exact"):
+        for key in ("pushing_force", "penalty", "momentum_exact", "ghost_force"):
             if key in m:
                 _fail(f"method.{key}", m[key], "only with method.coupling = 'cpic'")
         return {}
@@ -378,9 +386,10 @@ def _parse_coupling(m, scheme):
                "PolyPIC's higher modes are projected from all stencil nodes, and ghost velocities at incompatible "
                "nodes define no modes")
         _fail("method.scheme", scheme, f"one of {list(CPIC_SCHEMES)} with method.coupling = 'cpic' ({why})")
-    exact = m.get("momentum_exact", False)
-    if not isinstance(exact, bool):
-        _fail("method.momentum_exact", exact, "true or false")
+    exact, ghost_force = m.get("momentum_exact", False), m.get("ghost_force", True)
+    for key, value in (("momentum_exact", exact), ("ghost_force", ghost_force)):
+        if not isinstance(value, bool):
+            _fail(f"method.{key}", value, "true or false")
     if exact and scheme != "pic":
         _fail("method.momentum_exact", exact, f"false with method.scheme = '{scheme}' (the exact variant needs PIC: "
               "the affine term is not given to bodies at incompatible nodes)")
@@ -388,7 +397,7 @@ def _parse_coupling(m, scheme):
     if exact and push != 0.0:
         _fail("method.pushing_force", push, "0 with method.momentum_exact = true (the pushing force injects momentum "
               "that no body receives)")
-    return {"coupling": coupling, "pushing_force": push, "momentum_exact": exact,
+    return {"coupling": coupling, "pushing_force": push, "momentum_exact": exact, "ghost_force": ghost_force,
             "penalty": _number(m, "penalty", "method", default=0.0, lo=0.0)}
 
 
@@ -400,9 +409,11 @@ def _check_combination(spec):
     if spec.kernel == "linear" and spec.scheme in ("apic", "polypic", "mls"):
         _fail("method.kernel", "linear", f"'quadratic' or 'cubic' with method.scheme = '{spec.scheme}' (an affine "
               "scheme needs a constant inertia D_p, which the linear hat does not have)")
-    if spec.kernel == "linear" and spec.force == "mls":
-        _fail("method.force", "mls", "'classic' with method.kernel = 'linear' (the MLS force needs a constant D_p = k dx^2 I; the "
-              "linear hat's D_p varies with position and is singular on nodes)")
+    for field in ("force", "velocity_gradient"):
+        if spec.kernel == "linear" and getattr(spec, field) == "mls":
+            _fail(f"method.{field}", "mls", "'classic' with method.kernel = 'linear' (the MLS force and velocity "
+                  "gradient need a constant D_p = k dx^2 I; the linear hat's D_p varies with position and is "
+                  "singular on nodes)")
 
 
 def _parse_materials(mats):

@@ -29,7 +29,8 @@ def cases_of(stage, cases=ALL_CASES):
 
 # -------------------------------------------------------------------------------------------- the cases
 def test_cases_cover_every_valid_combination():
-    """Transfers and steps: all 20 valid methods per dimension; stress and steps: every material type;
+    """Transfers and steps: all 20 valid methods per dimension and APIC with the other force's velocity
+    gradient (the force/F-update ablation); stress and steps: every material type;
     grid update: every wall type and every collider shape (2D has no cylinder)."""
     methods = sorted(f"{m['scheme']}-{m['force']}-{m['kernel']}" for m in valid_methods())
     assert len(methods) == 20
@@ -37,6 +38,7 @@ def test_cases_cover_every_valid_combination():
         for stage in ("p2g", "g2p", "step"):
             variants = {c.variant for c in cases_of(stage) if c.dim == dim}
             assert set(methods) <= variants, (stage, dim)
+            assert {"apic-mls-quadratic-gradient-classic", "apic-classic-quadratic-gradient-mls"} <= variants
         for stage in ("stress", "step"):
             types = {m["type"] for c in cases_of(stage) if c.dim == dim for m in c.scene_dict["materials"].values()}
             assert types == set(MATERIAL_TYPES)
@@ -45,7 +47,7 @@ def test_cases_cover_every_valid_combination():
         shapes = {type(k.shape).__name__ for s in scenes for k in s.colliders}
         assert len(shapes) == len(COLLIDER_SHAPES) - 1 - (dim == 2)  # disk and sphere are one class
     assert {c.stage for c in ALL_CASES} == set(STAGES)
-    assert len({c.name for c in ALL_CASES}) == len(ALL_CASES) == 162
+    assert len({c.name for c in ALL_CASES}) == len(ALL_CASES) == 174
 
 
 def test_states_are_seeded_and_physically_sensible():

@@ -162,3 +162,17 @@ def test_outputs_write_the_bodies_and_the_tags(tmp_path):
     header = (tmp_path / "diagnostics.csv").read_text().splitlines()[0]
     for column in ("rigid0_x", "rigid0_vy", "rigid0_omega", "rigid0_impulse_y"):
         assert column in header
+
+
+@pytest.mark.slow
+def test_cut2d_example_writes_the_blade_and_two_pieces(tmp_path):
+    from mpmref.cli import main
+    from verification.cpic import components
+
+    pv = pytest.importorskip("pyvista")
+    assert main(["run", "examples/cut2d.toml", "--out", str(tmp_path), "--no-progress"]) == 0
+    last = sorted(tmp_path.glob("particles_*.vtu"))[-1]
+    x = np.asarray(pv.read(last).points)[:, :2]
+    assert components(x, 1.0 / 64) == 2
+    blade = pv.read(sorted(tmp_path.glob("rigid_bodies_*.vtp"))[-1])
+    assert blade.n_lines == 2 and (tmp_path / "rigid_bodies.pvd").exists()

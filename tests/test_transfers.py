@@ -191,3 +191,29 @@ def test_polypic_restricted_to_affine_modes_equals_apic(rng):
     np.testing.assert_allclose(gs_poly.momentum, gs_apic.momentum, rtol=0, atol=1e-14)
     np.testing.assert_allclose(q_poly.v, q_apic.v, rtol=0, atol=1e-14)
     np.testing.assert_allclose(q_poly.C, q_apic.C, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("force", ["mls", "classic"])
+def test_velocity_gradient_is_chosen_apart_from_the_force(dim, force, rng):
+    """``method.velocity_gradient`` swaps only the F/J update of G2P: with the other force's gradient,
+    F equals that of the other force's scheme (G2P's F does not depend on the force), and x, v, C equal those
+    of the declared force (they do not depend on the gradient). P2G is the declared force's."""
+    other = {"mls": "classic", "classic": "mls"}[force]
+    crossed = box_scene(dim, "apic", force=force)
+    crossed = replace(crossed, method=replace(crossed.method, velocity_gradient=other))
+    plain, donor = box_scene(dim, "apic", force=force), box_scene(dim, "apic", force=other)
+    assert crossed.transfer.gradient == other and crossed.transfer.mls == (force == "mls")
+    p = random_particles(plain, 40, rng)
+    dt = 1e-3
+    results = {}
+    for name, scene in (("crossed", crossed), ("plain", plain), ("donor", donor)):
+        be = NumpyBackend(scene)
+        v = rng.standard_normal((scene.grid.n_nodes, dim)) if name == "crossed" else v
+        results[name] = be.g2p(p, v, v, dt), be.p2g(p)
+    (crossed_p, crossed_g), (plain_p, plain_g), (donor_p, _) = results["crossed"], results["plain"], results["donor"]
+    np.testing.assert_array_equal(crossed_p.F, donor_p.F)
+    assert not np.allclose(crossed_p.F, plain_p.F)
+    for name in ("x", "v", "C"):
+        np.testing.assert_array_equal(getattr(crossed_p, name), getattr(plain_p, name))
+    np.testing.assert_array_equal(crossed_g.force, plain_g.force)

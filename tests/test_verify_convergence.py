@@ -122,7 +122,20 @@ def test_the_report_writes_plots_vtk_and_summary(result, tmp_path):
 def test_the_mls_quadratic_bar_slope_is_a_finding_not_a_check(result):
     """The series without an expected rate are findings with their fitted slope; they are not checked."""
     row = next(r for r in result["rows"] if r["series"].problem == "bar" and r["series"].label == "MLS-MPM quadratic")
-    (finding,) = case.findings(result)  # the quick preset's only series without an expected rate
-    assert finding.name == "bar: MLS-MPM quadratic: fitted slope of e_u" and finding.value == row["slope_u"]
-    assert f"Δx^{row['slope_u']:.2f}" in finding.sentence and "quadratic kernel C_p" in finding.sentence
+    finding = next(f for f in case.findings(result) if f.name == "bar: MLS-MPM quadratic: fitted slope of e_u")
+    assert finding.value == row["slope_u"] and len(case.findings(result)) == 1 + len(case.ablation_series())
+    assert f"Δx^{row['slope_u']:.2f}" in finding.sentence and "MLS force" in finding.sentence
     assert not [c for c in case.checks(result) if "MLS-MPM quadratic" in c.name]
+
+
+def test_the_ablation_puts_the_first_order_error_in_the_mls_force(result):
+    """Force and F update switched apart (quadratic, 2 particles per cell per axis): the MLS force with the
+    classic F update keeps MLS-MPM's first order, the classic force with the MLS F update is near second order,
+    and MLS-MPM with 4 particles per axis is too. Bounds: halfway between first and second order (1.5) with
+    the independent 1D computation's slopes (1.00; 1.69; about 1.9) on either side of it."""
+    slope = {(r["series"].force, r["series"].gradient, r["series"].ppa): r["slope_u"] for r in result["rows"]
+             if r["series"].problem == "bar" and r["series"].kernel == "quadratic"}
+    assert slope[("mls", "classic", None)] < 1.2
+    assert slope[("mls", None, None)] < 1.2
+    assert slope[("classic", "mls", None)] > 1.5
+    assert slope[("mls", None, 4)] > 1.7

@@ -118,3 +118,17 @@ def test_results_json_holds_every_check_of_the_real_cases(report_dir):
     for c in data["checks"]:
         assert c["verdict"] == "pass" and c["reason"] and c["relation"] in ("<=", ">=", "<", ">")
         assert f"| {c['case']} | {c['name'].replace('|', chr(92) + '|')} | {c['figure']:.6g} | " in index
+
+
+def test_the_warm_up_compiles_the_scenes_of_the_compiled_cases_only():
+    """verify compiles ahead only what later cases run on Numba: every scheme of the backends case and every
+    series of speed_accuracy; a NumPy-only selection starts no process."""
+    from verification import backends, speed_accuracy, warmup
+
+    jobs = warmup.scenes_to_compile(["momentum", "backends", "speed_accuracy"], "quick", "numpy")
+    assert {name for name, _ in jobs} == {"numba"}
+    schemes = [scene.method.scheme for _, scene in jobs]
+    quick = backends.Params.quick()
+    assert len(jobs) == len(quick.variants) * len(quick.kernels) + len(speed_accuracy.SCHEMES)
+    assert {v.scheme for v in backends.VARIANTS} <= set(schemes)
+    assert warmup.start(["momentum", "transfer_energy"], "quick", "numpy") is None

@@ -87,6 +87,13 @@ def _scene(params, dim, kernel, variant):
     return builder.walls("separate", friction=0.3).time(dt=params.dt, steps=params.steps).build()
 
 
+def compiled_scenes(params, backend="numpy"):
+    """``[(backend, scene)]`` this case runs on a compiled backend (see :mod:`verification.warmup`)."""
+    candidate = params.candidate if backend == "numpy" else backend
+    return [(candidate, _scene(params, dim, kernel, VARIANT[key])) for dim in params.dims
+            for kernel in params.kernels for key in params.variants if candidate != "numpy"]
+
+
 def mode_difference(candidate, reference, norms, velocity):
     r"""Velocity difference the higher PolyPIC modes put on the stencil, relative to the particle speed.
 

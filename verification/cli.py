@@ -8,13 +8,14 @@ verdict); standard output gets the failing checks and the summary at the end. Ex
 check passes, 1 otherwise, 2 for an unknown case name.
 """
 
+import os
 import sys
 import time
 from pathlib import Path
 
 from mpmref.backends import BACKENDS
 
-from . import registry
+from . import registry, warmup
 from .common import failed
 from .executor import Executor
 from .report import case_record, machine, write_case_report, write_index
@@ -51,18 +52,15 @@ def cmd_verify(args):
               file=sys.stderr)
         return 2
     executor = Executor(scheduler=args.scheduler, workers=args.workers)
-    start, records = time.perf_counter(), []
-    for i, name in enumerate(names, 1):
-        tag = f"[{i}/{len(names)}] {name}"
-        _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
-        case_dir = args.out / name
-        outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
-        record = case_record(outcome, case_dir)
-        write_case_report(record, case_dir)
-        records.append(record)
-        _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
-                        f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
-                        f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
+    start = time.perf_counter()
+    compiling = warmup.start(names, args.preset, args.backend)
+    if compiling is not None:
+        _progress(args, "compiling the Numba kernels of later cases in a background process (cache: "
+                        f"{os.environ.get('NUMBA_CACHE_DIR', 'Numba default')}; delete it to recompile)")
+    try:
+        records = _run_cases(args, names, executor)
+    finally:
+        warmup.stop(compiling)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
             "machine": machine()}
     md, page, data = write_index(args.out, records, meta)
@@ -75,6 +73,23 @@ def cmd_verify(args):
     print(f"{total - n_failed} of {total} checks pass, {errors} case(s) stopped with an error, "
           f"{meta['wall_s']:.1f} s; report: {md}, {page} and {data}")
     return 0 if all(o.passed for o in outcomes) else 1
+
+
+def _run_cases(args, names, executor):
+    """Run and report each case in turn, with a progress line when it starts and when it ends."""
+    records = []
+    for i, name in enumerate(names, 1):
+        tag = f"[{i}/{len(names)}] {name}"
+        _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
+        case_dir = args.out / name
+        outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
+        record = case_record(outcome, case_dir)
+        write_case_report(record, case_dir)
+        records.append(record)
+        _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
+                        f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
+                        f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
+    return records
 
 
 def _progress(args, line):

@@ -25,6 +25,7 @@ CASES = {
     "backends": "verification.backends",
     "speed_accuracy": "verification.speed_accuracy",
     "sync_vs_async": "verification.sync_vs_async",
+    "cpic": "verification.cpic",
 }
 
 PRESETS = ("quick", "default", "full")

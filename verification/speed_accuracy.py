@@ -88,6 +88,15 @@ def numba_threads(backend, threads):
         numba.set_num_threads(before)
 
 
+def compiled_scenes(params, backend="numpy"):
+    """``[(backend, scene)]`` this case runs on a compiled backend: each series' coarsest grid (see
+    :mod:`verification.warmup`)."""
+    compared = ("numpy", backend) if backend != "numpy" else params.backends
+    return [(b, s.build_problem().scene(params.cells[0], s.method(), params.ppa)) for b in compared if b != "numpy"
+            for s in (_series(p, scheme, force, k) for p in params.problems for scheme, force in SCHEMES
+                      for k in params.kernels)]
+
+
 def run_group(job):
     """One (series, backend) on every grid, after an untimed warm-up on the coarsest."""
     series, backend, cells, cfl, ppa, threads = job

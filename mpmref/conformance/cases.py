@@ -90,7 +90,9 @@ def scene_dict(dim, materials, method=None, boundary=None, colliders=(), dtype="
 
 
 def valid_methods():
-    """Every ``{"scheme", "force", "kernel"}`` combination that the scene validator accepts."""
+    """Every ``{"scheme", "force", "kernel"}`` combination that the scene validator accepts, plus APIC
+    (quadratic) with the velocity gradient of the other force (the force/F-update ablation of the
+    convergence case)."""
     methods = []
     for scheme, force, kernel in product(SCHEMES, FORCES, KERNELS):
         method = {"scheme": scheme, "force": force, "kernel": kernel}
@@ -99,11 +101,15 @@ def valid_methods():
         except SceneError:
             continue
         methods.append(method)
-    return methods
+    crossed = [dict(m, velocity_gradient=g) for m in methods if m["scheme"] == "apic" and m["kernel"] == "quadratic"
+               for g in FORCES if g != m["force"]]
+    return methods + crossed
 
 
 def method_label(method):
-    return f"{method['scheme']}-{method['force']}-{method['kernel']}"
+    gradient = method.get("velocity_gradient", method["force"])
+    suffix = "" if gradient == method["force"] else f"-gradient-{gradient}"
+    return f"{method['scheme']}-{method['force']}-{method['kernel']}{suffix}"
 
 
 # ------------------------------------------------------------------------------------------- states

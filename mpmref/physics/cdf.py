@@ -1,7 +1,8 @@
 r"""The colored distance field (CDF), particle tags, compatibility and the particle distance/normal fit.
 
 CPIC (compatible PIC) lets a particle exchange momentum only with grid nodes on its own side of every
-nearby thin rigid body. This module builds the pieces that decide *which side*, in 2D, NumPy reference:
+nearby thin rigid body. This module builds the pieces that decide *which side*, in 2D (polylines,
+:mod:`mpmref.physics.rigid`) and 3D (triangle meshes, :mod:`mpmref.physics.trimesh`), NumPy reference:
 
 * :func:`build_cdf` — per grid node :math:`i`: the unsigned distance :math:`d_i` to the nearest body, that
   body's id, and per body :math:`r` an affinity bit :math:`A_{ir}` (the node is near body :math:`r`) and a
@@ -21,8 +22,8 @@ in C order over the grid's node shape (``np.ravel_multi_index``).
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §4 (compatible particle-in-cell, the colored distance
 field, particle tags and the reconstruction). Where the paper does not give a constant or an ordering
-(the edge-parameter margin 0.02, the tag threshold 1e-7, the determinant threshold 3e-3) this module
-does as the spec's reference code does (spec B2–B4).
+(the edge-parameter margin 0.02, the tag threshold 1e-7, the determinant thresholds 3e-3 in 2D and 1e-4
+in 3D) this module does as the spec's reference code does (spec B2–B4).
 """
 
 from dataclasses import dataclass
@@ -31,13 +32,20 @@ import numpy as np
 
 from .kernels import compute_stencil, get_kernel
 from .rigid import segment_frame, surface_samples
+from .trimesh import TriMesh, triangle_frame
+from .trimesh import surface_samples as triangle_samples
 
 #: a node is rasterised only if its edge parameter lies in [-EDGE_MARGIN, 1 + EDGE_MARGIN] (spec B2)
 EDGE_MARGIN = 0.02
+#: a node is rasterised only if all barycentric coordinates of its projection are >= -this (spec B2, 3D:
+#: inside the triangle; the tolerance only keeps nodes whose projection is on an edge up to round-off)
+BARYCENTRIC_TOLERANCE = 1e-10
 #: a newly near body tags a particle only if the weighted distance sum exceeds this (spec B3 step 2)
 TAG_THRESHOLD = 1e-7
 #: the least-squares fit is accepted (``near``) if |det| of its normal matrix exceeds this in 2D (spec B3)
 DET_THRESHOLD_2D = 3e-3
+#: the same in 3D (spec B3)
+DET_THRESHOLD_3D = 1e-4
 #: the fitted normal is normalised only if its squared length exceeds this (spec B3)
 NORMAL_THRESHOLD = 1e-4
 
@@ -53,7 +61,7 @@ class ColoredDistanceField:
     A : (n_nodes, n_bodies) bool array  affinity :math:`A_{ir}`: node i is in the band of body r
     T : (n_nodes, n_bodies) bool array  side :math:`T_{ir} = [h < 0]`: node i is on side 1 of body r
     shape : tuple                       nodes per axis (C order numbering)
-    origin : (2,) float array           position of node 0
+    origin : (d,) float array           position of node 0
     dx : float                          grid spacing
     """
 
@@ -66,7 +74,7 @@ class ColoredDistanceField:
     dx: float
 
     def node_positions(self):
-        """Positions of all nodes, shape (n_nodes, 2), in node order."""
+        """Positions of all nodes, shape (n_nodes, d), in node order."""
         idx = np.indices(self.shape).reshape(len(self.shape), -1).T
         return self.origin + idx * self.dx
 
@@ -81,13 +89,33 @@ def _stencil_nodes(shape, base, offset):
     return flat, inside
 
 
+def _element_samples(body, dx):
+    """Surface samples of a body and the element each lies on (spec B1): segments in 2D, triangles in 3D."""
+    return triangle_samples(body, dx) if isinstance(body, TriMesh) else surface_samples(body, dx)
+
+
+def _project_on_element(body, element, x):
+    r"""Signed normal offset :math:`h` of points ``x`` in their elements' frames, and whether to rasterise them.
+
+    A point is kept if its projection lies on the element (spec B2): a segment's edge parameter in
+    :math:`[-0.02, 1.02]`, or all barycentric coordinates in a triangle :math:`\ge 0` (up to round-off).
+    """
+    if isinstance(body, TriMesh):
+        bary, h = triangle_frame(body, element, x)
+        return np.all(bary >= -BARYCENTRIC_TOLERANCE, axis=1), h
+    s, h = segment_frame(body, element, x)
+    return (s >= -EDGE_MARGIN) & (s <= 1.0 + EDGE_MARGIN), h
+
+
 def build_cdf(bodies, shape, origin, dx):
     r"""Rasterise the colored distance field of ``bodies`` onto the grid nodes.
 
-    For every surface sample :math:`s` of body :math:`r` (:func:`mpmref.physics.rigid.surface_samples`)
-    and every node :math:`i` of its quadratic-B-spline stencil (3 × 3 nodes), with the node's edge
-    parameter :math:`\sigma` and signed normal offset :math:`h` in the frame of the sample's segment
-    (:func:`mpmref.physics.rigid.segment_frame`), if :math:`-0.02 \le \sigma \le 1.02`:
+    For every surface sample :math:`s` of body :math:`r` (:func:`mpmref.physics.rigid.surface_samples` in
+    2D, :func:`mpmref.physics.trimesh.surface_samples` in 3D) and every node :math:`i` of its
+    quadratic-B-spline stencil (:math:`3^d` nodes), with the node's signed normal offset :math:`h` in the
+    frame of the sample's element, if the node's projection lies on the element — in 2D its edge parameter
+    :math:`-0.02 \le \sigma \le 1.02` (:func:`mpmref.physics.rigid.segment_frame`), in 3D all its
+    barycentric coordinates :math:`\lambda \ge 0` (:func:`mpmref.physics.trimesh.triangle_frame`):
 
     .. math::
 
@@ -97,16 +125,16 @@ def build_cdf(bodies, shape, origin, dx):
     Only stencil nodes of samples are touched, so the band is the nodes within about 1.5 Δx of a body.
 
     Deterministic choices where the reference writes in parallel (last writer wins): when several
-    segments of one body reach a node, :math:`T_{ir}` is taken from the one with the smallest
+    elements of one body reach a node, :math:`T_{ir}` is taken from the one with the smallest
     :math:`|h|`; when two bodies are equally near, the lower body id is the nearest.
 
     Source: Hu et al. 2018 §4 (colored distance field), as the spec's reference code does (spec B2).
 
     Parameters
     ----------
-    bodies : sequence of Polyline       the rigid bodies, id = position in the sequence
-    shape : (2,) ints                   nodes per axis
-    origin : (2,) floats                position of node (0, 0)
+    bodies : sequence of Polyline (2D) or of TriMesh (3D)   the rigid bodies, id = position in the sequence
+    shape : (d,) ints                   nodes per axis
+    origin : (d,) floats                position of node 0
     dx : float                          grid spacing :math:`\Delta x`
 
     Returns
@@ -122,14 +150,13 @@ def build_cdf(bodies, shape, origin, dx):
     T = np.zeros((n_nodes, n_bodies), dtype=bool)
     kernel = get_kernel("quadratic")
     for r, body in enumerate(bodies):
-        xs, seg = surface_samples(body, dx)
+        xs, element = _element_samples(body, dx)
         stencil = compute_stencil(kernel, xs, origin, dx)
         flats, hs = [], []
         for offset in stencil.offsets:
             flat, inside = _stencil_nodes(shape, stencil.base, offset)
             xi = origin + (stencil.base[inside] + offset) * dx
-            s, h = segment_frame(body, seg[inside], xi)
-            keep = (s >= -EDGE_MARGIN) & (s <= 1.0 + EDGE_MARGIN)
+            keep, h = _project_on_element(body, element[inside], xi)
             flats.append(flat[inside][keep])
             hs.append(h[keep])
         flat, h = np.concatenate(flats), np.concatenate(hs)
@@ -172,7 +199,7 @@ def update_tags(cdf, x, A_p, T_p):
     Parameters
     ----------
     cdf : ColoredDistanceField
-    x : (n, 2) float array                  particle positions
+    x : (n, d) float array                  particle positions
     A_p, T_p : (n, n_bodies) bool arrays    the particles' tags from the previous step (not modified)
 
     Returns
@@ -240,10 +267,11 @@ def reconstruct(cdf, x, A_p, T_p):
     .. math:: \sum_i w_{ip} (\mathbf n \cdot \mathbf z_i + c - y_i)^2 ,
 
     i.e. solves :math:`M (\mathbf n, c) = \sum_i w_{ip} y_i (\mathbf z_i, 1)` with the normal matrix
-    :math:`M = \sum_i w_{ip} (\mathbf z_i, 1)(\mathbf z_i, 1)^T`. If :math:`|\det M| > 3\cdot 10^{-3}`:
-    ``near`` is true, :math:`\phi_p = c\,\Delta x` (positive on the particle's own side, negative once it
-    has penetrated) and :math:`\mathbf n_p = \mathbf n/|\mathbf n|` if :math:`|\mathbf n|^2 > 10^{-4}`,
-    else 0. Otherwise ``near`` is false and :math:`\phi_p = 0`, :math:`\mathbf n_p = 0`.
+    :math:`M = \sum_i w_{ip} (\mathbf z_i, 1)(\mathbf z_i, 1)^T`. If :math:`|\det M|` exceeds
+    :math:`3\cdot 10^{-3}` (2D) or :math:`10^{-4}` (3D): ``near`` is true, :math:`\phi_p = c\,\Delta x`
+    (positive on the particle's own side, negative once it has penetrated) and
+    :math:`\mathbf n_p = \mathbf n/|\mathbf n|` if :math:`|\mathbf n|^2 > 10^{-4}`, else 0.
+    Otherwise ``near`` is false and :math:`\phi_p = 0`, :math:`\mathbf n_p = 0`.
 
     Source: Hu et al. 2018 §4 (particle distance and normal reconstructed from the colored distance
     field by moving least squares), as the spec's reference code does for the targets and thresholds
@@ -252,13 +280,13 @@ def reconstruct(cdf, x, A_p, T_p):
     Parameters
     ----------
     cdf : ColoredDistanceField
-    x : (n, 2) float array                  particle positions
+    x : (n, d) float array                  particle positions
     A_p, T_p : (n, n_bodies) bool arrays    the particles' tags (from :func:`update_tags`)
 
     Returns
     -------
     phi : (n,) float array      signed distance :math:`\phi_p`
-    normal : (n, 2) float array unit normal :math:`\mathbf n_p` (or 0)
+    normal : (n, d) float array unit normal :math:`\mathbf n_p` (or 0)
     near : (n,) bool array
     """
     A_p, T_p = np.asarray(A_p, dtype=bool), np.asarray(T_p, dtype=bool)
@@ -280,7 +308,7 @@ def reconstruct(cdf, x, A_p, T_p):
         M += w[:, None, None] * z1[:, :, None] * z1[:, None, :]
         rhs += (w * y)[:, None] * z1
     det = np.linalg.det(M)
-    near = np.abs(det) > DET_THRESHOLD_2D
+    near = np.abs(det) > (DET_THRESHOLD_2D if dim == 2 else DET_THRESHOLD_3D)
     phi = np.zeros(n)
     normal = np.zeros((n, dim))
     if near.any():

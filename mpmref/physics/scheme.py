@@ -20,7 +20,7 @@ TRANSFER_OF = {"pic": "pic", "flip": "flip", "apic": "apic", "polypic": "polypic
 
 
 class TransferSpec(NamedTuple):
-    """What a scene's transfers are; plain values only (the Numba backend's compile-time constants).
+    r"""What a scene's transfers are; plain values only (the Numba backend's compile-time constants).
 
     Attributes
     ----------
@@ -34,7 +34,11 @@ class TransferSpec(NamedTuple):
     polypic : bool      particles carry PolyPIC's higher modes
     flip : bool         G2P blends the FLIP increment
     flip_alpha : float  the FLIP fraction (0 unless ``flip``)
-    mls : bool          the MLS force and velocity gradient
+    mls : bool          the MLS force (P2G)
+    gradient : str      the velocity gradient of the ``F``/``J`` update: ``mls`` (:math:`C_p`) or ``classic``
+                        (:math:`\sum_i v_i \nabla w_{ip}^T`); declared as ``method.velocity_gradient``, which
+                        follows ``method.force`` unless set
+    mls_gradient : bool ``gradient == "mls"`` (G2P)
     tracks_F, tracks_J, tracks_Jp : bool   deformation state the materials need
     """
 
@@ -49,6 +53,8 @@ class TransferSpec(NamedTuple):
     flip: bool
     flip_alpha: float
     mls: bool
+    gradient: str
+    mls_gradient: bool
     tracks_F: bool
     tracks_J: bool
     tracks_Jp: bool
@@ -62,5 +68,6 @@ def resolve(method, dim, materials):
         support=get_kernel(method.kernel).support, dim=dim,
         affine=transfer in ("apic", "polypic"), polypic=transfer == "polypic", flip=transfer == "flip",
         flip_alpha=float(method.flip_alpha) if transfer == "flip" else 0.0, mls=method.force == "mls",
+        gradient=method.velocity_gradient, mls_gradient=method.velocity_gradient == "mls",
         tracks_F=any(m.tracks == "F" for m in materials), tracks_J=any(m.tracks == "J" for m in materials),
         tracks_Jp=any(getattr(m, "plastic", False) for m in materials))

@@ -76,7 +76,7 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
         if rigid is not None:
             rigid = begin_step(scene.rigid_bodies, rigid, time, dt)
             particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
-        grid_state = backend.p2g(particles, prepared, contact) if contact else backend.p2g(particles, prepared)
+        grid_state = backend.p2g(particles, prepared) if contact is None else backend.p2g(particles, prepared, contact)
         if hooks.body_force is not None:
             f = nodal_body_force(particles, scene.grid, scene.kernel, hooks.body_force(particles, time))
             grid_state.force += f.astype(grid_state.force.dtype)

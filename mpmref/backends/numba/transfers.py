@@ -47,7 +47,7 @@ def make_p2g(spec):
 def make_g2p(spec):
     """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec`; see :func:`g2p_kernel`."""
     return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
-                      spec.mls, spec.tracks_F, spec.tracks_J)
+                      spec.mls_gradient, spec.tracks_F, spec.tracks_J)
 
 
 @lru_cache(maxsize=None)
@@ -184,7 +184,8 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
 
     The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, order,
     block_start, blocks, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new
-    particle arrays. The stencil loops are those of :func:`make_p2g`; :func:`g2p_node` gathers.
+    particle arrays. The stencil loops are those of :func:`make_p2g`; :func:`g2p_node` gathers. ``MLS`` here is
+    the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart from the force.
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST

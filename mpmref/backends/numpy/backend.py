@@ -49,7 +49,8 @@ class NumpyBackend:
         return transfers.prepare(particles, self.scene.grid, self.kernel, self.scene.transfer)
 
     def p2g(self, particles, prepared=None, contact=None):
-        return transfers.p2g(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.transfer,
+        tau = self.stress(particles) if contact is None else contact.tau  # CPIC computed it for the ghosts
+        return transfers.p2g(particles, tau, self.scene.grid, self.kernel, self.scene.transfer,
                              prepared, contact)
 
     def grid_update(self, grid_state, dt, time=0.0):
@@ -62,7 +63,9 @@ class NumpyBackend:
 
     # CPIC stages (scenes with rigid bodies; :mod:`.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):
-        return cpic.contact(particles, prepared, self.scene.rigid_bodies, rigid, self.scene.grid, dt, self.gravity)
+        return cpic.contact(particles, prepared, self.scene.rigid_bodies, rigid, self.scene.grid, dt, self.gravity,
+                            self.stress(particles), transfers.GRADIENT_WEIGHTS[self.scene.transfer.force],
+                            self.scene.method.ghost_force)
 
     def cpic_impulses(self, grid_state, contact, rigid, dt):
         return cpic.impulses(grid_state, contact, rigid, dt)

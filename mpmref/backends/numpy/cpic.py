@@ -43,6 +43,9 @@ class Contact:
     node_x : (K, n, 2)              that node's position
     mu : (K, n)                     encoded friction of the particle's side of that body
     v_star : (n, 2)                 the particle's velocity with this step's gravity, :math:`\\mathbf v_p + \\mathbf g\\Delta t`
+    force_velocity : (K, n, 2)      :math:`\\Delta t\\, \\mathbf f_{ip} / (m_p w_{ip})`, the velocity the particle's own internal
+                                    force gives that node (zero unless ``method.ghost_force``)
+    tau : (n, 2, 2)                 the particles' Kirchhoff stress (computed once for the step)
     ghost : (K, n, 2)               ghost velocities :math:`\\tilde{\\mathbf v}_i` with the bodies' velocities of P2G
     """
 
@@ -53,29 +56,43 @@ class Contact:
     node_x: np.ndarray
     mu: np.ndarray
     v_star: np.ndarray
-    ghost: np.ndarray
+    force_velocity: np.ndarray
+    tau: np.ndarray
+    ghost: np.ndarray = None
 
 
 def ghost_velocities(contact, rigid, particles):
     r"""Velocity an incompatible node :math:`i` shows particle :math:`p` (spec B7), without the pushing force.
 
-    .. math:: \tilde{\mathbf v}_i = \begin{cases} \Pi(\mathbf v_p^*;\ \mathbf v_r(\mathbf x_i), \mathbf n_p, \mu_{r,T_{pr}})
-              & p \text{ near} \\ \mathbf v_p^* & \text{otherwise,} \end{cases}
+    .. math:: \tilde{\mathbf v}_i = \begin{cases} \Pi(\mathbf v_p^* + \mathbf a_{ip};\ \mathbf v_r(\mathbf x_i),
+              \mathbf n_p, \mu_{r,T_{pr}}) & p \text{ near} \\ \mathbf v_p^* & \text{otherwise,} \end{cases}
 
-    with :math:`r` the node's nearest body and :math:`\mathbf v_p^* = \mathbf v_p + \mathbf g \Delta t`
-    (the reference adds gravity to the particle before P2G). P2G gives the body
-    :math:`m_p w_{ip}(\mathbf v_p^* - \tilde{\mathbf v}_i)` and G2P gives the particle :math:`\tilde{\mathbf v}_i`,
-    so with the same :math:`\tilde{\mathbf v}_i` on both sides the momentum balances exactly (spec B8).
-    Returns (K, n, 2).
+    with :math:`r` the node's nearest body, :math:`\mathbf v_p^* = \mathbf v_p + \mathbf g \Delta t` (the
+    reference adds gravity to the particle before P2G), and :math:`\mathbf a_{ip} = \Delta t\, \mathbf f_{ip}/
+    (m_p w_{ip})` the velocity the particle's own internal force :math:`\mathbf f_{ip} = -V_p^0 \tau_p g_{ip}`
+    would give the node (``method.ghost_force``, the default; the reference code uses
+    :math:`\mathbf a_{ip} = 0`). With :math:`\mathbf a_{ip}` the friction projection sees the whole normal
+    load a resting body carries, stress included, so Coulomb friction acts on it (docs/cpic.md, "Friction").
+    P2G gives the body :math:`m_p w_{ip}(\mathbf v_p^* - \tilde{\mathbf v}_i) + \Delta t\, \mathbf f_{ip}` and
+    G2P gives the particle :math:`\tilde{\mathbf v}_i`; with the same :math:`\tilde{\mathbf v}_i` on both
+    sides the momentum balances exactly (spec B8). Returns (K, n, 2).
     """
     body = np.maximum(contact.body, 0)
     v_body = point_velocity(rigid, body, contact.node_x)
-    v = np.broadcast_to(contact.v_star, v_body.shape)
-    projected = friction_projection(v, v_body, np.broadcast_to(particles.normal, v_body.shape), contact.mu)
-    return np.where(particles.near[None, :, None], projected, v)
+    v_load = contact.v_star + contact.force_velocity
+    projected = friction_projection(v_load, v_body, np.broadcast_to(particles.normal, v_body.shape), contact.mu)
+    return np.where(particles.near[None, :, None], projected, contact.v_star)
 
 
-def contact(particles, prepared, bodies, rigid, grid, dt, gravity):
+def force_velocity(stencil, offset, gradient_weight, particles, tau, dt):
+    r""":math:`\mathbf a_{ip} = -\Delta t\, V_p^0 \tau_p g_{ip} / (m_p w_{ip})` for one stencil offset (0 where :math:`w_{ip} = 0`)."""
+    w = stencil.node_weight(offset)
+    g = gradient_weight(stencil, w, stencil.node_offset_vector(offset), offset)
+    f = -dt * np.einsum("nab,nb->na", particles.vol0[:, None, None] * tau, g)
+    return np.where((w > 0.0)[:, None], f / np.where(w > 0.0, w * particles.mass, 1.0)[:, None], 0.0)
+
+
+def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient_weight, ghost_force):
     r"""Build the step's :class:`Contact` and return ``(particles with updated tags, contact)``.
 
     The field is rebuilt from the bodies' current pose (:func:`mpmref.physics.cdf.build_cdf`, spec B2); the
@@ -83,6 +100,8 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity):
     and ``near`` flag reconstructed (:func:`~mpmref.physics.cdf.update_tags`,
     :func:`~mpmref.physics.cdf.reconstruct`, spec B3); node :math:`i` and particle :math:`p` are compatible
     iff they agree on the side of every body both are near (:func:`~mpmref.physics.cdf.compatible`, B4).
+    ``tau`` is the particles' Kirchhoff stress, ``gradient_weight`` the force discretisation's
+    :math:`g_{ip}`, ``ghost_force`` whether ghost velocities include :math:`\mathbf a_{ip}` (:func:`ghost_velocities`).
     """
     stencil = prepared[0]
     x = particles.x.astype(np.float64)
@@ -91,7 +110,7 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity):
     phi, normal, near = reconstruct(cdf, x, A, T)
     particles = particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near)
     friction = np.array([b.friction for b in bodies])  # (nb, 2): side 0, side 1
-    compat, nodes, body, node_x, mu = [], [], [], [], []
+    compat, nodes, body, node_x, mu, a = [], [], [], [], [], []
     rows = np.arange(particles.n)
     for offset in stencil.offsets:
         idx = node_index(stencil, offset, grid)
@@ -102,8 +121,10 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity):
         node_x.append(grid.origin + (stencil.base + offset) * grid.dx)
         r = np.maximum(nearest, 0)
         mu.append(friction[r, T[rows, r].astype(int)])
+        a.append(force_velocity(stencil, offset, gradient_weight, particles, tau, dt) if ghost_force
+                 else np.zeros_like(particles.v))
     c = Contact(cdf=cdf, compatible=np.array(compat), node=np.array(nodes), body=np.array(body), node_x=np.array(node_x),
-                mu=np.array(mu), v_star=particles.v + dt * gravity, ghost=None)
+                mu=np.array(mu), v_star=particles.v + dt * gravity, force_velocity=np.array(a), tau=tau)
     c.ghost = ghost_velocities(c, rigid, particles)
     return particles, c
 
@@ -149,7 +170,7 @@ def g2p(particles, v_grid, grid, kernel, spec, dt, prepared, contact, rigid, pus
     lo, hi = PENALTY_WINDOW
     pushed = particles.near & (particles.phi > lo * grid.dx) & (particles.phi < hi * grid.dx) & (penalty > 0.0)
     dv = np.where(pushed[:, None], penalty * particles.phi[:, None] * particles.normal, 0.0)
-    new = new.with_(v=new.v - dv)
+    new = new.with_(v=(new.v - dv).astype(new.v.dtype))
     body = _nearest_tagged_body(contact, particles)
     J, L = body_impulses(len(rigid.angle), body[pushed], new.x[pushed],
                          particles.mass[pushed, None] * dv[pushed], rigid.position)

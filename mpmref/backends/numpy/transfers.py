@@ -186,8 +186,9 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
         F_p \leftarrow (I + \Delta t\, \nabla v_p) F_p, \qquad
         J_p \leftarrow (1 + \Delta t \operatorname{tr} \nabla v_p) J_p, \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
 
-    With the MLS force :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the classic force
-    :math:`g_{ip} = \nabla w_{ip}`. PolyPIC's higher modes are the projections of
+    With the MLS velocity gradient :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the
+    classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``spec.gradient`` chooses it, independently of
+    the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are the projections of
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
     ``(compatible (K, n), ghost velocities (K, n, d))``: at a node incompatible with the particle, its ghost
@@ -197,10 +198,10 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     st, basis = prepared or prepare(particles, grid, kernel, spec)
     n, d = particles.x.shape
     dtype = v_grid.dtype
-    need_B = spec.affine or spec.force == "mls"
+    need_B = spec.affine or spec.mls_gradient
     v_pic = np.zeros((n, d), dtype=dtype)
     B = np.zeros((n, d, d), dtype=dtype) if need_B else None
-    grad_v = np.zeros((n, d, d), dtype=dtype) if spec.force == "classic" else None
+    grad_v = np.zeros((n, d, d), dtype=dtype) if not spec.mls_gradient else None
     dv_flip = np.zeros((n, d), dtype=dtype) if spec.flip else None
     modes = np.zeros_like(particles.modes) if basis is not None else None
     for k, offset in enumerate(st.offsets):
@@ -217,7 +218,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
         if basis is not None:
             modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
     C = B / st.inertia if need_B else None
-    grad_v = C if spec.force == "mls" else grad_v
+    grad_v = C if spec.mls_gradient else grad_v
     v_new = v_pic
     if spec.flip:
         v_new = spec.flip_alpha * (particles.v + dv_flip) + (1.0 - spec.flip_alpha) * v_pic

@@ -1,0 +1,61 @@
+"""The cpic verification case: its quick preset passes, and forgetting the side tags makes the no-crossing check fail."""
+
+import numpy as np
+import pytest
+
+from mpmref.backends.numpy import cpic as cpic_stages
+from mpmref.physics.cdf import update_tags
+from verification import cpic as case
+from verification.common import failed
+
+
+@pytest.fixture(scope="module")
+def result():
+    return case.run(case.Params.quick())
+
+
+def test_every_check_of_the_quick_preset_holds(result):
+    failing = [c.line() for c in failed(case.checks(result))]
+    assert not failing, "\n".join(failing)
+
+
+def test_report_writes_plots_series_and_findings(result, tmp_path):
+    paths = case.report(result, tmp_path)
+    assert all(p.exists() for p in paths)
+    text = (tmp_path / "cpic.md").read_text()
+    assert "## Findings" in text and "default variant" in text
+    assert (tmp_path / "vtk" / "cut" / "particles.pvd").exists()
+
+
+def forgetful_tags(cdf, x, A_p, T_p):
+    """The broken variant: tags recomputed from the field every step, as if the particle had none."""
+    return update_tags(cdf, x, np.zeros_like(A_p), np.zeros_like(T_p))
+
+
+def test_recomputing_the_tags_every_step_fails_the_no_crossing_check(result, monkeypatch):
+    params = case.Params.quick()
+    good = result["no_crossing"]["impact"]
+    monkeypatch.setattr(cpic_stages, "update_tags", forgetful_tags)
+    broken = case.run_watching(case.impact_scene(params), frames=1)[1]
+    assert good["far_side"] == 0 < broken["far_side"]
+    name = f"hard impact at {params.impact_speed:g} m/s: particles on the far side at the end"
+    failing = {c.name for c in failed(case.checks(_passing(params, broken)))}
+    assert failing == {name}
+
+
+def _passing(params, impact):
+    """A result whose other parts pass, so that only the hard impact is judged."""
+    clean = {"crossings": 0, "far_side": 0}
+    friction = {"stopped": True, "distance": 1.0, "expected": 1.0}
+    return {"params": params, "no_crossing": {"drop": clean, "sand": clean, "impact": impact},
+            "exact": {"drift": 0.0, "plate_v": -1.0}, "cut": {"components": 2, "crossings": 0}, "friction": friction}
+
+
+@pytest.mark.slow
+def test_baselines_cpic_cuts_without_losing_mass_where_removal_loses_it():
+    params = case.Params.quick()
+    cpic = case.baseline(params, "cpic")
+    removed = case.baseline(params, "remove", 1.0)
+    assert cpic["crossings"] == 0 and cpic["mass_lost"] == 0.0 and cpic["components"] == 2
+    # 1 dx = 2 of the 20 particle columns of the block (ppc 4 at 32 cells): 10 % of its mass
+    assert removed["mass_lost"] == pytest.approx(0.1, abs=1e-12)

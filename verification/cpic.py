@@ -1,0 +1,476 @@
+r"""CPIC: thin rigid bodies that are not crossed, cut material, exchange momentum both ways and carry friction.
+
+Four 2D scenes on the NumPy reference (compatible PIC, Hu et al. 2018 §4–5; docs/cpic.md):
+
+* **No crossing.** A jelly block falls under gravity onto a fixed zero-thickness segment and rests on it;
+  a scripted blade moves at 1 m/s through a layer of sand. A *crossing* is a particle whose signed offset
+  from a segment's line changes sign between two consecutive steps while its projection lies on the
+  segment (both times). CPIC's claim is that there are none: a particle exchanges momentum only with nodes
+  on its own side, and its side tag is sticky. Bound: 0, over every step of the run.
+* **Hard impact.** The jelly block hits the segment at 5 m/s. Some particles do cross the line for a few
+  steps (reported): nothing on the grid stops them, only the ghost velocities, the pushing force and the
+  penalty. Because their side tag is kept, they are seen as having penetrated (negative distance) and are
+  pushed back: the check is that no particle is on the far side at the end (bound 0). Recomputing the tags
+  every step instead (the broken variant of the tests) lets them join the far side and fails it.
+* **Momentum balance.** A free thin plate (dynamic, no gravity, no walls) is hit by a jelly ball at 1 m/s.
+  Particles plus plate conserve linear momentum exactly in the momentum-exact variant (PIC, the plate's
+  velocity frozen over the step, no pushing force: what a particle keeps at an incompatible node plus what
+  the plate receives is its momentum there, and the internal forces sum to zero): bound 1e-12 relative to
+  :math:`m_{ball}|v|`. The default variant (the plate's velocity updated between P2G and G2P) is reported,
+  not judged. Two-way: the plate must move along the ball's velocity.
+* **Cutting.** A jelly block falls onto a static wedge blade (two zero-thickness segments meeting at an
+  edge): it must end as 2 connected components (particles linked when closer than one cell), with no
+  crossing.
+* **Friction.** A block slides at 1 m/s on a fixed segment with Coulomb friction :math:`\mu` under gravity
+  :math:`g`; a block decelerating at :math:`\mu g` stops after :math:`v^2/(2\mu g)`. Bound: within 15 %.
+* **Rotor** (default and full presets; reported, not judged). A thin plate spins at 10 rad/s inside a jelly
+  block: particles it sweeps are pushed only through the ghost velocities, the pushing force and the penalty,
+  and some cross the plate's line for a few steps (by a fraction of a cell); the crossings and the particles
+  on the far side at the end are reported.
+* **Baselines** (default and full presets; reported, not judged). The same jelly block falls onto a vertical
+  cut line at x = 0.5: a CPIC blade (one zero-thickness segment), a level-set collider blade (a box half a
+  cell thick, the thinnest a grid resolves), and no blade but the particles within 1 or 1.5 cells of the
+  line removed, or softened (shear modulus 0) within 2 cells, as the talk's baselines. For each: particles
+  that cross the line (below the blade's top), and mass lost.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from mpmref import SceneBuilder, Simulation
+from mpmref.bodies import sample_particles
+from mpmref.io.atomic import write_text_atomic
+from mpmref.physics.rigid import segment_frame, validate_polyline
+from mpmref.physics.rigid_dynamics import current_shapes
+
+from .common import Check, Finding, checks_table
+from .report import pyplot, save_figure, snapshot, write_series
+
+FRAME_FIELDS = ("velocity", "material")
+
+
+@dataclass(frozen=True)
+class Params:
+    cells: int = 64          # across the unit domain
+    drop_t_end: float = 2.0  # jelly falling onto a segment (spec: 2 s)
+    impact_speed: float = 5.0
+    rotor_omega: float = 10.0  # rad/s
+    rotor_t_end: float = 0.3
+    impact_t_end: float = 0.3
+    sand_t_end: float = 0.3  # blade through sand at 1 m/s
+    ball_t_end: float = 0.2  # plate hit by a ball
+    cut_t_end: float = 1.0   # jelly onto a wedge blade
+    friction_t_end: float = 0.5
+    mu: float = 0.3
+    g: float = 10.0
+    frames: int = 8
+    extended: bool = True  # the rotor and the baselines (default and full presets)
+
+    @classmethod
+    def quick(cls):
+        return cls(cells=32, drop_t_end=0.6, sand_t_end=0.15, ball_t_end=0.16, cut_t_end=0.6, friction_t_end=0.45,
+                   extended=False)
+
+    @classmethod
+    def full(cls):
+        return cls(cells=128)
+
+
+# ------------------------------------------------------------------------------------------- scenes
+def _base(params, name, scheme="mls", gravity=True, walls="separate", **method):
+    method = {"coupling": "cpic", **method}
+    b = (SceneBuilder(dim=2, name=name).grid(size=1.0, cells=params.cells).method(scheme, **method)
+         .walls(walls, domain_exit="delete"))
+    return b.gravity([0.0, -params.g if gravity else 0.0])
+
+
+def drop_scene(params):
+    """A jelly block falling 0.15 onto a fixed horizontal segment (wider than the block) at y = 0.3."""
+    b = _base(params, "cpic_drop", penalty=1e3).material("jelly", "fixed_corotated", E=2e4, nu=0.3, rho=100.0)
+    b.box("jelly", lower=[0.4, 0.45], upper=[0.6, 0.55])
+    b.rigid_body([[0.2, 0.3], [0.8, 0.3]], [[0, 1]], motion="fixed")
+    return b.time(dt=_dt(params, 2e4, 100.0), t_end=params.drop_t_end).build()
+
+
+def impact_scene(params):
+    """The jelly block of :func:`drop_scene` starting just above the segment at ``impact_speed`` downwards."""
+    b = _base(params, "cpic_impact", penalty=1e3).material("jelly", "fixed_corotated", E=2e4, nu=0.3, rho=100.0)
+    b.box("jelly", lower=[0.4, 0.34], upper=[0.6, 0.44], velocity=[0.0, -params.impact_speed])
+    b.rigid_body([[0.2, 0.3], [0.8, 0.3]], [[0, 1]], motion="fixed")
+    return b.time(dt=_dt(params, 2e4, 100.0), t_end=params.impact_t_end).build()
+
+
+def sand_scene(params):
+    """A vertical blade moving at 1 m/s through a sand layer resting on the floor."""
+    b = _base(params, "cpic_sand", penalty=1e3).material("sand", "sand", E=3e4, nu=0.3, rho=1000.0,
+                                                           friction_angle=40.0)
+    b.box("sand", lower=[0.1, 0.1], upper=[0.9, 0.25])
+    b.rigid_body([[0.3, 0.15], [0.3, 0.45]], [[0, 1]], motion="scripted", velocity=[1.0, 0.0])
+    return b.time(dt=_dt(params, 3e4, 1000.0), t_end=params.sand_t_end).build()
+
+
+def rotor_scene(params):
+    """A thin plate spinning at ``rotor_omega`` about its centre inside a jelly block resting on the floor."""
+    b = _base(params, "cpic_rotor", penalty=1e3).material("jelly", "fixed_corotated", E=2e4, nu=0.3, rho=100.0)
+    b.box("jelly", lower=[0.3, 0.1], upper=[0.7, 0.3])
+    b.rigid_body([[0.44, 0.2], [0.56, 0.2]], [[0, 1]], motion="scripted", angular_velocity=params.rotor_omega)
+    return b.time(dt=_dt(params, 2e4, 100.0), t_end=params.rotor_t_end).build()
+
+
+def ball_scene(params, exact, ghost_force=True):
+    """A jelly ball at 1 m/s onto a free thin plate; no gravity, no walls, no pushing force, no penalty."""
+    method = {"momentum_exact": True} if exact else {"pushing_force": 0.0}
+    method["ghost_force"] = ghost_force
+    b = _base(params, "cpic_ball", scheme="pic", gravity=False, walls="open", **method)
+    b.material("jelly", "fixed_corotated", E=2e3, nu=0.3, rho=1.0)
+    b.ball("jelly", center=[0.5, 0.62], radius=0.1, velocity=[0.0, -1.0])
+    b.rigid_body([[0.3, 0.45], [0.7, 0.45]], [[0, 1]], motion="dynamic", density=0.05, gravity=False)
+    return b.time(dt=_dt(params, 2e3, 1.0), t_end=params.ball_t_end).build()
+
+
+WEDGE = [[0.44, 0.06], [0.5, 0.4], [0.56, 0.06]]
+
+
+def cut_scene(params):
+    """A jelly block falling onto a fixed wedge blade whose edge is at (0.5, 0.4)."""
+    b = _base(params, "cpic_cut", penalty=1e3).material("jelly", "fixed_corotated", E=2e4, nu=0.3, rho=100.0)
+    b.box("jelly", lower=[0.35, 0.5], upper=[0.65, 0.6])
+    b.rigid_body(WEDGE, [[0, 1], [1, 2]], motion="fixed")
+    return b.time(dt=_dt(params, 2e4, 100.0), t_end=params.cut_t_end).build()
+
+
+def friction_scene(params, ghost_force=True):
+    """A block resting on a fixed segment, sliding at 1 m/s; friction ``mu`` on the segment's upper side."""
+    b = _base(params, "cpic_friction", pushing_force=0.0, ghost_force=ghost_force).material("block", "fixed_corotated", E=1e5, nu=0.3, rho=1000.0)
+    dx = 1.0 / params.cells
+    b.box("block", lower=[0.15, 0.3 + 0.25 * dx], upper=[0.25, 0.3 + 0.25 * dx + 0.05], velocity=[1.0, 0.0])
+    b.rigid_body([[0.05, 0.3], [0.95, 0.3]], [[0, 1]], motion="fixed", friction=params.mu)
+    return b.time(dt=_dt(params, 1e5, 1000.0), t_end=params.friction_t_end).build()
+
+
+BLADE = [[0.5, 0.06], [0.5, 0.4]]  # the vertical cut line of the baselines
+
+
+def baseline_scene(params, kind):
+    """The jelly block of :func:`cut_scene` over the cut line :data:`BLADE`, cut the way ``kind`` says.
+
+    ``"cpic"``: a fixed CPIC blade on the line; ``"level_set"``: a box collider half a cell thick around it;
+    ``"remove"``, ``"soften"``: no blade (the particles are removed or softened by :func:`baseline_particles`).
+    """
+    method = {"coupling": "cpic", "penalty": 1e3} if kind == "cpic" else {}
+    b = (SceneBuilder(dim=2, name=f"cpic_baseline_{kind}").grid(size=1.0, cells=params.cells).method("mls", **method)
+         .walls("separate", domain_exit="delete").gravity([0.0, -params.g]))
+    b.material("jelly", "fixed_corotated", E=2e4, nu=0.3, rho=100.0)
+    b.material("soft", "fixed_corotated", E=2.0, nu=0.3, rho=100.0)  # 10^-4 of the jelly's stiffness
+    b.box("jelly", lower=[0.35, 0.5], upper=[0.65, 0.6])
+    if kind == "cpic":
+        b.rigid_body(BLADE, [[0, 1]], motion="fixed")
+    if kind == "level_set":
+        half = 0.25 / params.cells
+        b.collider("box", lower=[0.5 - half, BLADE[0][1]], upper=[0.5 + half, BLADE[1][1]])
+    return b.time(dt=_dt(params, 2e4, 100.0), t_end=params.cut_t_end).build()
+
+
+def baseline_particles(scene, kind, width):
+    """The block's particles for baseline ``kind``: those within ``width / 2`` cells of the line removed
+    (``"remove"``) or given the soft material (``"soften"``); all of them, unchanged, otherwise."""
+    particles = sample_particles(scene)
+    strip = np.abs(particles.x[:, 0] - BLADE[0][0]) <= 0.5 * width * scene.grid.dx
+    if kind == "remove":
+        return particles.select(~strip)
+    if kind == "soften":
+        particles.material[strip] = 1
+    return particles
+
+
+def baseline(params, kind, width=0.0):
+    """Particles crossing the cut line, mass lost and connected components of one baseline run."""
+    scene = baseline_scene(params, kind)
+    full_mass = sample_particles(scene).mass.sum()
+    line = [validate_polyline(BLADE, [[0, 1]])]
+    sim, out = run_watching(scene, params.frames, particles=baseline_particles(scene, kind, width), shapes=line)
+    out.update({"kind": kind, "width": width, "mass_lost": float(1.0 - sim.mass.sum() / full_mass),
+                "components": components(sim.x, 1.0 / params.cells)})
+    return out
+
+
+BASELINES = (("cpic", 0.0), ("level_set", 0.0), ("remove", 1.0), ("remove", 1.5), ("soften", 2.0))
+
+
+def _dt(params, E, rho, cfl=0.3):
+    """A fixed step at CFL number ``cfl`` for the elastic wave speed of ``E``, ``rho`` (plus 2 m/s of motion)."""
+    return cfl * (1.0 / params.cells) / (np.sqrt(E / rho) + 2.0)
+
+
+# ------------------------------------------------------------------------------------------ measures
+def segment_offsets(sim, shapes=None):
+    """Edge parameter ``s`` and signed offset ``h`` of every particle from every segment of every body
+    (or of the polylines ``shapes``). Returns a list over segments of ``(s, h)`` arrays in particle-id
+    order, and the ids."""
+    order = np.argsort(sim.id)
+    x = sim.x[order]
+    out = []
+    for shape in shapes or current_shapes(sim.scene.rigid_bodies, sim.state.rigid):
+        for k in range(len(shape.segments)):
+            out.append(segment_frame(shape, np.full(len(x), k), x))
+    return out, sim.id[order]
+
+
+def count_crossings(before, after):
+    """Particles (by id) whose offset from a segment's line changed sign while they projected onto it."""
+    (prev, ids0), (curr, ids1) = before, after
+    common, i0, i1 = np.intersect1d(ids0, ids1, return_indices=True)
+    crossed = np.zeros(len(common), dtype=bool)
+    for (s0, h0), (s1, h1) in zip(prev, curr):
+        on = (s0[i0] >= 0) & (s0[i0] <= 1) & (s1[i1] >= 0) & (s1[i1] <= 1)
+        crossed |= on & (np.sign(h0[i0]) != np.sign(h1[i1]))
+    return set(common[crossed].tolist())
+
+
+def run_watching(scene, frames, every_step=None, particles=None, shapes=None):
+    """Run ``scene`` (from ``particles`` if given) to its end, counting crossings of its bodies (or of the
+    fixed polylines ``shapes``) every step; ``every_step(sim)`` is called after each step."""
+    sim = Simulation(scene, particles=particles)
+    crossed = set()
+    state = first = segment_offsets(sim, shapes)
+    shots = [snapshot(sim, FRAME_FIELDS)]
+    t_end, frame_dt = scene.time.t_end, scene.time.t_end / frames
+    while sim.time < t_end * (1 - 1e-12):
+        sim.step(t_end=t_end)
+        new = segment_offsets(sim, shapes)
+        crossed |= count_crossings(state, new)
+        state = new
+        if every_step is not None:
+            every_step(sim)
+        if sim.time >= len(shots) * frame_dt * (1 - 1e-9):
+            shots.append(snapshot(sim, FRAME_FIELDS))
+    return sim, {"crossings": len(crossed), "far_side": len(count_crossings(first, state)), "frames": shots, "n": sim.n_particles, "steps": sim.step_count,
+                 "bodies": shapes or current_shapes(scene.rigid_bodies, sim.state.rigid)}
+
+
+def components(x, link):
+    """Number of connected components of particles ``x`` linked when closer than ``link``."""
+    pairs = cKDTree(x).query_pairs(link, output_type="ndarray")
+    from scipy.sparse import coo_matrix
+
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(x), len(x)))
+    return int(connected_components(graph, directed=False)[0])
+
+
+# --------------------------------------------------------------------------------------------- parts
+def no_crossing(params):
+    drop = run_watching(drop_scene(params), params.frames)[1]
+    sand = run_watching(sand_scene(params), params.frames)[1]
+    impact = run_watching(impact_scene(params), params.frames)[1]
+    return {"drop": drop, "sand": sand, "impact": impact}
+
+
+def momentum_run(params, exact, ghost_force=True):
+    """The ball-plate collision; the drift of particles + plate momentum relative to :math:`m_{ball}|v|`."""
+    scene = ball_scene(params, exact, ghost_force)
+    history = []
+
+    def record(sim):
+        d = sim.diagnostics()
+        history.append((sim.time, *((sim.mass[:, None] * sim.v).sum(axis=0)), d["rigid_momentum_x"],
+                        d["rigid_momentum_y"], d["rigid0_vy"], d["kinetic"] + d["elastic"],
+                        0.5 * scene.rigid_bodies[0].mass * (d["rigid0_vx"] ** 2 + d["rigid0_vy"] ** 2)))
+
+    sim0 = Simulation(scene)
+    p0 = (sim0.mass[:, None] * sim0.v).sum(axis=0)
+    scale = float(np.linalg.norm(p0))
+    sim, out = run_watching(scene, params.frames, record)
+    h = np.array(history)
+    total = h[:, 1:3] + h[:, 3:5]
+    out.update({"drift": float(np.max(np.linalg.norm(total - p0, axis=1)) / scale), "history": h,
+                "plate_v": float(h[-1, 5]), "ball_v": float(h[-1, 2] / sim.mass.sum()), "p0": scale,
+                "energy0": float(h[0, 6] + h[0, 7]), "energy_end": float(h[-1, 6] + h[-1, 7])})
+    return out
+
+
+def cutting(params):
+    sim, out = run_watching(cut_scene(params), params.frames)
+    out["components"] = components(sim.x, 1.0 / params.cells)
+    return out
+
+
+def friction(params, ghost_force=True):
+    """The block's centre-of-mass travel until it stops (v_com below 1 % of the initial speed)."""
+    com = []
+
+    def record(sim):
+        m = sim.mass
+        com.append((sim.time, *(m @ sim.x / m.sum()), *(m @ sim.v / m.sum())))
+
+    scene = friction_scene(params, ghost_force)
+    sim0 = Simulation(scene)
+    x0 = sim0.mass @ sim0.x[:, 0] / sim0.mass.sum()
+    sim, out = run_watching(scene, params.frames, record)
+    c = np.array(com)
+    stopped = np.nonzero(c[:, 3] < 0.01)[0]
+    out.update({"com": c, "stop_time": float(c[stopped[0], 0]) if stopped.size else float("nan"),
+                "distance": float(c[stopped[0], 1] - x0) if stopped.size else float(c[-1, 1] - x0),
+                "stopped": bool(stopped.size), "expected": 1.0 / (2.0 * params.mu * params.g)})
+    return out
+
+
+def run(params=Params(), backend="numpy"):
+    """Every part of the case (NumPy reference: the Numba backend does not run rigid bodies yet)."""
+    return {"params": params, "backend": "numpy", "no_crossing": no_crossing(params),
+            "exact": momentum_run(params, exact=True), "default": momentum_run(params, exact=False),
+            "exact_reference": momentum_run(params, exact=True, ghost_force=False),
+            "cut": cutting(params), "friction": friction(params),
+            "friction_reference": friction(params, ghost_force=False),
+            "baselines": [baseline(params, kind, width) for kind, width in BASELINES] if params.extended else [],
+            "rotor": run_watching(rotor_scene(params), params.frames)[1] if params.extended else None}
+
+
+# ------------------------------------------------------------------------------------------ checks
+def checks(result):
+    nc, ex, cut, fr = result["no_crossing"], result["exact"], result["cut"], result["friction"]
+    out = [Check("no crossing: jelly onto a fixed segment, particles that crossed", nc["drop"]["crossings"], "<=", 0,
+                 "sticky side tags and compatible transfers: no particle changes side of a body"),
+           Check("no crossing: blade through sand at 1 m/s, particles that crossed", nc["sand"]["crossings"], "<=", 0,
+                 "as above, for a moving blade"),
+           Check(f"hard impact at {result['params'].impact_speed:g} m/s: particles on the far side at the end",
+                 nc["impact"]["far_side"], "<=", 0, "sticky side tags: a particle pushed across is seen as having "
+                 "penetrated and is pushed back, never joins the other side"),
+           Check("momentum: exact variant, max |P_particles + P_plate - P_0| / (m_ball |v|)", ex["drift"], "<=", 1e-12,
+                 "what the particle keeps at an incompatible node plus what the plate receives is its momentum there; "
+                 "internal forces sum to zero: round-off only"),
+           Check("two-way: plate velocity along the ball's velocity (m/s)", -ex["plate_v"], ">", 0.0,
+                 "the plate receives the momentum the ball could not give the grid beyond it"),
+           Check("cutting: connected components after the wedge blade", cut["components"], ">=", 2,
+                 "the blade splits the block: material on its two faces exchanges nothing"),
+           Check("cutting: connected components after the wedge blade (at most)", cut["components"], "<=", 2,
+                 "one cut gives two pieces, no debris"),
+           Check("cutting: particles that crossed the blade", cut["crossings"], "<=", 0, "as in the no-crossing runs"),
+           Check("friction: |stopping distance / (v^2 / 2 mu g) - 1|",
+                 abs(fr["distance"] / fr["expected"] - 1.0) if fr["stopped"] else float("inf"), "<=", 0.15,
+                 "Coulomb friction decelerates the block at mu g (spec acceptance: within 15 %)")]
+    return out
+
+
+def findings(result):
+    d, ex = result["default"], result["exact"]
+    return [
+        Finding(f"hard impact at {result['params'].impact_speed:g} m/s: particles that crossed for a while",
+                result["no_crossing"]["impact"]["crossings"],
+                "crossings undone within the run: nothing on the grid stops a fast particle, only its ghost "
+                "velocities, the pushing force and the penalty; its kept side tag brings it back."),
+        Finding("momentum: default variant, max |P_particles + P_plate - P_0| / (m_ball |v|)", d["drift"],
+                "the plate's velocity changes between P2G (impulses computed with the old one) and G2P (ghost "
+                "velocities with the new one), so what the plate receives and what the ball keeps no longer add up."),
+        Finding("collision: (kinetic + elastic + plate kinetic energy) at the end / at the start",
+                ex["energy_end"] / ex["energy0"],
+                "the contact is partly inelastic: at incompatible nodes the friction projection removes the ball's "
+                "approach velocity relative to the plate, which G2P does not give back (PIC also damps)."),
+        Finding("collision, reference ghosts (method.ghost_force = false): energy at the end / at the start",
+                result["exact_reference"]["energy_end"] / result["exact_reference"]["energy0"],
+                "energy is created: the compressed ball's stress at incompatible nodes keeps pushing the plate while "
+                "the ghost velocities (its own velocity, once separating) hold the ball's surface compressed, so the "
+                "plate leaves faster than any elastic collision allows. Momentum stays exact "
+                f"(drift {result['exact_reference']['drift']:.1e})."),
+        Finding("friction: stopping distance (m)", result["friction"]["distance"],
+                f"expected v^2/(2 mu g) = {result['friction']['expected']:.4f} m; stopped at t = "
+                f"{result['friction']['stop_time']:.3f} s (expected {1 / (result['params'].mu * result['params'].g):.3f} s)."),
+        _reference_friction(result),
+    ] + (_rotor(result) if result.get("rotor") else [])
+
+
+def _rotor(result):
+    rotor = result["rotor"]
+    return [Finding("rotor: particles that crossed the spinning plate (any step)", rotor["crossings"],
+                    f"{rotor['far_side']} of {rotor['n']} are on the far side at the end: a plate sweeping through "
+                    "material pushes it only through ghost velocities, the pushing force and the penalty, so grazing "
+                    "particles cross its line by a fraction of a cell before their kept tag brings them back.")]
+
+
+def _reference_friction(result):
+    """The friction run with the reference code's ghost velocities (no internal force in the projection)."""
+    ref, p = result["friction_reference"], result["params"]
+    c = ref["com"]
+    decel = (c[0, 3] - c[-1, 3]) / (c[-1, 0] - c[0, 0])
+    return Finding("friction, reference ghosts (method.ghost_force = false): effective mu", decel / p.g,
+                   f"measured deceleration / g over {c[-1, 0]:.2f} s (mu = {p.mu:g} declared): the projection sees "
+                   "only the particles' own approach velocity, while a resting block's weight reaches the segment "
+                   "through its stress at incompatible nodes, which no friction acts on.")
+
+
+def backends_run(result):
+    return ["numpy"]
+
+
+# ------------------------------------------------------------------------------------------ report
+def _momentum_plot(result, path):
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for key, style in (("exact", "-"), ("default", "--")):
+        h = result[key]["history"]
+        ax.plot(h[:, 0], h[:, 2] / result[key]["p0"], "C0" + style, label=f"ball, {key}")
+        ax.plot(h[:, 0], h[:, 4] / result[key]["p0"], "C1" + style, label=f"plate, {key}")
+        ax.plot(h[:, 0], (h[:, 2] + h[:, 4]) / result[key]["p0"], "k" + style, label=f"total, {key}")
+    ax.set(xlabel="time [s]", ylabel="P_y / (m_ball |v|)", title="ball onto a free plate: vertical momentum")
+    ax.legend(fontsize=7)
+    save_figure(fig, path, caption="Vertical momentum of the ball, the plate and their sum, relative to the ball's "
+                "initial momentum, for the exact and the default variant: the sum stays flat (exact to round-off).")
+    return path
+
+
+def _friction_plot(result, path):
+    plt = pyplot()
+    fr = result["friction"]
+    c = fr["com"]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(c[:, 0], c[:, 3], "C0-", label="CPIC block")
+    t = c[:, 0]
+    p = result["params"]
+    ax.plot(t, np.maximum(1.0 - p.mu * p.g * t, 0.0), "k--", label="1 - mu g t")
+    ax.set(xlabel="time [s]", ylabel="v_x of the centre of mass [m/s]", title="block sliding on a segment")
+    ax.legend()
+    save_figure(fig, path, caption="The sliding block's velocity against Coulomb friction's 1 - mu g t.")
+    return path
+
+
+def table(result):
+    nc = result["no_crossing"]
+    rows = ["| run | particles | steps | crossings (per step) | on the far side at the end |", "|---|---|---|---|---|"]
+    for name, r in (("jelly onto a segment", nc["drop"]), ("blade through sand", nc["sand"]),
+                    ("hard impact", nc["impact"]),
+                    ("ball onto a free plate (exact)", result["exact"]), ("ball onto a free plate (default)",
+                                                                            result["default"]),
+                    ("jelly onto a wedge blade", result["cut"]), ("block sliding (friction)", result["friction"])):
+        rows.append(f"| {name} | {r['n']} | {r['steps']} | {r['crossings']} | {r['far_side']} |")
+    return "\n".join(rows)
+
+
+def baseline_table(result):
+    rows = ["| cut by | particles crossing the line | mass lost | connected components |", "|---|---|---|---|"]
+    for r in result["baselines"]:
+        name = {"cpic": "CPIC blade (zero thickness)", "level_set": "level-set blade (box, 0.5 dx thick)",
+                "remove": f"removing the particles within {r['width']:g} dx", "soften": f"softening {r['width']:g} dx "
+                "(E x 1e-4)"}[r["kind"]]
+        rows.append(f"| {name} | {r['crossings']} | {r['mass_lost']:.2%} | {r['components']} |")
+    return "\n".join(rows)
+
+
+def report(result, out_dir):
+    """Plots, the VTK series of each run, and ``cpic.md``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [_momentum_plot(result, out / "momentum.png"), _friction_plot(result, out / "friction.png")]
+    runs = {**result["no_crossing"], "ball": result["exact"], **({"rotor": result["rotor"]} if result.get("rotor") else {}),
+            "cut": result["cut"], "friction": result["friction"]}
+    for key, r in runs.items():
+        paths.append(write_series(out / "vtk" / key, r["frames"]))
+    baselines = (f"## Baselines: the same block over a vertical cut line\n\n{baseline_table(result)}\n\n"
+                 if result["baselines"] else "")
+    text = (f"# CPIC (backend numpy)\n\n{table(result)}\n\n{baselines}![momentum](momentum.png)\n\n![friction](friction.png)\n\n"
+            "## Findings\n\n" + "\n".join(f"- {f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result))
+            + f"\n\n## Checks\n\n{checks_table(checks(result))}\n")
+    write_text_atomic(out / "cpic.md", text)
+    return paths + [out / "cpic.md"]
