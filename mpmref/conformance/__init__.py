@@ -66,5 +66,5 @@ from .report import CaseResult, Report, check, relative_error, stage_functions
 from .stages import ALL_STAGES, CPIC_STAGES, STAGES
 from .vectors import export, load_vectors
 
-__all__ = ["ALL_STAGES", "CPIC_STAGES", "STAGES", "Case", "CaseResult", "Report", "add_parser", "check", "export", "load_vectors", "make_cases",
-           "relative_error", "stage_functions", "valid_methods"]
+__all__ = ["ALL_STAGES", "CPIC_STAGES", "STAGES", "Case", "CaseResult", "Report", "add_parser", "check", "export",
+           "load_vectors", "make_cases", "relative_error", "stage_functions", "valid_methods"]

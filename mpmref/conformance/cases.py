@@ -305,8 +305,8 @@ def _cpic_case(stage, label, method):
 
 def _cpic_cases(stage, dim, dtype):
     """The CPIC cases of ``stage`` (2D, float64; none otherwise): the field once; the tags on each kernel (the
-    compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and the
-    momentum-exact variant of the step."""
+    compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
+    variants of the step: momentum-exact, and ghost velocities without the particle's internal force."""
     if dim != 2 or dtype != "float64":
         return []
     methods = cpic_methods()
@@ -320,7 +320,9 @@ def _cpic_cases(stage, dim, dtype):
     cases = [_cpic_case(stage, method_label(m), m) for m in methods]
     if stage == "cpic_step":
         exact = {"scheme": "pic", "force": "mls", "kernel": "quadratic", "momentum_exact": True}
-        cases.append(_cpic_case(stage, "pic-mls-quadratic-exact", exact))
+        plain_ghosts = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "ghost_force": False}
+        cases += [_cpic_case(stage, "pic-mls-quadratic-exact", exact),
+                  _cpic_case(stage, "mls-mls-quadratic-no-ghost-force", plain_ghosts)]
     return cases
 
 

@@ -53,6 +53,9 @@ class Contact:
     gravity_dv : (2,)           this step's gravity velocity :math:`\mathbf g\Delta t` (a particle's
                                 :math:`\mathbf v^*_p = \mathbf v_p + \mathbf g\Delta t` is formed where needed)
     rigid : RigidState          the bodies as P2G sees them (their velocities give P2G's ghost velocities)
+    tau : (n, 2, 2)             the particles' Kirchhoff stress (computed once for the step)
+    dt : float                  the step
+    ghost_force : bool          ghost velocities include the particle's own internal force (``method.ghost_force``)
     """
 
     cdf: ColoredDistanceField
@@ -61,6 +64,9 @@ class Contact:
     friction: np.ndarray
     gravity_dv: np.ndarray
     rigid: object
+    tau: np.ndarray
+    dt: float
+    ghost_force: bool
 
     @property
     def compatible(self):
@@ -106,7 +112,7 @@ def build_cdf(bodies, rigid, shape, origin, dx):
 
 @njit(cache=True)
 def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
-    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` (see :func:`mpmref.physics.cdf.build_cdf`).
+    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` (:func:`mpmref.physics.cdf.build_cdf`).
 
     For every sample :math:`s` of body :math:`r` and node :math:`i` of its 3 × 3 quadratic stencil, with
     the node's edge parameter :math:`\sigma` and signed offset :math:`h` in the frame of the sample's
@@ -383,14 +389,27 @@ def ghost_velocity(v0, v1, node_x0, node_x1, r, position, velocity, omega, n0, n
 
 
 @njit(cache=True, inline="always")
-def node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, v0, v1, position, velocity, omega):
-    """Ghost velocity of incompatible node ``idx`` for particle ``p``: the friction projection against the
-    node's nearest body if the particle is ``near``, else the particle's own velocity ``(v0, v1)``."""
+def node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, v0, v1, a0, a1, position, velocity,
+               omega):
+    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (see
+    :func:`mpmref.backends.numpy.cpic.ghost_velocities`): if the particle is ``near``, the friction
+    projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` (``(v0 + a0, v1 + a1)``, the load with the particle's
+    own internal force) against the node's nearest body; otherwise :math:`\mathbf v^*_p` = ``(v0, v1)``."""
     if not near[p]:
         return v0, v1
     r = max(node_body[idx], 0)
     mu = friction[r, 1] if tag_T[p, r] else friction[r, 0]
-    return ghost_velocity(v0, v1, nx0, nx1, r, position, velocity, omega, normal[p, 0], normal[p, 1], mu)
+    return ghost_velocity(v0 + a0, v1 + a1, nx0, nx1, r, position, velocity, omega, normal[p, 0], normal[p, 1], mu)
+
+
+@njit(cache=True, inline="always")
+def force_velocity(ghost_force, dt, f0, f1, w, m):
+    r""":math:`\mathbf a_{ip} = \Delta t\, \mathbf f_{ip} / (m_p w_{ip})`, :math:`\mathbf f_{ip} = -V_p^0\tau_p g_{ip}`
+    given as ``(f0, f1)`` = :math:`V_p^0\tau_p g_{ip}` (0 where :math:`w_{ip} = 0`, or without ``ghost_force``);
+    see :func:`mpmref.backends.numpy.cpic.force_velocity`."""
+    if not ghost_force or not w > 0.0:
+        return 0.0, 0.0
+    return (-dt * f0) / (w * m), (-dt * f1) / (w * m)
 
 
 # ------------------------------------------------------------------------------------------------ P2G
@@ -410,7 +429,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
 
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
-            mask, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega,
+            mask, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force, dt,
             grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         full = (1 << (S * S)) - 1
@@ -454,8 +473,9 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                                 nx0 = origin[0] + (b0 + i) * dx
                                 nx1 = origin[1] + (b1 + j) * dx
                                 vs0, vs1 = v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1]
+                                a0, a1 = force_velocity(ghost_force, dt, f_0, f_1, w, m)
                                 gh0, gh1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
-                                                      vs0, vs1, position, velocity, omega)
+                                                      vs0, vs1, a0, a1, position, velocity, omega)
                                 wm = w * m
                                 rejected_momentum[idx, 0] += wm * (vs0 - gh0)
                                 rejected_momentum[idx, 1] += wm * (vs1 - gh1)
@@ -516,7 +536,7 @@ def particle_impulses(x_new, impulse, body, position, J, L):
 
 # ------------------------------------------------------------------------------------------------ G2P
 @lru_cache(maxsize=None)
-def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
+def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
     r"""CPIC G2P kernel (2D): G2P with ghost velocities, ``C_p := 0`` for near particles, and the penalty
     (see :func:`mpmref.backends.numpy.cpic.g2p`).
 
@@ -526,16 +546,18 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
     particle with :math:`-0.3\Delta x < \phi_p < -0.05\Delta x` loses :math:`\Delta\mathbf v = k\phi_p\mathbf n_p`;
     ``impulse[p]`` gets :math:`m_p\Delta\mathbf v` and ``impulse_body[p]`` the nearest body of its stencil
     (the body of its stencil node closest to a body, first in stencil order; 0 if none), ``-1`` if not pushed.
-    Block-parallel gather; every particle writes only its own rows.
+    Block-parallel gather; every particle writes only its own rows. ``MLS_FORCE``: the force's gradient weight
+    is MLS's (it enters :math:`\mathbf a_{ip}`, :func:`force_velocity`); ``MLS``: the velocity gradient is
+    :math:`C_p` (``spec.mls_gradient``).
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
     LO, HI = PENALTY_WINDOW
 
     @njit(parallel=True, cache=True)
-    def g2p(x, v, gravity_dv, F, J, mass, origin, dx, inertia, dt, strides, order, block_start, blocks, v_grid,
-            mask, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega, push, penalty,
-            x_new, v_new, C_new, F_new, J_new, impulse, impulse_body):
+    def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, origin, dx, inertia, dt, strides, order, block_start,
+            blocks, v_grid, mask, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega,
+            push, penalty, x_new, v_new, C_new, F_new, J_new, impulse, impulse_body):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         full = (1 << (S * S)) - 1
         for bi in prange(blocks.shape[0]):
@@ -563,8 +585,17 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS, TRACKS_F, TRACKS_J):
                         else:
                             nx0 = origin[0] + (b0 + i) * dx
                             nx1 = origin[1] + (b1 + j) * dx
+                            a0, a1 = 0.0, 0.0
+                            if near[p] and ghost_force:
+                                if MLS_FORCE:
+                                    g0, g1 = w * d0 / inertia, w * d1 / inertia
+                                else:
+                                    g0, g1 = dw0[i] / dx * w1[j], dw1[j] / dx * w0[i]
+                                s00, s01 = vol0[p] * tau[p, 0, 0], vol0[p] * tau[p, 0, 1]
+                                s10, s11 = vol0[p] * tau[p, 1, 0], vol0[p] * tau[p, 1, 1]
+                                a0, a1 = force_velocity(True, dt, s00 * g0 + s01 * g1, s10 * g0 + s11 * g1, w, mass[p])
                             vi0, vi1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
-                                                  v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], position,
+                                                  v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], a0, a1, position,
                                                   velocity, omega)
                             vi0 += push0
                             vi1 += push1
@@ -629,7 +660,8 @@ def contact(backend, particles, rigid, dt):
         np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, mask)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, mask=mask, support=spec.support, friction=friction,
-                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid)
+                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
+                dt=float(dt), ghost_force=bool(scene.method.ghost_force))
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
@@ -644,10 +676,11 @@ def p2g(backend, particles, blocks, contact):
     rigid, cdf = contact.rigid, contact.cdf
     kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
-           backend.stress(particles), backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
+           contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
            blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.mask, contact.gravity_dv, cdf.body,
            particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
-           rigid.angular_velocity, gs.mass, gs.momentum, gs.force, gs.rejected_momentum, gs.rejected_force)
+           rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
+           gs.rejected_momentum, gs.rejected_force)
     return gs
 
 
@@ -672,10 +705,12 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
     J_new = empty(n) if particles.J is not None else empty(0)
     impulse, impulse_body = np.empty((n, d)), np.empty(n, dtype=np.int64)
-    kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.tracks_F, spec.tracks_J)
+    kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
+                        spec.tracks_F, spec.tracks_J)
     cdf = contact.cdf
-    kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d), backend._or_empty(particles.J, 0),
-           particles.mass, backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
+    kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
+           backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
+           backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
            blocks.block_start, blocks.colour_blocks, v_grid, contact.mask, cdf.body, cdf.d, particles.near,
            particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
