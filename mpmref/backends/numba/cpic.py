@@ -9,7 +9,7 @@ out:
 * the field is rasterised body by body, sample by sample, in the reference's order (so that its
   deterministic tie rules — the nearest element decides a node's side, the lower body id wins a tie in
   distance — give the same bits);
-* per particle, the contact keeps a bit mask of the compatible nodes of its transfer stencil instead of
+* per particle, the contact keeps a bit mask of the incompatible nodes of its transfer stencil instead of
   ``(K, n)`` arrays; ghost velocities are formed inside P2G and G2P from the node's nearest body, the
   particle's normal and friction, and the bodies' velocities of that stage;
 * P2G runs block-parallel by colour (:mod:`.blocks`), so each node receives its contributions, the rejected
@@ -47,7 +47,8 @@ class Contact:
     Attributes
     ----------
     cdf : ColoredDistanceField  the field of the bodies at the start of the step
-    mask : (n,) int64           bit ``k`` set iff node ``base + offset_k`` of the transfer stencil is compatible
+    incompatible : (n,) int64   bit ``k`` set iff node ``base + offset_k`` of the transfer stencil is incompatible
+                                with the particle (0 for most particles: those far from every body)
     support : int               nodes per axis of the transfer stencil (``K = support**2`` offsets)
     friction : (nb, 2)          encoded friction of each body's side 0 and side 1
     gravity_dv : (2,)           this step's gravity velocity :math:`\mathbf g\Delta t` (a particle's
@@ -59,7 +60,7 @@ class Contact:
     """
 
     cdf: ColoredDistanceField
-    mask: np.ndarray
+    incompatible: np.ndarray
     support: int
     friction: np.ndarray
     gravity_dv: np.ndarray
@@ -72,7 +73,7 @@ class Contact:
     def compatible(self):
         """``(K, n)`` bool: node ``k`` of particle ``p``'s stencil is compatible (the reference's layout)."""
         k = np.arange(self.support**2, dtype=np.int64)
-        return ((self.mask[None, :] >> k[:, None]) & 1).astype(bool)
+        return ((self.incompatible[None, :] >> k[:, None]) & 1) == 0
 
 
 # ------------------------------------------------------------------------------------------ the field
@@ -175,15 +176,16 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
 @lru_cache(maxsize=None)
 def tag_kernel(KERNEL, S):
     r"""Sticky tags, least-squares distance and normal of every particle (2D, quadratic stencil), and the
-    compatibility mask of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
+    mask of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
 
     The returned ``tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
-    mask)`` fills the last six arrays (:func:`tag_particle`, :func:`compatibility_mask`).
+    incompatible)`` fills the last six arrays, which must be zero on entry: only particles near a body are
+    written (:func:`tag_particle`, :func:`incompatibility_mask`).
     """
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
-    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, mask):
+    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         n, n_bodies = tag_A.shape
         n_chunks = (n + CHUNK - 1) // CHUNK
@@ -192,26 +194,25 @@ def tag_kernel(KERNEL, S):
             S0, S1 = np.empty(n_bodies), np.empty(n_bodies)
             M, rhs = np.empty((3, 3)), np.empty(3)
             for p in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
-                mask[p] = (1 << (S * S)) - 1
                 if tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
                                 near_r, S0, S1, M, rhs):
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                     b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-                    mask[p] = compatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
+                    incompatible[p] = incompatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
 
     return tags
 
 
 @njit(cache=True, inline="always")
-def compatibility_mask(p, b0, b1, S, strides, A, T, A_p, T_p):
-    r"""Bit ``k`` set iff node ``(b0 + k // S, b1 + k % S)`` is compatible with particle ``p``: no body
-    :math:`r` with :math:`A_{ir} = A_{pr} = 1` and :math:`T_{ir} \ne T_{pr}` (Hu et al. 2018 §4; spec B4)."""
-    mask = (1 << (S * S)) - 1
+def incompatibility_mask(p, b0, b1, S, strides, A, T, A_p, T_p):
+    r"""Bit ``k`` set iff node ``(b0 + k // S, b1 + k % S)`` is incompatible with particle ``p``: some body
+    :math:`r` has :math:`A_{ir} = A_{pr} = 1` and :math:`T_{ir} \ne T_{pr}` (Hu et al. 2018 §4; spec B4)."""
+    mask = 0
     for k in range(S * S):
         idx = (b0 + k // S) * strides[0] + (b1 + k % S) * strides[1]
         for r in range(A_p.shape[1]):
             if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
-                mask &= ~(1 << k)
+                mask |= 1 << k
                 break
     return mask
 
@@ -236,9 +237,6 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
     n_bodies = tag_A.shape[1]
     b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
     b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
-    phi[p], normal[p, 0], normal[p, 1], near[p] = 0.0, 0.0, 0.0, False
-    for r in range(n_bodies):
-        A_new[p, r], T_new[p, r] = False, False
     if not in_band(b0, b1, shape, d):  # far from every body: no tags (the common case, kept cheap)
         return False
     near_r[:] = False
@@ -429,10 +427,9 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
 
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
-            mask, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force, dt,
+            incompatible, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force, dt,
             grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
-        full = (1 << (S * S)) - 1
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
             for bi in prange(colour_start[colour + 1] - first):
@@ -445,7 +442,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                     b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                     base = b0 * strides[0] + b1 * strides[1]
-                    mk = mask[p]
+                    inc = incompatible[p]
                     for i in range(S):
                         d0 = (i - f0) * dx
                         for j in range(S):
@@ -458,7 +455,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                             idx = base + i * strides[0] + j * strides[1]
                             f_0 = s00 * g0 + s01 * g1
                             f_1 = s10 * g0 + s11 * g1
-                            if mk == full or (mk >> (i * S + j)) & 1:
+                            if inc == 0 or not (inc >> (i * S + j)) & 1:
                                 wm = w * m
                                 mom0, mom1 = v[p, 0], v[p, 1]
                                 if AFFINE:
@@ -521,12 +518,13 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
 
 
 @njit(cache=True)
-def particle_impulses(x_new, impulse, body, position, J, L):
-    """Sum the penalty impulses ``impulse`` (n, 2) on bodies ``body`` (``-1``: none) at ``x_new``, in particle order."""
+def particle_impulses(x_new, impulse, receiver, position, J, L):
+    """Sum the penalty impulses ``impulse`` (n, 2) at ``x_new`` on bodies ``receiver - 1`` (``receiver`` 0: no
+    impulse), in particle order."""
     for p in range(impulse.shape[0]):
-        if body[p] < 0:
+        if receiver[p] == 0:
             continue
-        r = body[p]
+        r = receiver[p] - 1
         rel0 = x_new[p, 0] - position[r, 0]
         rel1 = x_new[p, 1] - position[r, 1]
         J[r, 0] += impulse[p, 0]
@@ -544,8 +542,9 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
     (the push for near particles only) instead of :math:`\mathbf v_i`; then :math:`\mathbf v_p = \sum_i w_{ip}
     \tilde{\mathbf v}_i`, :math:`C_p`, :math:`F_p` or :math:`J_p`, :math:`\mathbf x_p` as plain G2P. A near
     particle with :math:`-0.3\Delta x < \phi_p < -0.05\Delta x` loses :math:`\Delta\mathbf v = k\phi_p\mathbf n_p`;
-    ``impulse[p]`` gets :math:`m_p\Delta\mathbf v` and ``impulse_body[p]`` the nearest body of its stencil
-    (the body of its stencil node closest to a body, first in stencil order; 0 if none), ``-1`` if not pushed.
+    ``impulse[p]`` gets :math:`m_p\Delta\mathbf v` and ``receiver[p]`` 1 + the nearest body of its stencil
+    (the body of its stencil node closest to a body, first in stencil order; body 0 if none); both stay 0
+    (as they must be on entry) for particles not pushed.
     Block-parallel gather; every particle writes only its own rows. ``MLS_FORCE``: the force's gradient weight
     is MLS's (it enters :math:`\mathbf a_{ip}`, :func:`force_velocity`); ``MLS``: the velocity gradient is
     :math:`C_p` (``spec.mls_gradient``).
@@ -556,10 +555,9 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
 
     @njit(parallel=True, cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, origin, dx, inertia, dt, strides, order, block_start,
-            blocks, v_grid, mask, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega,
-            push, penalty, x_new, v_new, C_new, F_new, J_new, impulse, impulse_body):
+            blocks, v_grid, incompatible, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega,
+            push, penalty, x_new, v_new, C_new, F_new, J_new, impulse, receiver):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
-        full = (1 << (S * S)) - 1
         for bi in prange(blocks.shape[0]):
             block = blocks[bi]
             for q in range(block_start[block], block_start[block + 1]):
@@ -567,7 +565,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                 b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                 b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                 base = b0 * strides[0] + b1 * strides[1]
-                mk = mask[p]
+                inc = incompatible[p]
                 push0, push1 = 0.0, 0.0
                 if near[p]:
                     push0, push1 = normal[p, 0] * (dt * dx * push), normal[p, 1] * (dt * dx * push)
@@ -580,7 +578,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                         d1 = (j - f1) * dx
                         w = w0[i] * w1[j]
                         idx = base + i * strides[0] + j * strides[1]
-                        if mk == full or (mk >> (i * S + j)) & 1:
+                        if inc == 0 or not (inc >> (i * S + j)) & 1:
                             vi0, vi1 = v_grid[idx, 0], v_grid[idx, 1]
                         else:
                             nx0 = origin[0] + (b0 + i) * dx
@@ -617,12 +615,10 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                 x_new[p, 0] = x[p, 0] + dt * vp0
                 x_new[p, 1] = x[p, 1] + dt * vp1
                 dv0, dv1 = 0.0, 0.0
-                impulse_body[p] = -1
-                impulse[p, 0], impulse[p, 1] = 0.0, 0.0
                 if near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
                     dv0, dv1 = penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1]
                     impulse[p, 0], impulse[p, 1] = mass[p] * dv0, mass[p] * dv1
-                    impulse_body[p] = nearest_body(base, S, strides, node_body, node_d)
+                    receiver[p] = 1 + nearest_body(base, S, strides, node_body, node_d)
                 v_new[p, 0] = vp0 - dv0
                 v_new[p, 1] = vp1 - dv1
                 if AFFINE:
@@ -651,15 +647,15 @@ def contact(backend, particles, rigid, dt):
     cdf = build_cdf(bodies, rigid, grid.node_shape, grid.origin, grid.dx)
     x = np.ascontiguousarray(particles.x, dtype=np.float64)
     n, nb = particles.n, len(bodies)
-    A, T = np.empty((n, nb), dtype=np.bool_), np.empty((n, nb), dtype=np.bool_)
-    phi, normal, near = np.empty(n), np.empty((n, 2)), np.empty(n, dtype=np.bool_)
+    A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
+    phi, normal, near = np.zeros(n), np.zeros((n, 2)), np.zeros(n, dtype=np.bool_)
     shape = np.array(grid.node_shape, dtype=np.int64)
-    mask = np.empty(n, dtype=np.int64)
+    incompatible = np.zeros(n, dtype=np.int64)
     tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
         x, cdf.origin, cdf.dx, shape, grid.strides, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
-        np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, mask)
+        np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, incompatible)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
-    c = Contact(cdf=cdf, mask=mask, support=spec.support, friction=friction,
+    c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
                 dt=float(dt), ghost_force=bool(scene.method.ghost_force))
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
@@ -677,7 +673,7 @@ def p2g(backend, particles, blocks, contact):
     kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
-           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.mask, contact.gravity_dv, cdf.body,
+           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.incompatible, contact.gravity_dv, cdf.body,
            particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
            gs.rejected_momentum, gs.rejected_force)
@@ -704,20 +700,20 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     C_new = empty(n, d, d) if particles.C is not None else empty(0, d, d)
     F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
     J_new = empty(n) if particles.J is not None else empty(0)
-    impulse, impulse_body = np.empty((n, d)), np.empty(n, dtype=np.int64)
+    impulse, receiver = np.zeros((n, d)), np.zeros(n, dtype=np.int64)
     kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
                         spec.tracks_F, spec.tracks_J)
     cdf = contact.cdf
     kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
            backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
            backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
-           blocks.block_start, blocks.colour_blocks, v_grid, contact.mask, cdf.body, cdf.d, particles.near,
+           blocks.block_start, blocks.colour_blocks, v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
            particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
-           J_new, impulse, impulse_body)
+           J_new, impulse, receiver)
     nb = len(rigid.angle)
     J, L = np.zeros((nb, 2)), np.zeros(nb)
-    particle_impulses(x_new, impulse, impulse_body, rigid.position, J, L)
+    particle_impulses(x_new, impulse, receiver, rigid.position, J, L)
     changes = {"x": x_new, "v": v_new}
     for name, array in (("C", C_new), ("F", F_new), ("J", J_new)):
         if getattr(particles, name) is not None:
