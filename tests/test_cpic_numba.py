@@ -106,7 +106,8 @@ def test_forgetful_tags_differ_from_sticky_ones():
     from mpmref.conformance.cpic import rigid_from
 
     scene = case.scene()
-    cdf = build_cdf(scene.rigid_bodies, rigid_from(inputs), scene.grid.node_shape, scene.grid.origin, scene.grid.dx)
+    cdf = build_cdf(scene.rigid_bodies, rigid_from(inputs), np.array(scene.grid.node_shape), scene.grid.origin,
+                    scene.grid.dx)
     fresh_A, fresh_T = update_tags(cdf, inputs["x"], np.zeros_like(inputs["tag_A"]), np.zeros_like(inputs["tag_T"]))
     assert np.any(fresh_T != tags["tag_T"])
 

@@ -98,17 +98,19 @@ def body_samples(bodies, rigid, dx):
 
 
 def build_cdf(bodies, rigid, shape, origin, dx):
-    """The colored distance field (:func:`mpmref.physics.cdf.build_cdf`), rasterised by :func:`rasterise`."""
+    """The colored distance field (:func:`mpmref.physics.cdf.build_cdf`), rasterised by :func:`rasterise`.
+
+    ``shape`` is the grid's node shape (an int64 array), ``origin`` a float64 array.
+    """
     x, seg, start, seg_a, seg_b = body_samples(bodies, rigid, dx)
-    n_nodes = int(np.prod(shape))
+    n_nodes = int(shape[0] * shape[1])
     d = np.full(n_nodes, np.inf)
     nearest = np.full(n_nodes, -1, dtype=np.int64)
     A = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
     T = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    rasterise(x, seg, start, seg_a, seg_b, np.asarray(origin, dtype=np.float64), float(dx),
-              np.array(shape, dtype=np.int64), d, nearest, A, T)
-    return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=tuple(shape),
-                               origin=np.asarray(origin, dtype=np.float64), dx=float(dx))
+    rasterise(x, seg, start, seg_a, seg_b, origin, float(dx), shape, d, nearest, A, T)
+    return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=(int(shape[0]), int(shape[1])), origin=origin,
+                               dx=float(dx))
 
 
 @njit(cache=True)
@@ -278,7 +280,7 @@ def in_band(b0, b1, shape, d):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p, phi, normal, near, M, rhs):
     """The weighted least-squares fit of :func:`tag_particle` for one tagged particle (``M``, ``rhs``: scratch)."""
     n_bodies = A_p.shape[1]
@@ -329,7 +331,7 @@ def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p
     near[p] = True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def solve3(M, rhs):
     """Solve the 3 × 3 system ``M s = rhs`` by Gaussian elimination with partial pivoting (LAPACK's getrf/getrs),
     overwriting ``M`` and ``rhs``; returns ``s`` as a tuple."""
@@ -643,16 +645,15 @@ def contact(backend, particles, rigid, dt):
     """The step's :class:`Contact` and the particles with their new tags, distance, normal and ``near`` flag
     (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
     scene, spec = backend.scene, backend.cfg
-    grid, bodies = scene.grid, scene.rigid_bodies
-    cdf = build_cdf(bodies, rigid, grid.node_shape, grid.origin, grid.dx)
+    bodies = scene.rigid_bodies
+    cdf = build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
     x = np.ascontiguousarray(particles.x, dtype=np.float64)
     n, nb = particles.n, len(bodies)
     A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
     phi, normal, near = np.zeros(n), np.zeros((n, 2)), np.zeros(n, dtype=np.bool_)
-    shape = np.array(grid.node_shape, dtype=np.int64)
     incompatible = np.zeros(n, dtype=np.int64)
     tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
-        x, cdf.origin, cdf.dx, shape, grid.strides, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
+        x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
         np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, incompatible)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
