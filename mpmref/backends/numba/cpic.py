@@ -245,10 +245,9 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
     S0[:] = 0.0
     S1[:] = 0.0
     for k in range(9):
-        i0, i1 = b0 + k // 3, b1 + k % 3
-        if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+        flat = stencil_node(b0, b1, k, shape)
+        if flat < 0:
             continue
-        flat = i0 * shape[1] + i1
         w = w0[k // 3] * w1[k % 3]
         for r in range(n_bodies):
             if A[flat, r]:
@@ -271,11 +270,20 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
 
 
 @njit(cache=True, inline="always")
+def stencil_node(b0, b1, k, shape):
+    """Flat index of node ``k`` (C order) of the 3 × 3 stencil at base node ``(b0, b1)``, or -1 off the grid."""
+    i0, i1 = b0 + k // 3, b1 + k % 3
+    if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+        return -1
+    return i0 * shape[1] + i1
+
+
+@njit(cache=True, inline="always")
 def in_band(b0, b1, shape, d):
     """Whether a node of the 3 × 3 stencil at base node ``(b0, b1)`` is in some body's band (finite ``d``)."""
     for k in range(9):
-        i0, i1 = b0 + k // 3, b1 + k % 3
-        if 0 <= i0 < shape[0] and 0 <= i1 < shape[1] and d[i0 * shape[1] + i1] < np.inf:
+        flat = stencil_node(b0, b1, k, shape)
+        if flat >= 0 and d[flat] < np.inf:
             return True
     return False
 
@@ -287,10 +295,9 @@ def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p
     M[:] = 0.0
     rhs[:] = 0.0
     for k in range(9):
-        i0, i1 = b0 + k // 3, b1 + k % 3
-        if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
+        flat = stencil_node(b0, b1, k, shape)
+        if flat < 0:
             continue
-        flat = i0 * shape[1] + i1
         has_body = False
         differing = 0
         for r in range(n_bodies):
@@ -413,6 +420,17 @@ def force_velocity(ghost_force, dt, f0, f1, w, m):
 
 
 # ------------------------------------------------------------------------------------------------ P2G
+@njit(cache=True, inline="always")
+def gradient_weight(mls, w, d0, d1, wa0, wa1, dwa0, dwa1, dx, inertia):
+    r"""The force's gradient weight :math:`g_{ip}` of a node (2D): MLS :math:`w_{ip}(\mathbf x_i - \mathbf x_p)/D`
+    (``d0, d1`` = :math:`\mathbf x_i - \mathbf x_p`, ``inertia`` = :math:`D`), or the kernel gradient
+    :math:`(N'_0 N_1, N_0 N'_1)/\Delta x` from the per-axis weights ``wa`` and derivatives ``dwa`` (see
+    :func:`mpmref.backends.numpy.transfers.mls_gradient_weight` and ``classic_gradient_weight``)."""
+    if mls:
+        return w * d0 / inertia, w * d1 / inertia
+    return dwa0 / dx * wa1, dwa1 / dx * wa0
+
+
 @lru_cache(maxsize=None)
 def p2g_kernel(KERNEL, S, AFFINE, MLS):
     r"""CPIC P2G kernel (2D): mass, momentum and force to compatible nodes; rejected momentum and force at
@@ -450,10 +468,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                         for j in range(S):
                             d1 = (j - f1) * dx
                             w = w0[i] * w1[j]
-                            if MLS:
-                                g0, g1 = w * d0 / inertia, w * d1 / inertia
-                            else:
-                                g0, g1 = dw0[i] / dx * w1[j], dw1[j] / dx * w0[i]
+                            g0, g1 = gradient_weight(MLS, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx, inertia)
                             idx = base + i * strides[0] + j * strides[1]
                             f_0 = s00 * g0 + s01 * g1
                             f_1 = s10 * g0 + s11 * g1
@@ -587,10 +602,8 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                             nx1 = origin[1] + (b1 + j) * dx
                             a0, a1 = 0.0, 0.0
                             if near[p] and ghost_force:
-                                if MLS_FORCE:
-                                    g0, g1 = w * d0 / inertia, w * d1 / inertia
-                                else:
-                                    g0, g1 = dw0[i] / dx * w1[j], dw1[j] / dx * w0[i]
+                                g0, g1 = gradient_weight(MLS_FORCE, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx,
+                                                         inertia)
                                 s00, s01 = vol0[p] * tau[p, 0, 0], vol0[p] * tau[p, 0, 1]
                                 s10, s11 = vol0[p] * tau[p, 1, 0], vol0[p] * tau[p, 1, 1]
                                 a0, a1 = force_velocity(True, dt, s00 * g0 + s01 * g1, s10 * g0 + s11 * g1, w, mass[p])
@@ -607,7 +620,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                             B10 += (w * vi1) * d0
                             B11 += (w * vi1) * d1
                         if not MLS:
-                            g0, g1 = dw0[i] / dx * w1[j], dw1[j] / dx * w0[i]
+                            g0, g1 = gradient_weight(False, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx, inertia)
                             G00 += vi0 * g0
                             G01 += vi0 * g1
                             G10 += vi1 * g0
