@@ -169,7 +169,7 @@ class NumbaBackend:
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):
-        return cpic.contact(self, particles, rigid, dt)
+        return cpic.contact(self, particles, prepared or self.prepare(particles), rigid, dt)
 
     def cpic_impulses(self, grid_state, contact, rigid, dt):
         return cpic.impulses(grid_state, contact, rigid, dt)

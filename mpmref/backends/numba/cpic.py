@@ -36,8 +36,6 @@ from ...state import GridState
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
 
-#: particles per parallel work item of :func:`tag_kernel` (each item allocates its scratch once)
-CHUNK = 256
 
 
 @dataclass
@@ -181,21 +179,27 @@ def tag_kernel(KERNEL, S):
     mask of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
 
     The returned ``tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
-    incompatible)`` fills the last six arrays, which must be zero on entry: only particles near a body are
-    written (:func:`tag_particle`, :func:`incompatibility_mask`).
+    incompatible, order, block_start, blocks, block, blocks_per_axis)`` fills the arrays from ``A_new`` to
+    ``incompatible``, which must be zero on entry: only particles near a body are written
+    (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the particles' blocks (``prepare``'s
+    sort, :mod:`.blocks`) and skips a block at once when no node its particles' stencils reach is in a band.
     """
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
-    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible):
+    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
+             order, block_start, blocks, block, blocks_per_axis):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
-        n, n_bodies = tag_A.shape
-        n_chunks = (n + CHUNK - 1) // CHUNK
-        for c in prange(n_chunks):
-            near_r = np.empty(n_bodies, dtype=np.bool_)  # scratch, one set per chunk of particles
+        n_bodies = tag_A.shape[1]
+        for bi in prange(blocks.shape[0]):
+            b = blocks[bi]
+            if not block_in_band(b // blocks_per_axis[1], b % blocks_per_axis[1], block, shape, d):
+                continue
+            near_r = np.empty(n_bodies, dtype=np.bool_)  # scratch, one set per block
             S0, S1 = np.empty(n_bodies), np.empty(n_bodies)
             M, rhs = np.empty((3, 3)), np.empty(3)
-            for p in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            for q in range(block_start[b], block_start[b + 1]):
+                p = order[q]
                 if tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
                                 near_r, S0, S1, M, rhs):
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
@@ -203,6 +207,21 @@ def tag_kernel(KERNEL, S):
                     incompatible[p] = incompatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
 
     return tags
+
+
+@njit(cache=True, inline="always")
+def block_in_band(c0, c1, block, shape, d):
+    """Whether a node that the quadratic stencils of block ``(c0, c1)``'s particles can reach is in a band.
+
+    A particle of the block has its transfer stencil's base node in ``[c B, c B + B - 1]`` per axis (``B`` =
+    ``block``); whatever the kernel's base shift (0, 1/2 or 1), its quadratic base node then lies in
+    ``[c B - 1, c B + B]`` and its stencil in ``[c B - 1, c B + B + 2]``.
+    """
+    for i0 in range(max(c0 * block - 1, 0), min(c0 * block + block + 3, shape[0])):
+        for i1 in range(max(c1 * block - 1, 0), min(c1 * block + block + 3, shape[1])):
+            if d[i0 * shape[1] + i1] < np.inf:
+                return True
+    return False
 
 
 @njit(cache=True, inline="always")
@@ -654,7 +673,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
 
 
 # --------------------------------------------------------------------------- the stages, for the backend
-def contact(backend, particles, rigid, dt):
+def contact(backend, particles, blocks, rigid, dt):
     """The step's :class:`Contact` and the particles with their new tags, distance, normal and ``near`` flag
     (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
     scene, spec = backend.scene, backend.cfg
@@ -667,7 +686,8 @@ def contact(backend, particles, rigid, dt):
     incompatible = np.zeros(n, dtype=np.int64)
     tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
         x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
-        np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, incompatible)
+        np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, incompatible, blocks.order,
+        blocks.block_start, blocks.colour_blocks, backend.block, backend.blocks_per_axis)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
@@ -743,7 +763,7 @@ def warm_up(backend, particles):
         particles = particles.with_(tag_A=np.zeros((n, nb), dtype=np.bool_), tag_T=np.zeros((n, nb), dtype=np.bool_))
     rigid = initial_state(backend.scene.rigid_bodies)
     blocks = backend.prepare(particles)
-    particles, c = contact(backend, particles, rigid, 0.0)
+    particles, c = contact(backend, particles, blocks, rigid, 0.0)
     gs = p2g(backend, particles, blocks, c)
     impulses(gs, c, rigid, 0.0)
     g2p(backend, particles, np.zeros_like(gs.momentum), 0.0, blocks, c, rigid)
