@@ -9,6 +9,8 @@ out:
 * the field is rasterised body by body, sample by sample, in the reference's order (so that its
   deterministic tie rules — the nearest element decides a node's side, the lower body id wins a tie in
   distance — give the same bits);
+* the tagging runs over the particles' blocks and skips a block whose particles' stencils reach no node of
+  any body's band (most blocks), and writes only the particles near a body;
 * per particle, the contact keeps a bit mask of the incompatible nodes of its transfer stencil instead of
   ``(K, n)`` arrays; ghost velocities are formed inside P2G and G2P from the node's nearest body, the
   particle's normal and friction, and the bodies' velocities of that stage;
@@ -31,11 +33,10 @@ from numba import njit, prange
 from ...physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, TAG_THRESHOLD, ColoredDistanceField
 from ...physics.rigid import surface_samples
 from ...physics.rigid_dynamics import current_shapes, initial_state
-from ..numpy.cpic import PENALTY_WINDOW
 from ...state import GridState
+from ..numpy.cpic import PENALTY_WINDOW
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
-
 
 
 @dataclass
