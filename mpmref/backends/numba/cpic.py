@@ -16,8 +16,9 @@ out:
   particle's normal and friction, and the bodies' velocities of that stage;
 * P2G runs block-parallel by colour (:mod:`.blocks`), so each node receives its contributions, the rejected
   momentum and force included, in a fixed order for any thread count;
-* impulses are reduced serially, node by node (P2G's) and particle by particle (the penalty's, written per
-  particle by the parallel G2P first): the same bits for any thread count, no atomics.
+* impulses are reduced in a fixed order: P2G's serially node by node; the penalty's particle by particle
+  within each block by the parallel G2P, then block by block: the same bits for any thread count, no
+  atomics.
 
 Only the posing of the bodies' polylines and their surface samples (a few points per body, not per node or
 particle) stay in NumPy (:func:`mpmref.physics.rigid_dynamics.current_shapes`,
@@ -467,8 +468,8 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
 
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
-            incompatible, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force, dt,
-            grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
+            incompatible, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force,
+            dt, grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
@@ -554,21 +555,6 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
         L[r] += rel0 * j1 - rel1 * j0
 
 
-@njit(cache=True)
-def particle_impulses(x_new, impulse, receiver, position, J, L):
-    """Sum the penalty impulses ``impulse`` (n, 2) at ``x_new`` on bodies ``receiver - 1`` (``receiver`` 0: no
-    impulse), in particle order."""
-    for p in range(impulse.shape[0]):
-        if receiver[p] == 0:
-            continue
-        r = receiver[p] - 1
-        rel0 = x_new[p, 0] - position[r, 0]
-        rel1 = x_new[p, 1] - position[r, 1]
-        J[r, 0] += impulse[p, 0]
-        J[r, 1] += impulse[p, 1]
-        L[r] += rel0 * impulse[p, 1] - rel1 * impulse[p, 0]
-
-
 # ------------------------------------------------------------------------------------------------ G2P
 @lru_cache(maxsize=None)
 def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
@@ -579,10 +565,11 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
     (the push for near particles only) instead of :math:`\mathbf v_i`; then :math:`\mathbf v_p = \sum_i w_{ip}
     \tilde{\mathbf v}_i`, :math:`C_p`, :math:`F_p` or :math:`J_p`, :math:`\mathbf x_p` as plain G2P. A near
     particle with :math:`-0.3\Delta x < \phi_p < -0.05\Delta x` loses :math:`\Delta\mathbf v = k\phi_p\mathbf n_p`;
-    ``impulse[p]`` gets :math:`m_p\Delta\mathbf v` and ``receiver[p]`` 1 + the nearest body of its stencil
-    (the body of its stencil node closest to a body, first in stencil order; body 0 if none); both stay 0
-    (as they must be on entry) for particles not pushed.
-    Block-parallel gather; every particle writes only its own rows. ``MLS_FORCE``: the force's gradient weight
+    its nearest body :math:`r` (the body of its stencil node closest to a body, first in stencil order; body 0
+    if none) receives :math:`m_p\Delta\mathbf v` at :math:`\mathbf x_p` (after the move):
+    ``block_impulse[bi, r]`` (zero on entry) accumulates :math:`(J_x, J_y, (\mathbf x_p - \mathbf c_r)\times
+    \mathbf J)` over the particles of block ``bi`` in their order. Block-parallel gather; every particle
+    writes only its own rows, every block its own impulses. ``MLS_FORCE``: the force's gradient weight
     is MLS's (it enters :math:`\mathbf a_{ip}`, :func:`force_velocity`); ``MLS``: the velocity gradient is
     :math:`C_p` (``spec.mls_gradient``).
     """
@@ -592,8 +579,8 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
 
     @njit(parallel=True, cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, origin, dx, inertia, dt, strides, order, block_start,
-            blocks, v_grid, incompatible, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity, omega,
-            push, penalty, x_new, v_new, C_new, F_new, J_new, impulse, receiver):
+            blocks, v_grid, incompatible, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity,
+            omega, push, penalty, x_new, v_new, C_new, F_new, J_new, block_impulse):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         for bi in prange(blocks.shape[0]):
             block = blocks[bi]
@@ -652,8 +639,11 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                 dv0, dv1 = 0.0, 0.0
                 if near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
                     dv0, dv1 = penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1]
-                    impulse[p, 0], impulse[p, 1] = mass[p] * dv0, mass[p] * dv1
-                    receiver[p] = 1 + nearest_body(base, S, strides, node_body, node_d)
+                    j0, j1 = mass[p] * dv0, mass[p] * dv1
+                    r = nearest_body(base, S, strides, node_body, node_d)
+                    block_impulse[bi, r, 0] += j0
+                    block_impulse[bi, r, 1] += j1
+                    block_impulse[bi, r, 2] += (x_new[p, 0] - position[r, 0]) * j1 - (x_new[p, 1] - position[r, 1]) * j0
                 v_new[p, 0] = vp0 - dv0
                 v_new[p, 1] = vp1 - dv1
                 if AFFINE:
@@ -686,9 +676,9 @@ def contact(backend, particles, blocks, rigid, dt):
     phi, normal, near = np.zeros(n), np.zeros((n, 2)), np.zeros(n, dtype=np.bool_)
     incompatible = np.zeros(n, dtype=np.int64)
     tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
-        x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T, np.ascontiguousarray(particles.tag_A),
-        np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near, incompatible, blocks.order,
-        blocks.block_start, blocks.colour_blocks, backend.block, backend.blocks_per_axis)
+        x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
+        np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
+        incompatible, blocks.order, blocks.block_start, blocks.colour_blocks, backend.block, backend.blocks_per_axis)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
@@ -708,9 +698,9 @@ def p2g(backend, particles, blocks, contact):
     kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
-           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.incompatible, contact.gravity_dv, cdf.body,
-           particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
-           rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
+           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.incompatible, contact.gravity_dv,
+           cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
+           rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
            gs.rejected_momentum, gs.rejected_force)
     return gs
 
@@ -727,7 +717,7 @@ def impulses(grid_state, contact, rigid, dt):
 
 def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     """CPIC G2P (:func:`g2p_kernel`) with the bodies ``rigid`` as G2P sees them; returns ``(new particles,
-    (J, L))``, the penalty's impulses on the bodies summed in particle order (:func:`particle_impulses`)."""
+    (J, L))``, the penalty's impulses on the bodies, summed per block by the kernel, then over blocks in order."""
     spec, method = backend.cfg, backend.scene.method
     n, d = particles.x.shape
     empty = backend._empty
@@ -735,7 +725,8 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     C_new = empty(n, d, d) if particles.C is not None else empty(0, d, d)
     F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
     J_new = empty(n) if particles.J is not None else empty(0)
-    impulse, receiver = np.zeros((n, d)), np.zeros(n, dtype=np.int64)
+    nb = len(rigid.angle)
+    block_impulse = np.zeros((len(blocks.colour_blocks), nb, 3))
     kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
                         spec.tracks_F, spec.tracks_J)
     cdf = contact.cdf
@@ -745,15 +736,23 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
            blocks.block_start, blocks.colour_blocks, v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
            particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
-           J_new, impulse, receiver)
-    nb = len(rigid.angle)
-    J, L = np.zeros((nb, 2)), np.zeros(nb)
-    particle_impulses(x_new, impulse, receiver, rigid.position, J, L)
+           J_new, block_impulse)
+    total = sum_in_order(block_impulse)
+    J, L = total[:, :2], total[:, 2]
     changes = {"x": x_new, "v": v_new}
     for name, array in (("C", C_new), ("F", F_new), ("J", J_new)):
         if getattr(particles, name) is not None:
             changes[name] = array
     return particles.with_(**changes), (J, L)
+
+
+@njit(cache=True)
+def sum_in_order(per_block):
+    """``per_block`` (k, nb, 3) summed over its first axis, block after block (a fixed order)."""
+    total = np.zeros(per_block.shape[1:])
+    for b in range(per_block.shape[0]):
+        total += per_block[b]
+    return total
 
 
 def warm_up(backend, particles):
