@@ -228,3 +228,28 @@ def test_exported_cpic_vectors_are_the_references(tmp_path):
         bodies = entry["resolved"]["rigid_bodies"]
         assert [b["motion"] for b in bodies] == ["dynamic", "scripted", "fixed"]
         assert bodies[1]["mass"] == "inf" and bodies[1]["friction"] == [-1.0, -1.0]
+
+
+def test_numba_impulses_go_to_each_node_s_nearest_body():
+    """Spec B8 on the compiled reduction: with two bodies near, an incompatible node's impulse goes to the
+    nearer one, with its torque about that body's reference point."""
+    from types import SimpleNamespace
+
+    from mpmref.backends.numba.cpic import impulses
+    from mpmref.physics.cdf import build_cdf
+    from mpmref.physics.rigid import validate_polyline
+    from mpmref.physics.rigid_dynamics import RigidState
+
+    dx = 1.0 / 32
+    lower = validate_polyline([[0.2, 0.5 - 0.4 * dx], [0.8, 0.5 - 0.4 * dx]], [[0, 1]])
+    upper = validate_polyline([[0.2, 0.5 + 0.7 * dx], [0.8, 0.5 + 0.7 * dx]], [[0, 1]])
+    cdf = build_cdf([lower, upper], (33, 33), (0.0, 0.0), dx)
+    node = np.ravel_multi_index((16, 16), (33, 33))  # (0.5, 0.5): 0.4 dx from the lower, 0.7 dx from the upper
+    rejected = np.zeros((33 * 33, 2))
+    rejected[node] = [1.0, -2.0]
+    grid_state = SimpleNamespace(rejected_momentum=rejected, rejected_force=np.zeros_like(rejected))
+    rigid = RigidState(position=np.array([[0.5, 0.49], [0.5, 0.52]]), angle=np.zeros(2), velocity=np.zeros((2, 2)),
+                       angular_velocity=np.zeros(2), impulse=np.zeros((2, 2)), angular_impulse=np.zeros(2))
+    J, L = impulses(grid_state, SimpleNamespace(cdf=cdf), rigid, dt=1e-3)
+    assert np.array_equal(J, [[1.0, -2.0], [0.0, 0.0]])
+    assert L[0] == pytest.approx(-0.01 * 1.0) and L[1] == 0.0  # (x - c) = (0, 0.01): L = -0.01 * J_x

@@ -48,7 +48,7 @@ def _passing(params, impact):
     clean = {"crossings": 0, "far_side": 0}
     friction = {"stopped": True, "distance": 1.0, "expected": 1.0}
     return {"params": params, "no_crossing": {"drop": clean, "sand": clean, "impact": impact},
-            "exact": {"drift": 0.0, "plate_v": -1.0}, "cut": {"components": 2, "crossings": 0}, "friction": friction}
+            "exact": {"drift": 0.0, "plate_v": -1.0}, "cut": {"components": 2, "far_side": 0}, "friction": friction}
 
 
 @pytest.mark.slow

@@ -263,7 +263,8 @@ def apply_impulses(bodies, state, J, L):
     """
     inv_m = np.array([1.0 / b.mass for b in bodies])
     inv_i = np.array([1.0 / b.inertia for b in bodies])
-    return state.with_(velocity=state.velocity + J * inv_m[:, None], angular_velocity=state.angular_velocity + L * inv_i,
+    return state.with_(velocity=state.velocity + J * inv_m[:, None],
+                       angular_velocity=state.angular_velocity + L * inv_i,
                        impulse=state.impulse + J, angular_impulse=state.angular_impulse + L)
 
 

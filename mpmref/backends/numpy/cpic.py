@@ -123,7 +123,8 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient
         mu.append(friction[r, T[rows, r].astype(int)])
         a.append(force_velocity(stencil, offset, gradient_weight, particles, tau, dt) if ghost_force
                  else np.zeros_like(particles.v))
-    c = Contact(cdf=cdf, compatible=np.array(compat), node=np.array(nodes), body=np.array(body), node_x=np.array(node_x),
+    c = Contact(cdf=cdf, compatible=np.array(compat), node=np.array(nodes), body=np.array(body),
+                node_x=np.array(node_x),
                 mu=np.array(mu), v_star=particles.v + dt * gravity, force_velocity=np.array(a), tau=tau)
     c.ghost = ghost_velocities(c, rigid, particles)
     return particles, c
