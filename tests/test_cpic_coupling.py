@@ -73,11 +73,6 @@ def test_no_cpic_state_without_bodies():
     assert sim.state.rigid is None and "rigid0_x" not in sim.diagnostics()
 
 
-def test_numba_backend_refuses_bodies_clearly():
-    with pytest.raises(SceneError, match="NumPy reference backend only"):
-        Simulation(builder().build(), backend="numba")
-
-
 def test_mass_properties_of_a_rod_and_a_square():
     rod = validate_polyline([[0.0, 0.0], [2.0, 0.0]], [[0, 1]])
     m, c, i = line_mass_properties(rod, density=3.0)

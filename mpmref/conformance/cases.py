@@ -17,8 +17,9 @@ from ..backends import make_backend
 from ..errors import SceneError
 from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
-from ..scene import FORCES, SCHEMES, Scene
-from .stages import STAGES, composed_step, particles_from, run_stage
+from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
+from .cpic import CPIC_STAGES, RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
+from .stages import ALL_STAGES, STAGES, composed_step, particles_from, run_stage
 
 CELLS = 8
 #: particles stay at least this many cells away from every face of the domain
@@ -252,6 +253,8 @@ class Case:
     def inputs(self):
         """The stage's inputs as a flat dict of arrays (same result on every call)."""
         scene, rng = self.scene(), np.random.default_rng(self.seed)
+        if self.stage in CPIC_STAGES:
+            return _as_dtype(cpic_inputs(self.stage, scene, rng), self.dtype)
         if self.stage == "grid_update":
             flat = random_grid(scene, rng)
         else:
@@ -267,8 +270,60 @@ class Case:
     def reference(self, inputs=None):
         """The NumPy reference's outputs of the stage on ``inputs`` (default: :meth:`inputs`), a flat dict."""
         backend = make_backend("numpy", self.scene())
-        fn = partial(composed_step, backend) if self.stage == "step" else getattr(backend, self.stage)
+        fn = backend_stage(backend, self.stage)
         return run_stage(self.stage, fn, self.inputs() if inputs is None else inputs)
+
+
+def backend_stage(backend, stage):
+    """The callable of ``stage`` for a backend object (``step``: the pipeline over its stages; CPIC stages:
+    their runners of :mod:`.cpic` bound to it)."""
+    if stage == "step":
+        return partial(composed_step, backend)
+    if stage in CPIC_STAGES:
+        return partial(RUNNERS[stage], backend)
+    return getattr(backend, stage)
+
+
+def cpic_inputs(stage, scene, rng):
+    """A CPIC stage's inputs: :func:`random_particles`, previous tags and bodies (:func:`.cpic.random_cpic_state`),
+    ``dt``, ``time`` and, for ``cpic_g2p``, the reference's ``grid_v`` of that state."""
+    flat = random_cpic_state(scene, rng, random_particles(scene, rng))
+    flat["dt"], flat["time"] = np.array(DT), np.array(TIME)
+    if stage == "cpic_g2p":
+        flat["grid_v"] = reference_grid_velocity(scene, flat)
+    return flat
+
+
+def cpic_methods():
+    """Every valid ``{"scheme", "force", "kernel"}`` that CPIC is defined for (:data:`mpmref.scene.CPIC_SCHEMES`)."""
+    return [m for m in valid_methods() if m["scheme"] in CPIC_SCHEMES]
+
+
+def _cpic_case(stage, label, method):
+    return Case(stage, 2, label, cpic_scene_dict(scene_dict(2, TRANSFER_MATERIALS), method))
+
+
+def _cpic_cases(stage, dim, dtype):
+    """The CPIC cases of ``stage`` (2D, float64; none otherwise): the field once; the tags on each kernel (the
+    compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
+    variants of the step: momentum-exact, and ghost velocities without the particle's internal force."""
+    if dim != 2 or dtype != "float64":
+        return []
+    methods = cpic_methods()
+    if stage == "cpic_field":
+        return [_cpic_case(stage, "bodies", methods[0])]
+    if stage == "cpic_tags":
+        first = {}
+        for m in methods:
+            first.setdefault(m["kernel"], m)
+        return [_cpic_case(stage, method_label(m), m) for m in first.values()]
+    cases = [_cpic_case(stage, method_label(m), m) for m in methods]
+    if stage == "cpic_step":
+        exact = {"scheme": "pic", "force": "mls", "kernel": "quadratic", "momentum_exact": True}
+        plain_ghosts = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "ghost_force": False}
+        cases += [_cpic_case(stage, "pic-mls-quadratic-exact", exact),
+                  _cpic_case(stage, "mls-mls-quadratic-no-ghost-force", plain_ghosts)]
+    return cases
 
 
 def _material_cases(stage, dim, dtype, set_names):
@@ -296,14 +351,19 @@ _STAGE_CASES = {
     "grid_update": _grid_update_cases,
     "g2p": lambda dim, dtype: _method_cases("g2p", dim, dtype),
     "step": lambda dim, dtype: _method_cases("step", dim, dtype) + _material_cases("step", dim, dtype, MATERIAL_SETS),
+    **{stage: partial(_cpic_cases, stage) for stage in CPIC_STAGES},
 }
 
 
 def make_cases(dims=(2, 3), stages=STAGES, dtype="float64"):
-    """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`)."""
-    unknown = sorted(set(stages) - set(STAGES))
+    """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`).
+
+    The default is the six stages of every backend; the CPIC stages (:data:`.cpic.CPIC_STAGES`, 2D and
+    float64 only) are included when asked for, e.g. ``stages=ALL_STAGES``.
+    """
+    unknown = sorted(set(stages) - set(ALL_STAGES))
     if unknown:
-        raise ValueError(f"unknown stages {unknown}: the stages are {list(STAGES)}")
+        raise ValueError(f"unknown stages {unknown}: the stages are {list(ALL_STAGES)}")
     if dtype not in DEFAULT_RTOL:
         raise ValueError(f"unknown dtype {dtype!r}: use one of {list(DEFAULT_RTOL)}")
     return [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]

@@ -13,7 +13,8 @@ from tqdm import tqdm
 from ..backends import make_backend
 from ..backends.base import STAGES as BACKEND_STAGES
 from .cases import make_cases
-from .stages import STAGES, composed_step, run_stage
+from .cpic import CPIC_STAGES, RUNNERS, has_cpic
+from .stages import ALL_STAGES, STAGES, composed_step, run_stage
 
 
 def relative_error(candidate, reference):
@@ -98,7 +99,7 @@ class Report:
     def stage_summary(self):
         """Per stage that ran: ``{stage: (cases, failed, worst CaseResult)}`` in stage order."""
         summary = {}
-        for stage in STAGES:
+        for stage in ALL_STAGES:
             rows = [r for r in self.results if r.case.stage == stage]
             if rows:
                 worst = max(rows, key=lambda r: r.error / r.rtol)
@@ -111,7 +112,7 @@ class Report:
         for stage, (count, failed, worst) in self.stage_summary().items():
             lines.append(f"{stage:<12} {count:>5} {failed:>6} {worst.error:>14.3e} {worst.rtol:>8.0e}  "
                          f"{worst.case.name} ({worst.worst_output})")
-        skipped = sorted({c.stage for c in self.skipped}, key=STAGES.index)
+        skipped = sorted({c.stage for c in self.skipped}, key=ALL_STAGES.index)
         if skipped:
             lines.append(f"not provided by the candidate (skipped): {', '.join(skipped)}")
         rows = self.results if verbose else self.failures()
@@ -131,16 +132,17 @@ def _case_line(result):
 
 # ------------------------------------------------------------------------------------------ candidates
 def _check_stage_names(mapping):
-    unknown = sorted(set(mapping) - set(STAGES))
+    unknown = sorted(set(mapping) - set(ALL_STAGES))
     if unknown:
-        raise TypeError(f"unknown stage names {unknown}: the stages are {list(STAGES)}")
+        raise TypeError(f"unknown stage names {unknown}: the stages are {list(ALL_STAGES)}")
 
 
 def _stage_callables(stages):
     """``{stage: callable}`` of an object with stage methods or of a mapping of stage names to callables.
 
     An object with the six backend stages (:mod:`mpmref.backends.base`) is also checked on whole steps:
-    its ``step`` is the stepper's one pipeline (:func:`mpmref.steppers.substep`) over its stages.
+    its ``step`` is the stepper's one pipeline (:func:`mpmref.steppers.substep`) over its stages. An object
+    with the CPIC methods (:func:`.cpic.has_cpic`) is also checked on the CPIC stages.
     """
     if isinstance(stages, Mapping):
         _check_stage_names(stages)
@@ -148,6 +150,8 @@ def _stage_callables(stages):
     found = {s: getattr(stages, s) for s in STAGES if callable(getattr(stages, s, None))}
     if "step" not in found and all(callable(getattr(stages, s, None)) for s in BACKEND_STAGES):
         found["step"] = partial(composed_step, stages)
+    if has_cpic(stages):
+        found.update({stage: partial(RUNNERS[stage], stages) for stage in CPIC_STAGES})
     return found
 
 

@@ -16,8 +16,11 @@ from contextlib import nullcontext
 import numpy as np
 
 from ..state import GridState, Particles
+from .cpic import CPIC_STAGES
 
 STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
+#: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies (:mod:`.cpic`)
+ALL_STAGES = STAGES + CPIC_STAGES
 PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
 #: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
 EVOLVING_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
@@ -62,8 +65,12 @@ def _step(fn, flat):
     return particle_outputs(fn(particles_from(flat), float(flat["dt"]), float(flat["time"])))
 
 
+def _flat_stage(fn, flat):
+    return fn(flat)
+
+
 _CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "grid_update": _grid_update,
-            "g2p": _g2p, "step": _step}
+            "g2p": _g2p, "step": _step, **{stage: _flat_stage for stage in CPIC_STAGES}}
 
 
 def composed_step(stages, particles, dt, time):
@@ -73,9 +80,12 @@ def composed_step(stages, particles, dt, time):
     """
     from ..steppers.pipeline import substep
 
-    if not callable(getattr(stages, "running", None)):
-        stages = _WithRunning(stages)
-    return substep(stages, particles, dt, time)
+    return substep(with_running(stages), particles, dt, time)
+
+
+def with_running(stages):
+    """``stages``, given the trivial ``running`` context if it has none."""
+    return stages if callable(getattr(stages, "running", None)) else _WithRunning(stages)
 
 
 class _WithRunning:
@@ -96,7 +106,8 @@ class _WithRunning:
 def run_stage(stage, fn, flat):
     """Call the stage function ``fn`` on copies of the inputs ``flat``; return its outputs as a flat dict.
 
-    ``fn`` has the backend signature of ``stage`` (see :mod:`mpmref.conformance`); the inputs are copied,
-    so a stage that writes into its arguments cannot change the case.
+    ``fn`` has the backend signature of ``stage`` (see :mod:`mpmref.conformance`), or for a CPIC stage takes
+    the flat inputs (:mod:`.cpic`); the inputs are copied, so a stage that writes into its arguments cannot
+    change the case.
     """
     return _CALLERS[stage](fn, flat)

@@ -28,6 +28,11 @@ CONVENTIONS = {
     "modes": "axis 1 of in_modes / out_modes follows resolved.polypic_modes (per-axis polynomial degrees)",
     "error": "max|candidate - reference| / max|reference| over every entry of an output array (denominator 1 "
              "where the reference is all zero); a case passes when its largest output error is <= rtol",
+    "cpic": "cpic_* cases (2D): in_tag_A / in_tag_T (n, nb) are the particles' previous tags; in_rigid_* the bodies' "
+            "state (position of the reference point, angle, velocity, angular velocity, impulses received), body r "
+            "being resolved.rigid_bodies[r] posed as x = position + R(angle) (x0 - center); out_cdf_d is 0 where "
+            "out_cdf_body is -1; out_compatible (K, n) follows the transfer stencil's offsets in C order; booleans "
+            "are compared as 0/1",
 }
 
 
@@ -69,7 +74,24 @@ def resolved_scene(case):
                      "walls": {name: asdict(w) for name, w in scene.boundary.walls.items()}},
         "colliders": [_collider_entry(c) for c in scene.colliders],
         "polypic_modes": higher_modes(scene.dim, kernel.support).tolist() if scene.transfer.polypic else None,
+        "rigid_bodies": [_rigid_entry(b) for b in scene.rigid_bodies],
     }
+
+
+def _rigid_entry(body):
+    """A rigid body as a flat table: its polyline at time 0, reference point, motion, mass properties, script
+    and encoded friction of side 0 and side 1 (see :func:`mpmref.physics.rigid_dynamics.encode_friction`)."""
+    return {"vertices": body.shape.vertices.tolist(), "segments": body.shape.segments.tolist(),
+            "closed": body.shape.closed, "motion": body.motion, "center": np.asarray(body.center).tolist(),
+            "mass": _jsonable_number(body.mass), "inertia": _jsonable_number(body.inertia),
+            "velocity": np.asarray(body.velocity).tolist(), "angular_velocity": body.angular_velocity,
+            "keyframes": [[t, np.asarray(o).tolist(), a] for t, o, a in body.keyframes], "gravity": body.gravity,
+            "friction": np.asarray(body.friction).tolist()}
+
+
+def _jsonable_number(value):
+    """``value`` as a float, or the string ``"inf"`` (JSON has no infinity)."""
+    return "inf" if np.isinf(value) else float(value)
 
 
 def _write_npz(path, arrays):

@@ -5,12 +5,11 @@ from contextlib import contextmanager
 import numba
 import numpy as np
 
-from ...errors import SceneError
 from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
-from . import materials, transfers
+from . import cpic, materials, transfers
 from .blocks import sort_into_blocks
 from .stencil import BASE_SHIFT
 
@@ -74,10 +73,6 @@ class NumbaBackend:
     name = "numba"
 
     def __init__(self, scene):
-        if scene.rigid_bodies:
-            n = len(scene.rigid_bodies)
-            raise SceneError("rigid_bodies", f"{n} bod{'y' if n == 1 else 'ies'}", "none with backend 'numba' (CPIC "
-                             "coupling runs on the NumPy reference backend only for now; use backend 'numpy')")
         self.scene = scene
         grid = scene.grid
         self.dtype = scene.dtype
@@ -124,9 +119,12 @@ class NumbaBackend:
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
         return self.materials.return_map(particles)
 
-    def p2g(self, particles, prepared=None):
-        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent)."""
+    def p2g(self, particles, prepared=None, contact=None):
+        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent);
+        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`)."""
         blocks = prepared or self.prepare(particles)
+        if contact is not None:
+            return cpic.p2g(self, particles, blocks, contact)
         n, d = particles.x.shape
         N = self.scene.grid.n_nodes
         gs = GridState(mass=np.zeros(N, dtype=self.dtype), momentum=np.zeros((N, d), dtype=self.dtype),
@@ -169,13 +167,24 @@ class NumbaBackend:
                 changes[name] = array
         return particles.with_(**changes)
 
+    # ------------------------------------------------------------------ CPIC stages (:mod:`.cpic`)
+    def cpic_contact(self, particles, prepared, rigid, dt):
+        return cpic.contact(self, particles, prepared or self.prepare(particles), rigid, dt)
+
+    def cpic_impulses(self, grid_state, contact, rigid, dt):
+        return cpic.impulses(grid_state, contact, rigid, dt)
+
+    def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid):
+        return cpic.g2p(self, particles, v_grid, dt, prepared or self.prepare(particles), contact, rigid)
+
     # ------------------------------------------------------------------ warm-up
     def warm_up(self, particles, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.
 
         Runs one full step (prepare, stress, P2G, grid update, G2P, return map) on a copy of the first
         ``per_material`` particles of each material, with Δt = 0, so that compilation is not counted in
-        a run's timings. ``particles`` is not modified.
+        a run's timings, and with rigid bodies the CPIC stages too (:func:`.cpic.warm_up`). ``particles``
+        is not modified.
         """
         from ...steppers.pipeline import substep
 
@@ -183,3 +192,5 @@ class NumbaBackend:
         for _, idx in material_groups(self.materials.materials, particles):
             keep[idx[:per_material]] = True
         substep(self, particles.select(keep), 0.0, 0.0)
+        if self.scene.rigid_bodies:
+            cpic.warm_up(self, particles.select(keep))

@@ -1,0 +1,163 @@
+r"""Conformance of the CPIC stages (2D): the colored distance field, the tagging and reconstruction, P2G and
+G2P with bodies, and whole coupled steps.
+
+A backend provides CPIC through its methods ``cpic_contact``, ``p2g(particles, prepared, contact)``,
+``cpic_impulses`` and ``cpic_g2p`` (:mod:`mpmref.backends.numpy.cpic`). Because the contact object between
+them is the backend's own, each conformance stage runs a backend from flat inputs to flat outputs:
+
+* ``cpic_field``: the bodies' state ``rigid_*`` -> the field on every node: ``cdf_d`` (the unsigned distance
+  to the nearest body, 0 where no body is near), ``cdf_body`` (its id, -1 if none), ``cdf_A`` and ``cdf_T``
+  (N, nb) affinity and side bits;
+* ``cpic_tags``: particles with their previous tags ``tag_A``, ``tag_T`` (n, nb) and the bodies -> new tags,
+  ``phi``, ``normal``, ``near`` and ``compatible`` (K, n): node ``base + offset_k`` of the transfer stencil is
+  compatible with the particle (offsets in C order over the stencil);
+* ``cpic_p2g``: the same inputs and ``dt`` -> ``grid_mass``, ``grid_momentum``, ``grid_force``, the rejected
+  momentum and force of incompatible nodes ``grid_rejected_momentum``, ``grid_rejected_force`` (N, 2), and the
+  impulses they give the bodies ``impulse_J`` (nb, 2), ``impulse_L`` (nb,);
+* ``cpic_g2p``: the same inputs and the grid velocity ``grid_v`` -> the evolving particle fields and the
+  penalty's impulses ``penalty_J``, ``penalty_L`` (the bodies seen by G2P are ``rigid_*``);
+* ``cpic_step``: the same inputs and ``time`` -> one coupled step (:func:`mpmref.steppers.pipeline.substep`):
+  the evolving particle fields, the tags, ``phi``, ``normal``, ``near`` and the bodies' new state ``rigid_*``.
+
+The bodies' state is flat too: ``rigid_position`` (nb, 2), ``rigid_angle``, ``rigid_velocity``,
+``rigid_angular_velocity``, ``rigid_impulse``, ``rigid_angular_impulse`` (the fields of
+:class:`~mpmref.physics.rigid_dynamics.RigidState`). Booleans are compared as 0/1.
+
+The scene is the conformance box (8 × 8 cells) with three bodies crossing it: a dynamic open polyline (a
+"V"), a scripted closed triangle that turns, and a fixed segment; each side has its own contact type
+(separate with friction, slip, sticky). The state: particles of :func:`~.cases.random_particles`, each
+body's previous tag set with probability 1/2 on a random side (so that some particles have "penetrated",
+with :math:`\phi_p < 0`, and the penalty acts), the bodies moved and turned a little from where they were
+declared and given random velocities. Source of the equations: Hu et al. 2018 §4–5, spec B2–B8.
+"""
+
+import numpy as np
+
+from ..physics.rigid_dynamics import RigidState
+from ..state import Particles
+
+CPIC_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
+#: the particle fields of a CPIC state besides the plain ones
+TAG_FIELDS = ("tag_A", "tag_T", "phi", "normal", "near")
+RIGID_FIELDS = ("position", "angle", "velocity", "angular_velocity", "impulse", "angular_impulse")
+PLAIN_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp")
+EVOLVING = ("x", "v", "C", "F", "J", "Jp")
+
+#: the bodies of every CPIC case (unit box, 8 cells): a dynamic "V", a scripted turning triangle, a fixed segment
+BODIES = (
+    {"vertices": [[0.26, 0.62], [0.5, 0.41], [0.74, 0.63]], "segments": [[0, 1], [1, 2]], "motion": "dynamic",
+     "density": 2.0, "type": ["separate", "slip"], "friction": [0.3, 0.2]},
+    {"vertices": [[0.44, 0.3], [0.62, 0.33], [0.52, 0.45]], "segments": [[0, 1], [1, 2], [2, 0]], "closed": True,
+     "motion": "scripted", "velocity": [0.2, -0.1], "angular_velocity": 1.5, "type": "sticky"},
+    {"vertices": [[0.3, 0.28], [0.37, 0.7]], "segments": [[0, 1]], "type": ["separate", "sticky"], "friction": 0.0},
+)
+#: CPIC's options in the cases: a pushing force and a penalty large enough to matter in one step
+COUPLING = {"coupling": "cpic", "pushing_force": 2.0e4, "penalty": 1.0e3}
+
+
+def cpic_scene_dict(scene_dict, method):
+    """``scene_dict`` (from :func:`~.cases.scene_dict`) with the CPIC bodies and ``method`` plus :data:`COUPLING`."""
+    coupling = {**COUPLING, **({"pushing_force": 0.0} if method.get("momentum_exact") else {})}
+    return {**scene_dict, "method": {**scene_dict["method"], **coupling, **method},
+            "rigid_bodies": [dict(b) for b in BODIES]}
+
+
+def random_cpic_state(scene, rng, flat):
+    """Add previous tags and a random state of the bodies to the particle state ``flat`` (in place): poses
+    near the declared ones, velocities N(0, 1) and angular velocities N(0, 2²) (zero for a fixed body)."""
+    n, nb = len(flat["x"]), len(scene.rigid_bodies)
+    flat["tag_A"] = rng.random((n, nb)) < 0.5
+    flat["tag_T"] = flat["tag_A"] & (rng.random((n, nb)) < 0.5)
+    center = np.array([b.center for b in scene.rigid_bodies])
+    moving = np.array([b.motion != "fixed" for b in scene.rigid_bodies])
+    flat.update({"rigid_position": center + 0.01 * rng.standard_normal((nb, 2)),
+                 "rigid_angle": 0.05 * rng.standard_normal(nb),
+                 "rigid_velocity": rng.standard_normal((nb, 2)) * moving[:, None],
+                 "rigid_angular_velocity": 2.0 * rng.standard_normal(nb) * moving, "rigid_impulse": np.zeros((nb, 2)),
+                 "rigid_angular_impulse": np.zeros(nb)})
+    return flat
+
+
+def rigid_from(flat):
+    return RigidState(**{k: np.array(flat[f"rigid_{k}"]) for k in RIGID_FIELDS})
+
+
+def rigid_outputs(rigid):
+    return {f"rigid_{k}": getattr(rigid, k) for k in RIGID_FIELDS}
+
+
+def cpic_particles(flat):
+    """The particles of ``flat`` with their previous tags (distance, normal and ``near`` start at zero)."""
+    n, d = flat["x"].shape
+    p = Particles(**{k: np.array(flat[k]) for k in PLAIN_FIELDS if k in flat})
+    return p.with_(tag_A=np.array(flat["tag_A"]), tag_T=np.array(flat["tag_T"]), phi=np.zeros(n),
+                   normal=np.zeros((n, d)), near=np.zeros(n, dtype=bool))
+
+
+def _contact(backend, flat):
+    particles = cpic_particles(flat)
+    prepared = backend.prepare(particles)
+    particles, contact = backend.cpic_contact(particles, prepared, rigid_from(flat), float(flat["dt"]))
+    return particles, prepared, contact
+
+
+def field_stage(backend, flat):
+    _, _, contact = _contact(backend, flat)
+    cdf = contact.cdf
+    return {"cdf_d": np.where(cdf.body >= 0, cdf.d, 0.0), "cdf_body": cdf.body, "cdf_A": cdf.A, "cdf_T": cdf.T}
+
+
+def tags_stage(backend, flat):
+    particles, _, contact = _contact(backend, flat)
+    return {**{k: getattr(particles, k) for k in TAG_FIELDS}, "compatible": contact.compatible}
+
+
+def p2g_stage(backend, flat):
+    particles, prepared, contact = _contact(backend, flat)
+    gs = backend.p2g(particles, prepared, contact)
+    J, L = backend.cpic_impulses(gs, contact, rigid_from(flat), float(flat["dt"]))
+    return {"grid_mass": gs.mass, "grid_momentum": gs.momentum, "grid_force": gs.force,
+            "grid_rejected_momentum": gs.rejected_momentum, "grid_rejected_force": gs.rejected_force,
+            "impulse_J": J, "impulse_L": L}
+
+
+def g2p_stage(backend, flat):
+    particles, prepared, contact = _contact(backend, flat)
+    new, (J, L) = backend.cpic_g2p(particles, np.array(flat["grid_v"]), float(flat["dt"]), prepared, contact,
+                                   rigid_from(flat))
+    return {**_evolving(new), "penalty_J": J, "penalty_L": L}
+
+
+def step_stage(backend, flat):
+    from .stages import with_running
+    from ..steppers.pipeline import substep
+
+    new, rigid = substep(with_running(backend), cpic_particles(flat), float(flat["dt"]), float(flat["time"]),
+                         rigid=rigid_from(flat))
+    return {**_evolving(new), **{k: getattr(new, k) for k in TAG_FIELDS}, **rigid_outputs(rigid)}
+
+
+def _evolving(particles):
+    return {k: getattr(particles, k) for k in EVOLVING if getattr(particles, k) is not None}
+
+
+#: each CPIC stage as ``runner(backend, flat) -> flat outputs``
+RUNNERS = {"cpic_field": field_stage, "cpic_tags": tags_stage, "cpic_p2g": p2g_stage, "cpic_g2p": g2p_stage,
+           "cpic_step": step_stage}
+#: the backend methods the CPIC stages need
+CPIC_METHODS = ("prepare", "cpic_contact", "p2g", "cpic_impulses", "cpic_g2p")
+
+
+def has_cpic(backend):
+    """Whether ``backend`` has the methods of the CPIC stages."""
+    return all(callable(getattr(backend, m, None)) for m in CPIC_METHODS)
+
+
+def reference_grid_velocity(scene, flat):
+    """``grid_v`` of the reference's CPIC P2G and grid update of the state ``flat``."""
+    from ..backends import make_backend
+
+    backend = make_backend("numpy", scene)
+    particles, prepared, contact = _contact(backend, flat)
+    v, _ = backend.grid_update(backend.p2g(particles, prepared, contact), float(flat["dt"]), float(flat["time"]))
+    return v
