@@ -8,7 +8,7 @@ resolution 0.011, numpy backend). Each entry is the largest CFL number
 ``pic`` and ``apic`` were measured with the classic force, ``flip`` with α = 0.95, ``mls`` and
 ``polypic`` with the MLS force. Young's modulus does not move the limits (E = 1e2 … 1e9 give the base row
 to every digit, as dimensional analysis requires). Near the limit the energy grows slowly, so the
-limits move when the stress changes at round-off (they moved with the closed-form SVD); the guard uses
+limits are fragile: measured again in a later version they moved (cause not identified); the guard uses
 each scheme's smallest limit over the conditions, which moved least (docs/stability.md says by how much).
 
 Why a warning and not a refusal at scene build: the limits are measured on one probe, and a run above
