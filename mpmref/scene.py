@@ -41,7 +41,7 @@ STEPPINGS = ("sync", "async")
 TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "colliders", "gravity", "boundary", "time",
             "output", "name", "rigid_bodies"}
 COUPLINGS = ("none", "cpic")
-#: schemes CPIC is defined for (spec B6-B7 are written for PIC, APIC and MLS-MPM)
+#: schemes CPIC is defined for (docs/cpic.md are written for PIC, APIC and MLS-MPM)
 CPIC_SCHEMES = ("pic", "apic", "mls")
 RIGID_COMMON_KEYS = {"vertices", "segments", "closed", "motion", "type", "friction"}
 #: keys each rigid-body motion accepts besides the common ones
@@ -373,7 +373,7 @@ def _parse_method(m):
 
 
 def _parse_coupling(m, scheme):
-    """The CPIC options of ``[method]`` (spec B7-B8): coupling, pushing force, penalty, exact variant."""
+    """The CPIC options of ``[method]`` (docs/cpic.md): coupling, pushing force, penalty, exact variant."""
     coupling = _choice(m, "coupling", "method", COUPLINGS, default="none")
     if coupling == "none":
         for key in ("pushing_force", "penalty", "momentum_exact", "ghost_force"):

@@ -179,7 +179,7 @@ def test_cut2d_example_writes_the_blade_and_two_pieces(tmp_path):
 
 
 def test_impulses_go_to_each_node_s_nearest_body():
-    """Spec B8: with two bodies near, the impulse of an incompatible node goes to the nearer one."""
+    """Hu et al. 2018: with two bodies near, the impulse of an incompatible node goes to the nearer one."""
     from types import SimpleNamespace
 
     from mpmref.backends.numpy.cpic import impulses

@@ -67,7 +67,7 @@ def test_a_closed_polyline_is_accepted():
 
 # -------------------------------------------------------------------------------- acceptance test 1
 def test_cdf_of_a_segment(field):
-    """Spec CPIC acceptance 1: in the band inside the segment's x-range A = 1, d = |y - 0.5|, T = [y < 0.5];
+    """CPIC acceptance test 1: in the band inside the segment's x-range A = 1, d = |y - 0.5|, T = [y < 0.5];
     nodes more than 2 dx away have A = 0."""
     xi = field.node_positions()
     dist = np.abs(xi[:, 1] - 0.5)
@@ -107,7 +107,7 @@ def test_cdf_distance_is_the_point_segment_distance(ax, ay, angle, length):
 
 # -------------------------------------------------------------------------------- acceptance test 2
 def test_reconstruction_above_the_segment(field):
-    """Spec CPIC acceptance 2: a particle 0.3 dx above gets T = 0, |phi - 0.3 dx| < 0.05 dx, n within 2° of +y."""
+    """CPIC acceptance test 2: a particle 0.3 dx above gets T = 0, |phi - 0.3 dx| < 0.05 dx, n within 2° of +y."""
     x = np.array([[0.5 + 0.37 * DX, 0.5 + 0.3 * DX]])
     A_p, T_p = tags_for(field, x)
     assert A_p[0, 0] and not T_p[0, 0]
@@ -120,7 +120,7 @@ def test_reconstruction_above_the_segment(field):
 
 # -------------------------------------------------------------------------------- acceptance test 3
 def test_tag_persists_when_forced_below(field):
-    """Spec CPIC acceptance 3: forced to 0.3 dx below without re-tagging, the particle keeps T = 0 and gets
+    """CPIC acceptance test 3: forced to 0.3 dx below without re-tagging, the particle keeps T = 0 and gets
     phi < 0 (the penalty would engage)."""
     above = np.array([[0.5 + 0.37 * DX, 0.5 + 0.3 * DX]])
     A_p, T_p = tags_for(field, above)

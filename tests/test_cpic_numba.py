@@ -231,7 +231,7 @@ def test_exported_cpic_vectors_are_the_references(tmp_path):
 
 
 def test_numba_impulses_go_to_each_node_s_nearest_body():
-    """Spec B8 on the compiled reduction: with two bodies near, an incompatible node's impulse goes to the
+    """Momentum accounting (docs/cpic.md) on the compiled reduction: with two bodies near, an incompatible node's impulse goes to the
     nearer one, with its torque about that body's reference point."""
     from types import SimpleNamespace
 

@@ -1,5 +1,5 @@
 """CPIC in 3D: triangle-mesh rigid bodies (validation, mass properties, surface samples, element frame, meshio)
-and the colored distance field, tags and reconstruction of a triangle — spec CPIC acceptance tests 1–3 in 3D."""
+and the colored distance field, tags and reconstruction of a triangle — the CPIC acceptance tests 1–3 in 3D."""
 
 import meshio
 import numpy as np
@@ -79,7 +79,7 @@ def test_surface_samples_are_a_lattice_that_covers_the_triangle(oblique):
 
 # -------------------------------------------------------------------------------- acceptance test 1 (3D)
 def test_cdf_of_a_horizontal_triangle():
-    """Spec CPIC acceptance 1 in 3D: a triangle in the plane y = 0.5 (normal +y). Nodes within 1 dx of the plane
+    """CPIC acceptance test 1 in 3D: a triangle in the plane y = 0.5 (normal +y). Nodes within 1 dx of the plane
     whose projection is in the triangle have A = 1, d = |y - 0.5|, T = [y < 0.5]; nodes more than 2 dx away or
     whose projection is outside have A = 0."""
     corners = np.array([[0.25, 0.5, 0.25], [0.25, 0.5, 0.75], [0.75, 0.5, 0.25]])
@@ -116,7 +116,7 @@ def test_cdf_of_an_oblique_triangle_is_the_distance_to_its_plane(oblique_field):
 # -------------------------------------------------------------------------------- acceptance test 2 (3D)
 @pytest.mark.parametrize("weights", [(1 / 3, 1 / 3, 1 / 3), (0.6, 0.25, 0.15), (0.2, 0.2, 0.6)])
 def test_reconstruction_above_the_triangle(oblique, oblique_field, weights):
-    """Spec CPIC acceptance 2 in 3D: a particle 0.3 dx above the triangle gets T = 0, |phi - 0.3 dx| < 0.05 dx
+    """CPIC acceptance test 2 in 3D: a particle 0.3 dx above the triangle gets T = 0, |phi - 0.3 dx| < 0.05 dx
     and a normal within 2 degrees of the triangle's."""
     n = oblique.normals[0]
     x = (np.array(weights) @ OBLIQUE + 0.3 * DX * n)[None]
@@ -130,7 +130,7 @@ def test_reconstruction_above_the_triangle(oblique, oblique_field, weights):
 
 # -------------------------------------------------------------------------------- acceptance test 3 (3D)
 def test_tag_persists_when_forced_below_the_triangle(oblique, oblique_field):
-    """Spec CPIC acceptance 3 in 3D: forced to 0.3 dx below without re-tagging, the particle keeps T = 0, gets
+    """CPIC acceptance test 3 in 3D: forced to 0.3 dx below without re-tagging, the particle keeps T = 0, gets
     phi < 0 (the penalty would engage) and a normal still pointing to its own side; the sticky update keeps it."""
     n = oblique.normals[0]
     above = (OBLIQUE.mean(axis=0) + 0.3 * DX * n)[None]

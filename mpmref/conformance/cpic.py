@@ -28,7 +28,7 @@ The scene is the conformance box (8 × 8 cells) with three bodies crossing it: a
 (separate with friction, slip, sticky). The state: particles of :func:`~.cases.random_particles`, each
 body's previous tag set with probability 1/2 on a random side (so that some particles have "penetrated",
 with :math:`\phi_p < 0`, and the penalty acts), the bodies moved and turned a little from where they were
-declared and given random velocities. Source of the equations: Hu et al. 2018 §4–5, spec B2–B8.
+declared and given random velocities. Source of the equations: Hu et al. 2018 §4–5, docs/cpic.md.
 """
 
 import numpy as np

@@ -23,7 +23,7 @@ Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method 
 Discontinuity and Two-Way Rigid Body Coupling", §4 (compatible particle-in-cell, the colored distance
 field, particle tags and the reconstruction). Where the paper does not give a constant or an ordering
 (the edge-parameter margin 0.02, the tag threshold 1e-7, the determinant thresholds 3e-3 in 2D and 1e-4
-in 3D) this module does as the spec's reference code does (spec B2–B4).
+in 3D) this module does as the authors' reference implementation does (docs/cpic.md).
 """
 
 from dataclasses import dataclass
@@ -35,18 +35,18 @@ from .rigid import segment_frame, surface_samples
 from .trimesh import TriMesh, triangle_frame
 from .trimesh import surface_samples as triangle_samples
 
-#: a node is rasterised only if its edge parameter lies in [-EDGE_MARGIN, 1 + EDGE_MARGIN] (spec B2)
+#: a node is rasterised only if its edge parameter lies in [-EDGE_MARGIN, 1 + EDGE_MARGIN] (docs/cpic.md)
 EDGE_MARGIN = 0.02
-#: a node is rasterised only if all barycentric coordinates of its projection are >= -this (spec B2, 3D:
+#: a node is rasterised only if all barycentric coordinates of its projection are >= -this (docs/cpic.md, 3D:
 #: inside the triangle; the tolerance only keeps nodes whose projection is on an edge up to round-off)
 BARYCENTRIC_TOLERANCE = 1e-10
-#: a newly near body tags a particle only if the weighted distance sum exceeds this (spec B3 step 2)
+#: a newly near body tags a particle only if the weighted distance sum exceeds this (docs/cpic.md)
 TAG_THRESHOLD = 1e-7
-#: the least-squares fit is accepted (``near``) if abs(det) of its normal matrix exceeds this in 2D (spec B3)
+#: the least-squares fit is accepted (``near``) if abs(det) of its normal matrix exceeds this in 2D (docs/cpic.md)
 DET_THRESHOLD_2D = 3e-3
-#: the same in 3D (spec B3)
+#: the same in 3D (docs/cpic.md)
 DET_THRESHOLD_3D = 1e-4
-#: the fitted normal is normalised only if its squared length exceeds this (spec B3)
+#: the fitted normal is normalised only if its squared length exceeds this (docs/cpic.md)
 NORMAL_THRESHOLD = 1e-4
 
 
@@ -90,14 +90,14 @@ def _stencil_nodes(shape, base, offset):
 
 
 def _element_samples(body, dx):
-    """Surface samples of a body and the element each lies on (spec B1): segments in 2D, triangles in 3D."""
+    """Surface samples of a body and the element each lies on (docs/cpic.md): segments in 2D, triangles in 3D."""
     return triangle_samples(body, dx) if isinstance(body, TriMesh) else surface_samples(body, dx)
 
 
 def _project_on_element(body, element, x):
     r"""Signed normal offset :math:`h` of points ``x`` in their elements' frames, and whether to rasterise them.
 
-    A point is kept if its projection lies on the element (spec B2): a segment's edge parameter in
+    A point is kept if its projection lies on the element (docs/cpic.md): a segment's edge parameter in
     :math:`[-0.02, 1.02]`, or all barycentric coordinates in a triangle :math:`\ge 0` (up to round-off).
     """
     if isinstance(body, TriMesh):
@@ -128,7 +128,7 @@ def build_cdf(bodies, shape, origin, dx):
     elements of one body reach a node, :math:`T_{ir}` is taken from the one with the smallest
     :math:`|h|`; when two bodies are equally near, the lower body id is the nearest.
 
-    Source: Hu et al. 2018 §4 (colored distance field), as the spec's reference code does (spec B2).
+    Source: Hu et al. 2018 §4 (colored distance field), as the authors' reference implementation does (docs/cpic.md).
 
     Parameters
     ----------
@@ -193,8 +193,8 @@ def update_tags(cdf, x, A_p, T_p):
     Existing tags (:math:`A_{pr} = 1` and the body still near) are **never recomputed**: a particle pushed
     across a body keeps the side it came from, which is what lets CPIC stop it crossing.
 
-    Source: Hu et al. 2018 §4 (particle tags carried from step to step), as the spec's reference code
-    does for the weighting and the threshold (spec B3 steps 1–2).
+    Source: Hu et al. 2018 §4 (particle tags carried from step to step), as the authors' reference implementation
+    does for the weighting and the threshold (docs/cpic.md steps 1–2).
 
     Parameters
     ----------
@@ -235,7 +235,7 @@ def compatible(A_i, T_i, A_p, T_p):
 
     (and always if :math:`R` is empty). The rule is symmetric in node and particle.
 
-    Source: Hu et al. 2018 §4 (compatibility of a particle and a grid node), spec B4.
+    Source: Hu et al. 2018 §4 (compatibility of a particle and a grid node), docs/cpic.md.
 
     Parameters
     ----------
@@ -274,8 +274,8 @@ def reconstruct(cdf, x, A_p, T_p):
     Otherwise ``near`` is false and :math:`\phi_p = 0`, :math:`\mathbf n_p = 0`.
 
     Source: Hu et al. 2018 §4 (particle distance and normal reconstructed from the colored distance
-    field by moving least squares), as the spec's reference code does for the targets and thresholds
-    (spec B3 step 3).
+    field by moving least squares), as the authors' reference implementation does for the targets and thresholds
+    (docs/cpic.md).
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ is side 1 (the colored distance field's ``T`` bit), the side with :math:`h \ge 0
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §4 (rigid bodies as boundary elements sampled for the
-colored distance field); the sampling rule is the one of the spec's reference code (spec B1). 3D triangle
+colored distance field); the sampling rule is the one of the authors' reference implementation (docs/cpic.md). 3D triangle
 meshes are not built yet.
 """
 
@@ -114,7 +114,7 @@ def surface_samples(body, dx):
     .. math:: \mathbf x_{kj} = \mathbf a_k + \frac{j + 1/2}{n_k} (\mathbf b_k - \mathbf a_k),
               \quad j = 0, \dots, n_k - 1 .
 
-    Source: spec B1, as the spec's reference code does (Hu et al. 2018 §4 samples the rigid elements
+    Source: the authors' reference implementation (Hu et al. 2018 §4 samples the rigid elements
     to rasterise the colored distance field but does not give the rule).
 
     Parameters
@@ -146,8 +146,7 @@ def segment_frame(body, segment, x):
     with :math:`\mathbf t_k` the unit tangent. :math:`s \in [0, 1]` means the projection of
     :math:`\mathbf x` lies on the segment; :math:`|h|` is then the distance to it.
 
-    Source: Hu et al. 2018 §4 (distance and side of a node with respect to a boundary element), as the
-    spec's reference code does (spec B2).
+    Source: Hu et al. 2018 §4 (distance and side of a node with respect to a boundary element), as the authors' reference implementation does (docs/cpic.md).
 
     Parameters
     ----------

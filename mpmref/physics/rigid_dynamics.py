@@ -14,14 +14,14 @@ Motions:
 
 * ``fixed``: never moves (infinite mass and inertia);
 * ``scripted``: a constant velocity and angular velocity, or piecewise-linear keyframes of offset and
-  angle; infinite mass and inertia (Hu et al. 2018 §6; spec B1). Its velocity over a step is the finite
+  angle; infinite mass and inertia (Hu et al. 2018 §6; docs/cpic.md). Its velocity over a step is the finite
   difference of the script over that step;
 * ``dynamic``: mass and inertia from a density per unit length (an open, zero-thickness body) or per unit
-  area (a closed one); moved by the impulses it receives from the material and by gravity (spec B6–B7).
+  area (a closed one); moved by the impulses it receives from the material and by gravity (docs/cpic.md).
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §5 (two-way coupling: the rigid body receives the momentum
-the material could not give to the grid); the integration order is the spec's reference code's (B7).
+the material could not give to the grid); the integration order is the authors' reference implementation's (docs/cpic.md).
 """
 
 from dataclasses import dataclass, field, replace
@@ -96,7 +96,7 @@ def encode_friction(kind, coefficient):
     r"""The one number :math:`\mu` of the friction projection (:func:`friction_projection`) for a contact type.
 
     ``sticky`` -> :math:`-1`; ``separate`` with coefficient :math:`c` -> :math:`c \ge 0`; ``slip`` with
-    coefficient :math:`c` -> :math:`-c - 2 \le -2` (spec B5's encoding of the talk's Eq. 25 types).
+    coefficient :math:`c` -> :math:`-c - 2 \le -2` (docs/cpic.md encoding of the talk's Eq. 25 types).
     """
     if kind == "sticky":
         return -1.0
@@ -118,7 +118,7 @@ def friction_projection(v, v_body, normal, mu):
                 0 & \mu \le -2. \end{cases}
 
     This is the talk's Eq. 25 (sticky, slip, separate with Coulomb friction) applied to a particle's
-    velocity relative to a body (Hu et al. 2018 §5; spec B5).
+    velocity relative to a body (Hu et al. 2018 §5; docs/cpic.md).
 
     Parameters
     ----------
@@ -144,7 +144,7 @@ def line_mass_properties(shape, density):
     .. math:: M = \rho \sum_k \ell_k, \quad \mathbf c = \frac{\rho}{M}\sum_k \ell_k \mathbf m_k, \quad
               I = \rho \sum_k \left(\frac{\ell_k^3}{12} + \ell_k |\mathbf m_k - \mathbf c|^2\right)
 
-    (:math:`\mathbf m_k` the segment midpoints; a thin rod's inertia plus the parallel-axis term). Spec B1:
+    (:math:`\mathbf m_k` the segment midpoints; a thin rod's inertia plus the parallel-axis term). Hu et al. 2018:
     thin shells take mass and inertia from their length.
     """
     lengths = shape.lengths
@@ -167,7 +167,7 @@ def area_mass_properties(shape, density):
               + |\mathbf b_k|^2),
 
     :math:`M = \rho |A|`, :math:`I = |I_0| - M|\mathbf c|^2` (parallel axis). The segments must be
-    consistently oriented (each vertex starts one segment and ends one). Spec B1: solid bodies take
+    consistently oriented (each vertex starts one segment and ends one). Hu et al. 2018: solid bodies take
     mass from their enclosed area.
     """
     a, b = shape.starts, shape.ends
@@ -246,7 +246,7 @@ def body_impulses(n_bodies, body_ids, x, impulse, position):
     r"""Sum impulses :math:`\mathbf J` applied at points ``x`` to bodies ``body_ids``: linear and angular.
 
     Returns ``(J, L)``: :math:`\mathbf J_r = \sum \mathbf J` and :math:`L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J`
-    about each body's reference point (spec B6, "after all particles").
+    about each body's reference point (docs/cpic.md, "after all particles").
     """
     rel = x - position[body_ids]
     torque = rel[:, 0] * impulse[:, 1] - rel[:, 1] * impulse[:, 0]
@@ -259,7 +259,7 @@ def apply_impulses(bodies, state, J, L):
 
     .. math:: \mathbf v_r \mathrel{+}= \mathbf J_r / M_r, \qquad \omega_r \mathrel{+}= L_r / I_r
 
-    (spec B6). Fixed and scripted bodies have infinite mass: they only record what they received.
+    (docs/cpic.md). Fixed and scripted bodies have infinite mass: they only record what they received.
     """
     inv_m = np.array([1.0 / b.mass for b in bodies])
     inv_i = np.array([1.0 / b.inertia for b in bodies])
@@ -269,7 +269,7 @@ def apply_impulses(bodies, state, J, L):
 
 
 def end_step(bodies, state, time, dt, gravity):
-    r"""Move every body to ``time + dt`` (spec B7, the rigid step after G2P).
+    r"""Move every body to ``time + dt`` (docs/cpic.md, the rigid step after G2P).
 
     Dynamic: :math:`\mathbf c \mathrel{+}= \Delta t\,\mathbf v`, :math:`\theta \mathrel{+}= \Delta t\,\omega`,
     then the gravity impulse :math:`\mathbf v \mathrel{+}= \mathbf g \Delta t` (if the body feels gravity).

@@ -67,7 +67,7 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
     them by CPIC and returns ``(particles, rigid)``: the colored distance field of the bodies where they
     are and the particles' sticky tags (``cpic_contact``), P2G to compatible nodes only, the impulses of
     incompatible nodes on the bodies, G2P with ghost velocities and the penalty (``cpic_g2p``), then the
-    rigid step (spec B2-B7 of the reference code, written up in docs/cpic.md).
+    rigid step (docs/cpic.md of the reference code, written up in docs/cpic.md).
     """
     scene = backend.scene
     with backend.running(particles.n):

@@ -3,8 +3,8 @@ P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, com
 
 The equations are those of the NumPy reference (:mod:`mpmref.backends.numpy.cpic`,
 :mod:`mpmref.physics.cdf`, :func:`mpmref.physics.rigid_dynamics.friction_projection`); Hu et al. 2018,
-SIGGRAPH, §4–5, as the spec's reference code does (spec B2–B8). What differs is only how the work is laid
-out:
+SIGGRAPH, §4–5, as the authors' reference implementation does (docs/cpic.md). What differs is only how
+the work is laid out:
 
 * the field is rasterised body by body, sample by sample, in the reference's order (so that its
   deterministic tie rules — the nearest element decides a node's side, the lower body id wins a tie in
@@ -129,7 +129,7 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
     if :math:`-0.02 \le \sigma \le 1.02`: :math:`d_{ir} = \min(d_{ir}, |h|)`, :math:`A_{ir} = 1`; then
     :math:`T_{ir} = [h < 0]` from the pairs at :math:`d_{ir}` (the last in the reference's order, offsets
     outer and samples inner, wins), and node :math:`i`'s nearest body is the first body with the
-    smallest :math:`d_{ir}`. Hu et al. 2018 §4; spec B2.
+    smallest :math:`d_{ir}`. Hu et al. 2018 §4; docs/cpic.md.
     """
     n_nodes = d.shape[0]
     n_bodies = start.shape[0] - 1
@@ -229,7 +229,7 @@ def block_in_band(c0, c1, block, shape, d):
 @njit(cache=True, inline="always")
 def incompatibility_mask(p, b0, b1, S, strides, A, T, A_p, T_p):
     r"""Bit ``k`` set iff node ``(b0 + k // S, b1 + k % S)`` is incompatible with particle ``p``: some body
-    :math:`r` has :math:`A_{ir} = A_{pr} = 1` and :math:`T_{ir} \ne T_{pr}` (Hu et al. 2018 §4; spec B4)."""
+    :math:`r` has :math:`A_{ir} = A_{pr} = 1` and :math:`T_{ir} \ne T_{pr}` (Hu et al. 2018 §4; docs/cpic.md)."""
     mask = 0
     for k in range(S * S):
         idx = (b0 + k // S) * strides[0] + (b1 + k % S) * strides[1]
@@ -255,7 +255,7 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
     :math:`\mathbf z_i = (\mathbf x_i - \mathbf x_p)/\Delta x`, :math:`y_i = \pm d_i/\Delta x` (``+`` if
     compatible, ``-`` if exactly one shared body's side differs, skipped otherwise); ``near`` iff
     :math:`|\det M| > 3\cdot 10^{-3}`, then :math:`\phi_p = c\,\Delta x` and :math:`\mathbf n_p = \mathbf n/|\mathbf n|`
-    (0 if :math:`|\mathbf n|^2 \le 10^{-4}`). Hu et al. 2018 §4; spec B3.
+    (0 if :math:`|\mathbf n|^2 \le 10^{-4}`). Hu et al. 2018 §4; docs/cpic.md.
     """
     n_bodies = tag_A.shape[1]
     b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
@@ -395,7 +395,7 @@ def ghost_velocity(v0, v1, node_x0, node_x1, r, position, velocity, omega, n0, n
     :math:`\mathbf u_t = \mathbf u - u_n\mathbf n`; sticky (:math:`\mu = -1`): :math:`\mathbf v_r(\mathbf x_i)`;
     otherwise :math:`\mathbf v_r(\mathbf x_i) + \max(|\mathbf u_t| + \mu'\min(u_n, 0), 0)\,\mathbf u_t/|\mathbf u_t|`
     plus :math:`\max(u_n, 0)\mathbf n` if :math:`\mu \ge 0` (:math:`\mu' = \mu`; slip: :math:`\mu' = -\mu - 2`).
-    The talk's Eq. 25 (Hu et al. 2018 §5; spec B5); see :func:`mpmref.physics.rigid_dynamics.friction_projection`.
+    The talk's Eq. 25 (Hu et al. 2018 §5; docs/cpic.md); see :func:`mpmref.physics.rigid_dynamics.friction_projection`.
     """
     rel0 = node_x0 - position[r, 0]
     rel1 = node_x1 - position[r, 1]
@@ -539,7 +539,7 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
     r"""Impulses on the bodies from the incompatible nodes, summed node by node in node order.
 
     :math:`\mathbf J_i = \mathbf J^m_i + \Delta t\,\mathbf J^f_i` at node :math:`i`; its nearest body
-    :math:`r` receives :math:`\mathbf J_i` and :math:`(\mathbf x_i - \mathbf c_r)\times\mathbf J_i` (spec B6,
+    :math:`r` receives :math:`\mathbf J_i` and :math:`(\mathbf x_i - \mathbf c_r)\times\mathbf J_i` (docs/cpic.md,
     "after all particles"). ``J`` (nb, 2) and ``L`` (nb,) are accumulated into.
     """
     for i in range(rejected_momentum.shape[0]):

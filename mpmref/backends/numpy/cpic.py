@@ -14,7 +14,7 @@ One CPIC step (composed in :func:`mpmref.steppers.pipeline.substep`):
 Notation: particle :math:`p`, node :math:`i`, weight :math:`w_{ip}`, body :math:`r` with velocity field
 :math:`\mathbf v_r(\mathbf x)`, the friction projection :math:`\Pi` of
 :func:`mpmref.physics.rigid_dynamics.friction_projection`. Source: Hu et al. 2018, SIGGRAPH, §4–5, as the
-spec's reference code does (spec B6–B8).
+authors' reference implementation does (docs/cpic.md).
 """
 
 from dataclasses import dataclass
@@ -26,7 +26,7 @@ from ...physics.rigid_dynamics import body_impulses, current_shapes, friction_pr
 from .transfers import g2p as plain_g2p
 from .transfers import node_index
 
-#: the penalty acts on near particles with -0.3 dx < phi < -0.05 dx (spec B7)
+#: the penalty acts on near particles with -0.3 dx < phi < -0.05 dx (docs/cpic.md)
 PENALTY_WINDOW = (-0.3, -0.05)
 
 
@@ -62,7 +62,7 @@ class Contact:
 
 
 def ghost_velocities(contact, rigid, particles):
-    r"""Velocity an incompatible node :math:`i` shows particle :math:`p` (spec B7), without the pushing force.
+    r"""Velocity an incompatible node :math:`i` shows particle :math:`p` (docs/cpic.md), without the pushing force.
 
     .. math:: \tilde{\mathbf v}_i = \begin{cases} \Pi(\mathbf v_p^* + \mathbf a_{ip};\ \mathbf v_r(\mathbf x_i),
               \mathbf n_p, \mu_{r,T_{pr}}) & p \text{ near} \\ \mathbf v_p^* & \text{otherwise,} \end{cases}
@@ -75,7 +75,7 @@ def ghost_velocities(contact, rigid, particles):
     load a resting body carries, stress included, so Coulomb friction acts on it (docs/cpic.md, "Friction").
     P2G gives the body :math:`m_p w_{ip}(\mathbf v_p^* - \tilde{\mathbf v}_i) + \Delta t\, \mathbf f_{ip}` and
     G2P gives the particle :math:`\tilde{\mathbf v}_i`; with the same :math:`\tilde{\mathbf v}_i` on both
-    sides the momentum balances exactly (spec B8). Returns (K, n, 2).
+    sides the momentum balances exactly (docs/cpic.md). Returns (K, n, 2).
     """
     body = np.maximum(contact.body, 0)
     v_body = point_velocity(rigid, body, contact.node_x)
@@ -95,10 +95,10 @@ def force_velocity(stencil, offset, gradient_weight, particles, tau, dt):
 def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient_weight, ghost_force):
     r"""Build the step's :class:`Contact` and return ``(particles with updated tags, contact)``.
 
-    The field is rebuilt from the bodies' current pose (:func:`mpmref.physics.cdf.build_cdf`, spec B2); the
+    The field is rebuilt from the bodies' current pose (:func:`mpmref.physics.cdf.build_cdf`, docs/cpic.md); the
     tags are updated with sticky side memory and the distance :math:`\phi_p`, normal :math:`\mathbf n_p`
     and ``near`` flag reconstructed (:func:`~mpmref.physics.cdf.update_tags`,
-    :func:`~mpmref.physics.cdf.reconstruct`, spec B3); node :math:`i` and particle :math:`p` are compatible
+    :func:`~mpmref.physics.cdf.reconstruct`, docs/cpic.md); node :math:`i` and particle :math:`p` are compatible
     iff they agree on the side of every body both are near (:func:`~mpmref.physics.cdf.compatible`, B4).
     ``tau`` is the particles' Kirchhoff stress, ``gradient_weight`` the force discretisation's
     :math:`g_{ip}`, ``ghost_force`` whether ghost velocities include :math:`\mathbf a_{ip}` (:func:`ghost_velocities`).
@@ -131,7 +131,7 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient
 
 
 def impulses(grid_state, contact, rigid, dt):
-    r"""Impulses on the bodies from what incompatible nodes did not receive in P2G (spec B6).
+    r"""Impulses on the bodies from what incompatible nodes did not receive in P2G (docs/cpic.md).
 
     At each node :math:`i` with nearest body :math:`r`,
 
@@ -159,7 +159,7 @@ def g2p(particles, v_grid, grid, kernel, spec, dt, prepared, contact, rigid, pus
     :math:`C_p`, :math:`F_p`, :math:`\mathbf x_p`). Afterwards, for near particles, :math:`C_p := 0`, and
     if :math:`-0.3\Delta x < \phi_p < -0.05\Delta x` the penalty :math:`\Delta\mathbf v = k \phi_p \mathbf n_p`
     is taken from the particle (:math:`\mathbf v_p \mathrel{-}= \Delta\mathbf v`) and given to its nearest
-    body as the impulse :math:`m_p\Delta\mathbf v` at :math:`\mathbf x_p` (spec B7).
+    body as the impulse :math:`m_p\Delta\mathbf v` at :math:`\mathbf x_p` (docs/cpic.md).
 
     Returns ``(new particles, (J (nb, 2), L (nb,)))``: the penalty's impulses on the bodies.
     """

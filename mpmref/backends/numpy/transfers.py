@@ -93,7 +93,7 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None):
     contact : CPIC only (:class:`mpmref.backends.numpy.cpic.Contact`): particles give mass, momentum and
         force only to compatible nodes; what they would have given an incompatible node is collected there
         as ``rejected_momentum`` :math:`\sum_p m_p w_{ip}(v^*_p - \tilde v_i)` and ``rejected_force``
-        :math:`-\sum_p V_p^0 \tau_p g_{ip}` (Hu et al. 2018 §4–5; spec B6)
+        :math:`-\sum_p V_p^0 \tau_p g_{ip}` (Hu et al. 2018 §4–5; docs/cpic.md)
     """
     st, basis = prepared or prepare(particles, grid, kernel, spec)
     gradient_weight = GRADIENT_WEIGHTS[spec.force]
@@ -204,7 +204,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
     ``(compatible (K, n), ghost velocities (K, n, d))``: at a node incompatible with the particle, its ghost
-    velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; spec B7). Returns new
+    velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; docs/cpic.md). Returns new
     :class:`~mpmref.state.Particles`; the input is not modified.
 
     Docs: docs/mls_vs_classic.md#consistency-with-apics-affine-field, docs/mls_vs_classic.md#two-gradient-weights,
