@@ -59,3 +59,12 @@ def test_baselines_cpic_cuts_without_losing_mass_where_removal_loses_it():
     assert cpic["crossings"] == 0 and cpic["mass_lost"] == 0.0 and cpic["components"] == 2
     # 1 dx = 2 of the 20 particle columns of the block (ppc 4 at 32 cells): 10 % of its mass
     assert removed["mass_lost"] == pytest.approx(0.1, abs=1e-12)
+
+
+@pytest.mark.slow
+def test_the_quick_preset_passes_on_numba_too():
+    """Zero crossings, the exact variant's momentum, the cut and the friction stop hold on the compiled backend."""
+    result = case.run(case.Params.quick(), backend="numba")
+    assert result["backend"] == "numba" and case.backends_run(result) == ["numba"]
+    failing = [c.line() for c in failed(case.checks(result))]
+    assert not failing, "\n".join(failing)

@@ -93,8 +93,8 @@ def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigi
 
     The impulses that incompatible nodes did not take in P2G change the dynamic bodies' velocities before
     G2P (the reference's order), or, with ``method.momentum_exact``, after it: then the bodies' velocity
-    is the same in P2G and G2P, and particles plus bodies keep their total linear momentum exactly (spec
-    B8). The penalty's impulses are applied after G2P; then every body moves to ``time + dt``.
+    is the same in P2G and G2P, and particles plus bodies keep their total linear momentum exactly
+    (docs/cpic.md). The penalty's impulses are applied after G2P; then every body moves to ``time + dt``.
     """
     bodies, scene = backend.scene.rigid_bodies, backend.scene
     J, L = backend.cpic_impulses(grid_state, contact, rigid, dt)
