@@ -176,25 +176,3 @@ def test_cut2d_example_writes_the_blade_and_two_pieces(tmp_path):
     assert components(x, 1.0 / 64) == 2
     blade = pv.read(sorted(tmp_path.glob("rigid_bodies_*.vtp"))[-1])
     assert blade.n_lines == 2 and (tmp_path / "rigid_bodies.pvd").exists()
-
-
-def test_impulses_go_to_each_node_s_nearest_body():
-    """Hu et al. 2018: with two bodies near, the impulse of an incompatible node goes to the nearer one."""
-    from types import SimpleNamespace
-
-    from mpmref.backends.numpy.cpic import impulses
-    from mpmref.physics.cdf import build_cdf
-    from mpmref.physics.rigid_dynamics import RigidState
-
-    dx = 1.0 / 32
-    lower = validate_polyline([[0.2, 0.5 - 0.4 * dx], [0.8, 0.5 - 0.4 * dx]], [[0, 1]])
-    upper = validate_polyline([[0.2, 0.5 + 0.7 * dx], [0.8, 0.5 + 0.7 * dx]], [[0, 1]])
-    cdf = build_cdf([lower, upper], (33, 33), (0.0, 0.0), dx)
-    node = np.ravel_multi_index((16, 16), (33, 33))  # (0.5, 0.5): 0.4 dx from the lower, 0.7 dx from the upper
-    rejected = np.zeros((33 * 33, 2))
-    rejected[node] = [0.0, -2.0]
-    grid_state = SimpleNamespace(rejected_momentum=rejected, rejected_force=np.zeros_like(rejected))
-    rigid = RigidState(position=np.array([[0.5, 0.49], [0.5, 0.52]]), angle=np.zeros(2), velocity=np.zeros((2, 2)),
-                       angular_velocity=np.zeros(2), impulse=np.zeros((2, 2)), angular_impulse=np.zeros(2))
-    J, L = impulses(grid_state, SimpleNamespace(cdf=cdf), rigid, dt=1e-3)
-    assert np.allclose(J, [[0.0, -2.0], [0.0, 0.0]]) and L[1] == 0.0

@@ -1,6 +1,8 @@
 """CPIC on the Numba backend: stage-by-stage conformance with the NumPy reference (the CPIC conformance cases
 are non-trivial and catch a broken stage), bitwise thread-count independence, and `mpmref run` of a CPIC scene."""
 
+import importlib
+
 import numba
 import numpy as np
 import pytest
@@ -230,12 +232,12 @@ def test_exported_cpic_vectors_are_the_references(tmp_path):
         assert bodies[1]["mass"] == "inf" and bodies[1]["friction"] == [-1.0, -1.0]
 
 
-def test_numba_impulses_go_to_each_node_s_nearest_body():
-    """Momentum accounting (docs/cpic.md) on the compiled reduction: with two bodies near, an incompatible node's impulse goes to the
-    nearer one, with its torque about that body's reference point."""
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_impulses_go_to_each_node_s_nearest_body(backend):
+    """Momentum accounting (docs/cpic.md), reference and compiled reduction: with two bodies near, an
+    incompatible node's impulse goes to the nearer one, with its torque about that body's reference point."""
     from types import SimpleNamespace
 
-    from mpmref.backends.numba.cpic import impulses
     from mpmref.physics.cdf import build_cdf
     from mpmref.physics.rigid import validate_polyline
     from mpmref.physics.rigid_dynamics import RigidState
@@ -250,6 +252,7 @@ def test_numba_impulses_go_to_each_node_s_nearest_body():
     grid_state = SimpleNamespace(rejected_momentum=rejected, rejected_force=np.zeros_like(rejected))
     rigid = RigidState(position=np.array([[0.5, 0.49], [0.5, 0.52]]), angle=np.zeros(2), velocity=np.zeros((2, 2)),
                        angular_velocity=np.zeros(2), impulse=np.zeros((2, 2)), angular_impulse=np.zeros(2))
+    impulses = importlib.import_module(f"mpmref.backends.{backend}.cpic").impulses
     J, L = impulses(grid_state, SimpleNamespace(cdf=cdf), rigid, dt=1e-3)
     assert np.array_equal(J, [[1.0, -2.0], [0.0, 0.0]])
     assert L[0] == pytest.approx(-0.01 * 1.0) and L[1] == 0.0  # (x - c) = (0, 0.01): L = -0.01 * J_x
