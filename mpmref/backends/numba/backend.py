@@ -95,6 +95,8 @@ class NumbaBackend:
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.node_x = grid.node_positions() if scene.colliders else None
         self.materials = MaterialTable(scene.material_list, KERNELS)
+        self.stress_codes, self.stress_params = materials.stress_table(scene.material_list)
+        self._buffers = {}
 
     running = staticmethod(threads_for)
 
@@ -104,6 +106,13 @@ class NumbaBackend:
 
     def _or_empty(self, array, *shape):
         return _or_empty(array, self.dtype, *shape)
+
+    def _buffer(self, name, *shape):
+        """A work array kept from call to call (allocated again only when its shape changes)."""
+        array = self._buffers.get(name)
+        if array is None or array.shape != shape:
+            array = self._buffers[name] = self._empty(*shape)
+        return array
 
     # ------------------------------------------------------------------ stages
     def prepare(self, particles):
@@ -120,17 +129,23 @@ class NumbaBackend:
         return self.materials.return_map(particles)
 
     def p2g(self, particles, prepared=None):
-        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent)."""
+        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent).
+
+        The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
+        node rows live in one reused (N, 1 + 2d) buffer (mass, momentum and force of a node share a cache
+        line); the returned :class:`~mpmref.state.GridState` holds views of it, valid until this backend's
+        next ``p2g``.
+        """
         blocks = prepared or self.prepare(particles)
         n, d = particles.x.shape
-        N = self.scene.grid.n_nodes
-        gs = GridState(mass=np.zeros(N, dtype=self.dtype), momentum=np.zeros((N, d), dtype=self.dtype),
-                       force=np.zeros((N, d), dtype=self.dtype))
+        grid = self._buffer("grid", self.scene.grid.n_nodes, 1 + 2 * d)
         self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
-                  self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, self.stress(particles),
-                  self.origin, self.dx, self.inertia, self.strides, self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks, blocks.colour_start,
-                  gs.mass, gs.momentum, gs.force)
-        return gs
+                  self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
+                  self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0), self._or_empty(particles.Jp, 0),
+                  particles.material, self.stress_codes, self.stress_params, self.origin, self.dx, self.inertia,
+                  self.strides, self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
+                  blocks.colour_start, grid)
+        return GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:])
 
     def grid_update(self, grid_state, dt, time=0.0):
         """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)``."""
