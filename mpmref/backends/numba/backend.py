@@ -11,6 +11,7 @@ from ...state import GridState
 from ..base import MaterialTable
 from . import materials, transfers
 from .blocks import sort_into_blocks
+from .buffers import BufferPool
 from .stencil import BASE_SHIFT
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
@@ -96,23 +97,13 @@ class NumbaBackend:
         self.node_x = grid.node_positions() if scene.colliders else None
         self.materials = MaterialTable(scene.material_list, KERNELS)
         self.stress_codes, self.stress_params = materials.stress_table(scene.material_list)
-        self._buffers = {}
+        self.buffers = BufferPool(self.dtype)
 
     running = staticmethod(threads_for)
 
     # ------------------------------------------------------------------ helpers
-    def _empty(self, *shape):
-        return np.empty(shape, dtype=self.dtype)
-
     def _or_empty(self, array, *shape):
         return _or_empty(array, self.dtype, *shape)
-
-    def _buffer(self, name, *shape):
-        """A work array kept from call to call (allocated again only when its shape changes)."""
-        array = self._buffers.get(name)
-        if array is None or array.shape != shape:
-            array = self._buffers[name] = self._empty(*shape)
-        return array
 
     # ------------------------------------------------------------------ stages
     def prepare(self, particles):
@@ -132,13 +123,13 @@ class NumbaBackend:
         """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent).
 
         The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
-        node rows live in one reused (N, 1 + 2d) buffer (mass, momentum and force of a node share a cache
-        line); the returned :class:`~mpmref.state.GridState` holds views of it, valid until this backend's
-        next ``p2g``.
+        node rows live in one (N, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
+        momentum and force of a node share a cache line); the returned :class:`~mpmref.state.GridState` holds
+        views of it.
         """
         blocks = prepared or self.prepare(particles)
         n, d = particles.x.shape
-        grid = self._buffer("grid", self.scene.grid.n_nodes, 1 + 2 * d)
+        grid, = self.buffers.take("grid", (self.scene.grid.n_nodes, 1 + 2 * d))
         self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
                   self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
                   self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0), self._or_empty(particles.Jp, 0),
@@ -148,9 +139,8 @@ class NumbaBackend:
         return GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:])
 
     def grid_update(self, grid_state, dt, time=0.0):
-        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)``."""
-        v = np.empty_like(grid_state.momentum)
-        v_tilde = np.empty_like(grid_state.momentum)
+        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays)."""
+        v, v_tilde = self.buffers.take("grid_velocity", grid_state.momentum.shape, grid_state.momentum.shape)
         transfers.grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
                                 self.node_shape, self.strides, self.scene.boundary.width, self.wall_type,
                                 self.wall_friction, v, v_tilde)
@@ -161,14 +151,20 @@ class NumbaBackend:
         return v, v_tilde
 
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
-        """New particle state from the grid velocities (block-parallel gather)."""
+        """New particle state from the grid velocities (a parallel gather).
+
+        The new arrays come from the backend's :class:`~.buffers.BufferPool`: a run that keeps only the
+        current and the previous state swaps two sets of them instead of allocating a state per step.
+        """
         blocks = prepared or self.prepare(particles)
         n, d = particles.x.shape
-        x_new, v_new = self._empty(n, d), self._empty(n, d)
-        C_new = self._empty(n, d, d) if particles.C is not None else self._empty(0, d, d)
-        F_new = self._empty(n, d, d) if particles.F is not None else self._empty(0, d, d)
-        J_new = self._empty(n) if particles.J is not None else self._empty(0)
-        modes_new = np.empty_like(particles.modes) if particles.modes is not None else self._empty(0, 0, d)
+
+        def shape(name, *full):
+            return full if getattr(particles, name) is not None else (0,) * len(full)
+
+        modes_shape = particles.modes.shape if particles.modes is not None else (0, 0, d)
+        x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
+            "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, self.strides,
                   self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
