@@ -15,11 +15,14 @@ for any thread count.
 """
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
     """Stable counting sort of particles by block, and the non-empty blocks grouped by colour.
+
+    The block of each particle is computed in parallel; the counts and the stable placement are one serial
+    pass each (their order is what makes the sort stable).
 
     Parameters
     ----------
@@ -41,14 +44,15 @@ def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
     for a in range(d):
         n_blocks *= blocks_per_axis[a]
     block_of = np.empty(n, dtype=np.int64)
-    counts = np.zeros(n_blocks + 1, dtype=np.int64)
-    for p in range(n):
+    for p in prange(n):
         b = 0
         for a in range(d):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
             b = b * blocks_per_axis[a] + base // block
         block_of[p] = b
-        counts[b + 1] += 1
+    counts = np.zeros(n_blocks + 1, dtype=np.int64)
+    for p in range(n):
+        counts[block_of[p] + 1] += 1
     block_start = np.cumsum(counts)
     fill = block_start[:-1].copy()
     order = np.empty(n, dtype=np.int64)
