@@ -10,7 +10,7 @@ from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
 from . import materials, transfers
-from .blocks import sort_into_blocks
+from .blocks import slab_colours, sort_into_blocks
 from .buffers import BufferPool
 from .stencil import BASE_SHIFT
 
@@ -55,11 +55,11 @@ KERNELS = {cls: (_stress_adapter(stress), return_map) for cls, (stress, return_m
 
 
 class Blocks:
-    """Particles sorted into the grid's blocks (see :mod:`.blocks`)."""
+    """Particles sorted into the grid's blocks, and the two colours of slabs of P2G (see :mod:`.blocks`)."""
 
-    def __init__(self, order, block_start, colour_blocks, colour_start):
+    def __init__(self, order, block_start, blocks_per_axis):
         self.order, self.block_start = order, block_start
-        self.colour_blocks, self.colour_start = colour_blocks, colour_start
+        self.slab_start, self.slabs, self.colour_start = slab_colours(block_start, blocks_per_axis)
 
 
 class NumbaBackend:
@@ -107,9 +107,10 @@ class NumbaBackend:
 
     # ------------------------------------------------------------------ stages
     def prepare(self, particles):
-        """Sort the particles into the grid's blocks and colour classes (shared by P2G and G2P of one step)."""
-        return Blocks(*sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
-                                        self.blocks_per_axis))
+        """Sort the particles into the grid's blocks and the slabs' two colours (what P2G needs)."""
+        order, block_start = sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
+                                              self.blocks_per_axis)
+        return Blocks(order, block_start, self.blocks_per_axis)
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
@@ -120,7 +121,7 @@ class NumbaBackend:
         return self.materials.return_map(particles)
 
     def p2g(self, particles, prepared=None):
-        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent).
+        """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent).
 
         The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
         node rows live in one (N, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
@@ -130,12 +131,17 @@ class NumbaBackend:
         blocks = prepared or self.prepare(particles)
         n, d = particles.x.shape
         grid, = self.buffers.take("grid", (self.scene.grid.n_nodes, 1 + 2 * d))
-        self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
-                  self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
-                  self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0), self._or_empty(particles.Jp, 0),
-                  particles.material, self.stress_codes, self.stress_params, self.origin, self.dx, self.inertia,
-                  self.strides, self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
-                  blocks.colour_start, grid)
+        transfers.zero_rows(grid)
+        chunk = numba.set_parallel_chunksize(1)  # slabs hold unequal numbers of particles: one at a time
+        try:
+            self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
+                      self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
+                      self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+                      self._or_empty(particles.Jp, 0), particles.material, self.stress_codes, self.stress_params,
+                      self.origin, self.dx, self.inertia, self.strides, self.mode_index, blocks.order,
+                      blocks.slab_start, blocks.slabs, blocks.colour_start, grid)
+        finally:
+            numba.set_parallel_chunksize(chunk)
         return GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:])
 
     def grid_update(self, grid_state, dt, time=0.0):
@@ -153,10 +159,10 @@ class NumbaBackend:
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
         """New particle state from the grid velocities (a parallel gather).
 
-        The new arrays come from the backend's :class:`~.buffers.BufferPool`: a run that keeps only the
-        current and the previous state swaps two sets of them instead of allocating a state per step.
+        A gather needs no sort (``prepared`` is not used). The new arrays come from the backend's
+        :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state swaps two
+        sets of them instead of allocating a state per step.
         """
-        blocks = prepared or self.prepare(particles)
         n, d = particles.x.shape
 
         def shape(name, *full):
@@ -167,8 +173,7 @@ class NumbaBackend:
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, self.strides,
-                  self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
-                  v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
+                  self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:

@@ -8,8 +8,8 @@ cached on disk like any other ``cache=True`` function: Numba keys a closure's ca
 values of its constants, which is why they are plain ints, bools and a string and never other compiled
 functions (a dispatcher pickles differently in every process, which would defeat the cache).
 
-P2G runs block-parallel over the colour classes of :mod:`.blocks` (no atomics, bitwise the same for any
-thread count); G2P gathers, so it runs block-parallel over all blocks at once.
+P2G runs slab-parallel over the two colour classes of :mod:`.blocks` (no atomics, bitwise the same for any
+thread count); G2P gathers, so it runs in parallel over the particles in their storage order.
 """
 
 import hashlib
@@ -57,8 +57,10 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params,
-    origin, dx, inertia, strides, mode_index, order, block_start, colour_blocks, colour_start, grid)`` zeroes
-    and fills ``grid`` (N, 1 + 2d), one row per node: mass, momentum, internal force. Per particle it first
+    origin, dx, inertia, strides, mode_index, order, slab_start, slabs, colour_start, grid)`` adds into the
+    zeroed ``grid`` (N, 1 + 2d), one row per node: mass, momentum, internal force, slab by slab in the two
+    colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
+    particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p`
     (:func:`.materials.stress_of`, the stress stage's own arithmetic, fused here instead of stored), the
     force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
@@ -72,22 +74,21 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
-            strides, mode_index, order, block_start, colour_blocks, colour_start, grid):
+            strides, mode_index, order, slab_start, slabs, colour_start, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
-        zero_rows(grid)
         inv_dx = 1.0 / dx
         T = grid.dtype.type
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
-            for bi in prange(colour_start[colour + 1] - first):
-                block = colour_blocks[first + bi]
-                work = np.empty((5, DIM, DIM), grid.dtype)  # one allocation per block: tau, R, U, Vt, sigma
+            for si in prange(colour_start[colour + 1] - first):
+                slab = slabs[first + si]
+                work = np.empty((5, DIM, DIM), grid.dtype)  # one allocation per slab: tau, R, U, Vt, sigma
                 tau, R, U, Vt, sigma = work[0], work[1], work[2], work[3], work[4, 0]
                 q = np.empty((DIM if POLY else 0, S, S))
                 qnorm = np.empty((DIM if POLY else 0, S))
                 w_arr = np.empty((DIM if POLY else 0, S))
                 fx_arr = np.empty(DIM if POLY else 0)
-                for k in range(block_start[block], block_start[block + 1]):
+                for k in range(slab_start[slab], slab_start[slab + 1]):
                     p = order[k]
                     mat = material[p]
                     stress_of(stress_codes[mat], stress_params[mat], F, J, Jp, p, tau, R, U, sigma, Vt)
@@ -240,11 +241,9 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, order,
-    block_start, blocks, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new
-    particle arrays. A gather writes only its own particle, so it runs in parallel over the particles in
-    their storage order (``order``, ``block_start`` and ``blocks`` are not needed by it and kept for the
-    stage's shape). The sums over the stencil are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
+    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde,
+    x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays. A gather writes only its
+    own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
     :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
     (:func:`gather_modes`).
@@ -253,8 +252,8 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, order, block_start, blocks,
-            v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
+    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde, x_new, v_new,
+            C_new, F_new, J_new, modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         n_modes = mode_index.shape[0]
         T = x_new.dtype.type
