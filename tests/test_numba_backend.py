@@ -138,3 +138,17 @@ def test_a_state_someone_holds_is_never_overwritten_and_a_plain_loop_swaps_two_b
         assert backend.buffers.holds(latest.x)  # a pooled set, not a new allocation
         assert id(latest.x) != previous  # not the set of the state it was made from
         previous = id(latest.x)  # (an id, not a reference, which would keep that set in use)
+
+
+def test_buffer_pool_lets_go_of_shapes_no_longer_asked_for():
+    """The asynchronous stepper advances groups of many sizes: the pool keeps sets of the latest two shapes
+    of a kind only, so its memory does not grow with the number of sizes seen."""
+    from mpmref.backends.numba.buffers import BufferPool
+
+    pool = BufferPool("float32")
+    for n in range(1, 50):
+        pool.take("particles", (n, 2), (n,))
+    pool.take("grid", (7, 5))
+    assert pool.nbytes() == 4 * ((48 * 2 + 48) + (49 * 2 + 49) + 7 * 5)
+    reused = pool.take("particles", (49, 2), (49,))
+    assert pool.holds(reused[0]) and pool.holds(reused[1])

@@ -19,16 +19,26 @@ _FREE = 3
 
 
 class BufferPool:
-    """Sets of work arrays of one dtype, reused once nobody else holds them (see the module doc)."""
+    """Sets of work arrays of one dtype, reused once nobody else holds them (see the module doc).
 
-    def __init__(self, dtype, keep=2):
-        self.dtype, self.keep = np.dtype(dtype), keep
+    At most ``keep`` sets are kept per kind and shapes, and sets of only the ``shapes_per_kind`` most
+    recently asked-for shapes of a kind (a stepper that advances groups of varying size, such as the
+    asynchronous one, asks for many shapes; older ones are let go rather than kept forever).
+    """
+
+    def __init__(self, dtype, keep=2, shapes_per_kind=2):
+        self.dtype, self.keep, self.shapes_per_kind = np.dtype(dtype), keep, shapes_per_kind
         self._sets = {}
 
     def take(self, kind, *shapes):
         """A tuple of uninitialised arrays of ``shapes``: a kept set that is free, else a new one (kept while
         fewer than ``keep`` sets of this kind and shapes exist)."""
-        kept = self._sets.setdefault((kind, shapes), [])
+        key = (kind, shapes)
+        kept = self._sets.pop(key, [])
+        self._sets[key] = kept  # most recently used last
+        same_kind = [k for k in self._sets if k[0] == kind]
+        for old in same_kind[:-self.shapes_per_kind]:
+            del self._sets[old]
         for arrays in kept:
             if sys.getrefcount(arrays) <= _FREE and all(sys.getrefcount(a) <= _FREE for a in arrays):
                 return arrays
