@@ -91,8 +91,8 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
     out, err = capsys.readouterr()
-    for i, section in enumerate(("table2", "throughput"), 1):
-        assert f"[{i}/2] {section}: started" in err and f"[{i}/2] {section}: finished in " in err
+    for i, section in enumerate(("table2", "throughput", "stages", "scaling"), 1):
+        assert f"[{i}/4] {section}: started" in err and f"[{i}/4] {section}: finished in " in err
     assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
@@ -116,6 +116,7 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     memory = table2["memory"][0]
     assert memory["particle_bytes"] == 64 * (3 + 3 + 9 + 9 + 1 + 1) * 8 + 64 * 4 + 64 * 8  # ... + material + id
     assert memory["grid_bytes"] == 7**3 * 7 * 8 and memory["step_peak_growth_bytes"] >= 0
+    assert memory["peak_over_particles"] >= 1.0  # the state itself is resident throughout
 
     throughput = results["throughput"]
     assert [c["case"] for c in throughput["cases"]] == ["mpm88", "fluid3d", "large2d"]
@@ -124,8 +125,13 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
         assert r["particle_steps_per_s"] == pytest.approx(n * 1 / r["median_s"])
         assert r["vs_numpy"] == 1.0  # only the reference ran
 
-    for text in ("Table 2", "MPM/MLS", "P2G", "G2P", "Peak memory", "Throughput", "large2d"):
+    for text in ("Table 2", "MPM/MLS", "P2G", "G2P", "Peak memory", "Throughput", "large2d", "Stages", "Scaling"):
         assert text in out
+
+    for r in results["stages"]["results"]:  # the stages run inside the timed steps: they cannot add up to more
+        assert set(r["stages_s"]) >= {"prepare", "p2g", "grid_update", "g2p", "return_map"}
+        assert sum(r["stages_s"].values()) <= r["step_s"]
+    assert results["scaling"]["sizes"] == [] and results["scaling"]["threads"] == []  # compiled backends only
 
 
 def test_table2_ratios_divide_mpm_by_mls():
@@ -142,7 +148,7 @@ def test_table2_ratios_divide_mpm_by_mls():
 
 
 def test_options_from_the_command_line():
-    assert options_from_args(parse(["--vs", "taichi"])).sections == ("table2", "throughput", "peer")
+    assert options_from_args(parse(["--vs", "taichi"])).sections == ("table2", "throughput", "stages", "scaling", "peer")
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
     assert opts.dtypes == ("float32",) and opts.threads == (1, 2, 4) and opts.table2_cells == 100
@@ -240,3 +246,21 @@ def test_peer_refuses_scenes_it_does_not_implement():
     taichi_mpm88 = pytest.importorskip("mpmref.peers.taichi_mpm88")
     with pytest.raises(MpmrefError, match="one material of type 'fluid'"):
         taichi_mpm88.check_scene(table2_scene(2))
+
+
+def test_numba_stages_and_scaling_records_are_consistent():
+    """The Numba backend computes the stress inside P2G: the stress line is the stage timed alone; the scaling
+    figures are the timed rates inverted, and one thread's speed-up over itself is 1."""
+    pytest.importorskip("numba")
+    from mpmref.bench.stages import run_scaling, run_stages
+
+    stages = run_stages([c for c in throughput_cases(quick=True) if c.name == "mpm88"], ("numba",), (1,),
+                        ("float32",), 2, log=lambda m: None)
+    record = stages["results"][0]
+    assert record["stress_inside_p2g"] and "stress" not in record["stages_s"] and record["stress_alone_s"] > 0
+    assert sum(record["stages_s"].values()) <= record["step_s"]
+    scaling = run_scaling(("numba",), (1,), ("float32",), 1, 1, quick=True, log=lambda m: None)
+    assert [r["particles"] for r in scaling["sizes"]] == [512, 2048, 8**3 // 4, 16**3 // 4]
+    for r in scaling["sizes"]:
+        assert r["ns_per_particle_step"] == pytest.approx(1e9 * r["median_s"] / r["particles"])
+    assert [r["speedup_over_1"] for r in scaling["threads"]] == [1.0]

@@ -114,3 +114,41 @@ def test_float32_step_matches_the_float32_reference_to_single_precision_round_of
 def test_unknown_backend_is_refused_with_the_list():
     with pytest.raises(ValueError, match="numba"):
         make_backend("cuda", example("mpm88"))
+
+
+def test_a_state_someone_holds_is_never_overwritten_and_a_plain_loop_swaps_two_buffers():
+    """G2P writes into pooled arrays: a run that keeps only its latest state reuses two sets (a double
+    buffer, so the state before the latest step survives for a rollback), while every state a caller keeps
+    stays bit for bit what it was when it was made."""
+    scene = example("mpm88")
+    backend = make_backend("numba", scene)
+    particles = sample_particles(scene)
+    kept = [run(backend, particles, 1, 1e-4)]
+    snapshot = {k: a.copy() for k, a in kept[0].arrays().items()}
+    for _ in range(3):
+        kept.append(run(backend, kept[-1], 1, 1e-4))
+    assert len({id(p.x) for p in kept}) == len(kept)  # four states held: four different arrays
+    for name, array in kept[0].arrays().items():
+        assert np.array_equal(array, snapshot[name]), name
+
+    del kept
+    latest, previous = particles, None
+    for _ in range(6):
+        latest = run(backend, latest, 1, 1e-4)
+        assert backend.buffers.holds(latest.x)  # a pooled set, not a new allocation
+        assert id(latest.x) != previous  # not the set of the state it was made from
+        previous = id(latest.x)  # (an id, not a reference, which would keep that set in use)
+
+
+def test_buffer_pool_lets_go_of_shapes_no_longer_asked_for():
+    """The asynchronous stepper advances groups of many sizes: the pool keeps sets of the latest two shapes
+    of a kind only, so its memory does not grow with the number of sizes seen."""
+    from mpmref.backends.numba.buffers import BufferPool
+
+    pool = BufferPool("float32")
+    for n in range(1, 50):
+        pool.take("particles", (n, 2), (n,))
+    pool.take("grid", (7, 5))
+    assert pool.nbytes() == 4 * ((48 * 2 + 48) + (49 * 2 + 49) + 7 * 5)
+    reused = pool.take("particles", (49, 2), (49,))
+    assert pool.holds(reused[0]) and pool.holds(reused[1])

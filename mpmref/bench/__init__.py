@@ -15,6 +15,10 @@ Sections of the JSON document (each ``null`` when not run):
 * ``async``: ``results`` (case, backend, threads, particles, levels, ``async`` and ``sync`` timings with
   their particle updates, ``updates_ratio``, ``own_updates_ratio``, ``wall_ratio``, ``energy_difference``,
   ``position_difference_dx``; :mod:`mpmref.bench.asynchronous`).
+* ``stages``: ``stages`` and ``results`` (case, backend, threads, dtype, particles, ``step_s``, ``stages_s``
+  per stage, ``stress_inside_p2g``, ``stress_alone_s``; :mod:`mpmref.bench.stages`).
+* ``scaling``: ``sizes`` (dim, cells, particles, a timing record, ``ns_per_particle_step``) and ``threads``
+  (the 262 144-particle 2D case at each thread count, ``speedup_over_1``).
 * ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``
   (case, particles, threads, backend, ``mpmref`` and ``taichi`` timings, ``ratio``,
   ``mean_position_difference``, ``bound``, ``free_flight``, ``agree``; :mod:`mpmref.bench.peer`).
@@ -36,6 +40,7 @@ from .asynchronous import run_async
 from .peer import run_peer
 from .report import RENDERERS
 from .scenes import peer_cases, table2_cells, throughput_cases
+from .stages import plot_scaling, run_scaling, run_stages
 from .table2 import run_table2
 from .throughput import run_throughput
 from .timing import check_threads
@@ -44,7 +49,8 @@ SCHEMA = "mpmref-bench/1"
 DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
                "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
                "compilation is reported apart. See docs/performance.md.")
-SECTIONS = ("table2", "throughput", "peer", "async")
+SECTIONS = ("table2", "throughput", "stages", "scaling", "peer", "async")
+DEFAULT_SECTIONS = ("table2", "throughput", "stages", "scaling")
 DEFAULT_PARTICLES = 1_000_000
 QUICK_PARTICLES = 4096
 FULL_CELLS = 100
@@ -58,7 +64,9 @@ class BenchOptions:
     Attributes
     ----------
     size : int            Table-2 particle count, rounded to ``8 n**3`` (``n`` cells per side)
-    full : bool           Table 2 at the paper's 100**3 cells (8 M particles), overriding ``size``
+    full : bool           Table 2 at the paper's 100**3 cells (8 M particles), overriding ``size``, and the
+                          scaling table up to 1 M particles
+    plot : str or None    write the scaling plot (PNG) here
     threads : tuple       thread counts (Numba and the peer; NumPy always runs on one)
     dtypes : tuple        ``"float32"`` and/or ``"float64"``
     backends : tuple      mpmref backends to time
@@ -75,12 +83,13 @@ class BenchOptions:
     threads: tuple = (1, 2)
     dtypes: tuple = ("float32", "float64")
     backends: tuple = BACKENDS
-    sections: tuple = ("table2", "throughput")
+    sections: tuple = DEFAULT_SECTIONS
     repeats: int = 3
     steps: int = 10
     peer_steps: int = 100
     quick: bool = False
     memory: bool = True
+    plot: str = None
 
     @property
     def table2_cells(self):
@@ -127,7 +136,19 @@ def _async(o, log):
     return run_async(o.quick, o.backends, o.threads, o.repeats, log)
 
 
-SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "peer": _peer, "async": _async}
+def _stages(o, log):
+    return run_stages(throughput_cases(o.quick), o.backends, o.threads, o.dtypes, o.steps, log)
+
+
+def _scaling(o, log):
+    section = run_scaling(o.backends, o.threads, o.dtypes, o.repeats, o.steps, o.full, o.quick, log)
+    if o.plot:
+        plot_scaling(section, o.plot)
+    return section
+
+
+SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "stages": _stages, "scaling": _scaling,
+                   "peer": _peer, "async": _async}
 
 
 def environment():
@@ -194,7 +215,9 @@ def add_parser(subparsers):
                               description=DESCRIPTION)
     p.add_argument("--size", type=_positive, help=f"Table-2 particles (default {DEFAULT_PARTICLES:,}; "
                    f"{QUICK_PARTICLES} with --quick), rounded to 8 n^3")
-    p.add_argument("--full", action="store_true", help="Table 2 at the paper's 100^3 cells (8 M particles)")
+    p.add_argument("--full", action="store_true",
+                   help="Table 2 at the paper's 100^3 cells (8 M particles); scaling up to 1 M particles")
+    p.add_argument("--plot", help="write the scaling plot (PNG) to this file")
     p.add_argument("--threads", type=_thread_list, default=(1, 2), help="thread counts, e.g. 1,2 (default)")
     p.add_argument("--dtype", type=_dtype_list, default=("float32", "float64"), help="f32, f64 or f32,f64 (default)")
     p.add_argument("--backends", type=_backend_list, default=BACKENDS,
@@ -218,11 +241,11 @@ def options_from_args(args):
     if args.only:
         sections = (args.only,)
     else:
-        sections = ("table2", "throughput") + (("peer",) if args.vs else ())
+        sections = DEFAULT_SECTIONS + (("peer",) if args.vs else ())
     size = args.size or (QUICK_PARTICLES if args.quick else DEFAULT_PARTICLES)
     return BenchOptions(size=size, full=args.full, threads=args.threads, dtypes=args.dtype, backends=args.backends,
                         sections=sections, repeats=args.repeats, steps=args.steps, peer_steps=args.peer_steps,
-                        quick=args.quick, memory=not args.no_memory)
+                        quick=args.quick, memory=not args.no_memory, plot=args.plot)
 
 
 def _silent(message):

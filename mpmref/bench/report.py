@@ -1,6 +1,7 @@
 """Readable tables of the benchmark sections (the JSON holds every figure; these show the medians)."""
 
 from .asynchronous import render_async
+from .stages import render_scaling, render_stages
 
 METHOD_COLUMNS = (("mpm", "MPM"), ("mls", "MLS-MPM"))
 STAGE_ROWS = (("p2g", "P2G"), ("g2p", "G2P"))
@@ -59,14 +60,16 @@ def _table2_block(by, key, ratio):
 
 
 def render_memory(records):
-    lines = ["Peak memory of one MLS-MPM step (fresh process): "
-             "(particles + step peak growth) / (particles + grid state)",
+    lines = ["Peak memory of MLS-MPM steps (fresh process): peak/particles = (peak - baseline) / particle state; "
+             "peak/state = (particles + step peak growth) / (particles + grid state)",
              f"{'backend':9}{'dtype':9}{'threads':>8}{'particles MB':>14}{'grid MB':>9}{'step peak MB':>14}"
-             f"{'peak/state':>12}"]
+             f"{'peak/state':>12}{'peak/particles':>16}"]
     for r in records:
         ratio = "-" if r["peak_over_state"] is None else f"{r['peak_over_state']:.2f}"
+        particles = "-" if r["peak_over_particles"] is None else f"{r['peak_over_particles']:.2f}"
         lines.append(f"{r['backend']:9}{r['dtype']:9}{r['threads']:>8}{megabytes(r['particle_bytes']):>14}"
-                     f"{megabytes(r['grid_bytes']):>9}{megabytes(r['step_peak_growth_bytes']):>14}{ratio:>12}")
+                     f"{megabytes(r['grid_bytes']):>9}{megabytes(r['step_peak_growth_bytes']):>14}{ratio:>12}"
+                     f"{particles:>16}")
     return "\n".join(lines)
 
 
@@ -99,7 +102,8 @@ def render_peer(section):
     return "\n".join(lines)
 
 
-RENDERERS = {"table2": render_table2, "throughput": render_throughput, "peer": render_peer, "async": render_async}
+RENDERERS = {"table2": render_table2, "throughput": render_throughput, "stages": render_stages,
+             "scaling": render_scaling, "peer": render_peer, "async": render_async}
 
 
 def render(results):

@@ -1,6 +1,7 @@
 """The Numba backend object: the reference's stages, compiled for one scene and run in parallel."""
 
 from contextlib import contextmanager
+from functools import cached_property
 
 import numba
 import numpy as np
@@ -10,7 +11,8 @@ from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
 from . import cpic, materials, transfers
-from .blocks import sort_into_blocks
+from .blocks import colour_classes, slab_colours, sort_into_blocks
+from .buffers import BufferPool
 from .stencil import BASE_SHIFT
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
@@ -54,11 +56,17 @@ KERNELS = {cls: (_stress_adapter(stress), return_map) for cls, (stress, return_m
 
 
 class Blocks:
-    """Particles sorted into the grid's blocks (see :mod:`.blocks`)."""
+    """Particles sorted into the grid's blocks, the two colours of slabs of P2G, and (computed when a CPIC
+    stage asks) the :math:`2^d` colour classes of blocks (see :mod:`.blocks`)."""
 
-    def __init__(self, order, block_start, colour_blocks, colour_start):
-        self.order, self.block_start = order, block_start
-        self.colour_blocks, self.colour_start = colour_blocks, colour_start
+    def __init__(self, order, block_start, blocks_per_axis):
+        self.order, self.block_start, self.blocks_per_axis = order, block_start, blocks_per_axis
+        self.slab_start, self.slabs, self.colour_start = slab_colours(block_start, blocks_per_axis)
+
+    @cached_property
+    def block_colours(self):
+        """``(colour_blocks, colour_start)`` of :func:`.blocks.colour_classes`."""
+        return colour_classes(self.block_start, self.blocks_per_axis)
 
 
 class NumbaBackend:
@@ -95,21 +103,21 @@ class NumbaBackend:
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.node_x = grid.node_positions() if scene.colliders else None
         self.materials = MaterialTable(scene.material_list, KERNELS)
+        self.stress_codes, self.stress_params = materials.stress_table(scene.material_list)
+        self.buffers = BufferPool(self.dtype)
 
     running = staticmethod(threads_for)
 
     # ------------------------------------------------------------------ helpers
-    def _empty(self, *shape):
-        return np.empty(shape, dtype=self.dtype)
-
     def _or_empty(self, array, *shape):
         return _or_empty(array, self.dtype, *shape)
 
     # ------------------------------------------------------------------ stages
     def prepare(self, particles):
-        """Sort the particles into the grid's blocks and colour classes (shared by P2G and G2P of one step)."""
-        return Blocks(*sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
-                                        self.blocks_per_axis))
+        """Sort the particles into the grid's blocks and the slabs' two colours (what P2G needs)."""
+        order, block_start = sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
+                                              self.blocks_per_axis)
+        return Blocks(order, block_start, self.blocks_per_axis)
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
@@ -120,25 +128,35 @@ class NumbaBackend:
         return self.materials.return_map(particles)
 
     def p2g(self, particles, prepared=None, contact=None):
-        """Node mass, momentum and internal force (block-parallel by colour; bitwise thread-count independent);
-        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`)."""
+        """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent);
+        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`).
+
+        The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
+        node rows live in one (N, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
+        momentum and force of a node share a cache line); the returned :class:`~mpmref.state.GridState` holds
+        views of it.
+        """
         blocks = prepared or self.prepare(particles)
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
         n, d = particles.x.shape
-        N = self.scene.grid.n_nodes
-        gs = GridState(mass=np.zeros(N, dtype=self.dtype), momentum=np.zeros((N, d), dtype=self.dtype),
-                       force=np.zeros((N, d), dtype=self.dtype))
-        self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
-                  self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, self.stress(particles),
-                  self.origin, self.dx, self.inertia, self.strides, self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks, blocks.colour_start,
-                  gs.mass, gs.momentum, gs.force)
-        return gs
+        grid, = self.buffers.take("grid", (self.scene.grid.n_nodes, 1 + 2 * d))
+        transfers.zero_rows(grid)
+        chunk = numba.set_parallel_chunksize(1)  # slabs hold unequal numbers of particles: one at a time
+        try:
+            self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
+                      self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
+                      self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+                      self._or_empty(particles.Jp, 0), particles.material, self.stress_codes, self.stress_params,
+                      self.origin, self.dx, self.inertia, self.strides, self.mode_index, blocks.order,
+                      blocks.slab_start, blocks.slabs, blocks.colour_start, grid)
+        finally:
+            numba.set_parallel_chunksize(chunk)
+        return GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:])
 
     def grid_update(self, grid_state, dt, time=0.0):
-        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)``."""
-        v = np.empty_like(grid_state.momentum)
-        v_tilde = np.empty_like(grid_state.momentum)
+        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays)."""
+        v, v_tilde = self.buffers.take("grid_velocity", grid_state.momentum.shape, grid_state.momentum.shape)
         transfers.grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
                                 self.node_shape, self.strides, self.scene.boundary.width, self.wall_type,
                                 self.wall_friction, v, v_tilde)
@@ -149,18 +167,23 @@ class NumbaBackend:
         return v, v_tilde
 
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
-        """New particle state from the grid velocities (block-parallel gather)."""
-        blocks = prepared or self.prepare(particles)
+        """New particle state from the grid velocities (a parallel gather).
+
+        A gather needs no sort (``prepared`` is not used). The new arrays come from the backend's
+        :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state swaps two
+        sets of them instead of allocating a state per step.
+        """
         n, d = particles.x.shape
-        x_new, v_new = self._empty(n, d), self._empty(n, d)
-        C_new = self._empty(n, d, d) if particles.C is not None else self._empty(0, d, d)
-        F_new = self._empty(n, d, d) if particles.F is not None else self._empty(0, d, d)
-        J_new = self._empty(n) if particles.J is not None else self._empty(0)
-        modes_new = np.empty_like(particles.modes) if particles.modes is not None else self._empty(0, 0, d)
+
+        def shape(name, *full):
+            return full if getattr(particles, name) is not None else (0,) * len(full)
+
+        modes_shape = particles.modes.shape if particles.modes is not None else (0, 0, d)
+        x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
+            "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, self.strides,
-                  self.mode_index, blocks.order, blocks.block_start, blocks.colour_blocks,
-                  v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
+                  self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:

@@ -1,25 +1,31 @@
-r"""Sorting particles into blocks of cells, and the colouring that makes parallel P2G race-free.
+r"""Sorting particles into blocks of cells, and the two-colour slabs that make parallel P2G race-free.
 
 A particle belongs to the block that holds its stencil's base node: block coordinate
-``b_a = base_a // B`` per axis (``B`` = the grid's ``block`` cells, :class:`mpmref.state.Grid`). The particles of one block write only to
-nodes ``b_a B .. b_a B + B + S - 2`` per axis (``S`` the kernel support), so two blocks whose coordinates
-differ by at least 2 on some axis never write the same node when ``B >= S - 1``. Colouring blocks by the
-parities of their coordinates (:math:`2^d` colours) therefore gives colour classes whose blocks can
-scatter concurrently without atomics (the talk's Part IV motivates blocked transfers for locality; the
-parity colouring is this toolkit's way of running them in parallel without atomics or private grids).
+``b_a = base_a // B`` per axis (``B`` = the grid's ``block`` cells, :class:`mpmref.state.Grid`). The particles
+of one block write only to nodes ``b_a B .. b_a B + B + S - 2`` per axis (``S`` the kernel support). Blocks
+are numbered in C order, so the blocks that share their first coordinate ``b_0`` — a **slab** one block
+thick — are consecutive, and after the sort their particles are one contiguous run of ``order``. Two slabs
+whose ``b_0`` differ by at least 2 never write the same node when ``B >= S - 1``. Colouring slabs by the
+parity of ``b_0`` therefore gives two colour classes whose slabs can scatter concurrently without atomics,
+in two parallel passes whatever the dimension (the talk's Part IV motivates blocked transfers for
+locality; the parity colouring is this toolkit's way of running them in parallel without atomics or
+private grids).
 
 Inside a block particles keep their original order (a stable counting sort). Each node therefore
 receives its contributions in a fixed order — colour by colour, then particle by particle within the
-one block of that colour that reaches it — independent of how many threads run: P2G is bitwise the same
+one slab of that colour that reaches it — independent of how many threads run: P2G is bitwise the same
 for any thread count.
 """
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
     """Stable counting sort of particles by block, and the non-empty blocks grouped by colour.
+
+    The block of each particle is computed in parallel; the counts and the stable placement are one serial
+    pass each (their order is what makes the sort stable).
 
     Parameters
     ----------
@@ -33,34 +39,49 @@ def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
     -------
     order : (n,) int           particle indices, block by block
     block_start : (n_blocks + 1,) int   ``order[block_start[b]:block_start[b+1]]`` are block ``b``'s particles
-    colour_blocks : (k,) int   the non-empty blocks, colour 0 first
-    colour_start : (2**d + 1,) int      ``colour_blocks[colour_start[c]:colour_start[c+1]]`` have colour ``c``
     """
     n, d = x.shape
     n_blocks = 1
     for a in range(d):
         n_blocks *= blocks_per_axis[a]
     block_of = np.empty(n, dtype=np.int64)
-    counts = np.zeros(n_blocks + 1, dtype=np.int64)
-    for p in range(n):
+    for p in prange(n):
         b = 0
         for a in range(d):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
             b = b * blocks_per_axis[a] + base // block
         block_of[p] = b
-        counts[b + 1] += 1
+    counts = np.zeros(n_blocks + 1, dtype=np.int64)
+    for p in range(n):
+        counts[block_of[p] + 1] += 1
     block_start = np.cumsum(counts)
     fill = block_start[:-1].copy()
     order = np.empty(n, dtype=np.int64)
     for p in range(n):
         order[fill[block_of[p]]] = p
         fill[block_of[p]] += 1
-    return order, block_start, *colour_classes(block_start, blocks_per_axis)
+    return order, block_start
+
+
+def slab_colours(block_start, blocks_per_axis):
+    """``(slab_start, slabs, colour_start)`` of the slabs (see the module doc).
+
+    ``order[slab_start[s]:slab_start[s+1]]`` are slab ``s``'s particles; ``slabs`` lists the non-empty
+    slabs, colour 0 (even ``b_0``) first; ``slabs[colour_start[c]:colour_start[c+1]]`` have colour ``c``.
+    """
+    per_slab = int(np.prod(blocks_per_axis[1:]))
+    slab_start = np.ascontiguousarray(block_start[::per_slab])
+    occupied = np.flatnonzero(np.diff(slab_start) > 0)
+    even, odd = occupied[occupied % 2 == 0], occupied[occupied % 2 == 1]
+    return slab_start, np.concatenate([even, odd]), np.array([0, even.size, even.size + odd.size], dtype=np.int64)
 
 
 @njit(cache=True)
 def colour_classes(block_start, blocks_per_axis):
-    """Non-empty blocks grouped by colour ``sum_a (b_a mod 2) 2^a``; see :func:`sort_into_blocks`."""
+    """Non-empty blocks grouped by the colour ``sum_a (b_a mod 2) 2^a`` of all their coordinates (:math:`2^d`
+    colours; blocks of one colour never share a node when ``B >= S - 1``): ``(colour_blocks, colour_start)``,
+    ``colour_blocks[colour_start[c]:colour_start[c+1]]`` having colour ``c``. The CPIC kernels
+    (:mod:`.cpic`) run block by block in these classes; the plain P2G uses the two slab colours."""
     d = blocks_per_axis.shape[0]
     n_colours = 2**d
     n_blocks = block_start.shape[0] - 1

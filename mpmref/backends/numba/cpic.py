@@ -678,7 +678,7 @@ def contact(backend, particles, blocks, rigid, dt):
     tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
         x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
         np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
-        incompatible, blocks.order, blocks.block_start, blocks.colour_blocks, backend.block, backend.blocks_per_axis)
+        incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block, backend.blocks_per_axis)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
@@ -698,7 +698,7 @@ def p2g(backend, particles, blocks, contact):
     kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
-           blocks.block_start, blocks.colour_blocks, blocks.colour_start, contact.incompatible, contact.gravity_dv,
+           blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
            cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
            rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
            gs.rejected_momentum, gs.rejected_force)
@@ -720,20 +720,23 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     (J, L))``, the penalty's impulses on the bodies, summed per block by the kernel, then over blocks in order."""
     spec, method = backend.cfg, backend.scene.method
     n, d = particles.x.shape
-    empty = backend._empty
+
+    def empty(*shape):
+        return np.empty(shape, dtype=backend.dtype)
+
     x_new, v_new = empty(n, d), empty(n, d)
     C_new = empty(n, d, d) if particles.C is not None else empty(0, d, d)
     F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
     J_new = empty(n) if particles.J is not None else empty(0)
     nb = len(rigid.angle)
-    block_impulse = np.zeros((len(blocks.colour_blocks), nb, 3))
+    block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3))
     kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
                         spec.tracks_F, spec.tracks_J)
     cdf = contact.cdf
     kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
            backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
            backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
-           blocks.block_start, blocks.colour_blocks, v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
+           blocks.block_start, blocks.block_colours[0], v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
            particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
            J_new, block_impulse)

@@ -73,31 +73,43 @@ def fixed_corotated_stress(F, Jp, idx, mu, lam, tau):
             corotated_stress_into(F[p], mu, lam, 1.0, tau[p], R, U, sigma, Vt)
 
 
+@njit(cache=True, inline="always")
+def neo_hookean_stress_into(F, mu, lam, out):
+    r"""``out`` = :math:`\mu(FF^T - I) + \lambda \ln J\, I` (Bonet & Wood 2008 §6.4.3), :math:`J = \det F`."""
+    d = F.shape[0]
+    log_J = np.log(det_small(F))
+    for a in range(d):
+        for b in range(d):
+            s = 0.0
+            for c in range(d):
+                s += F[a, c] * F[b, c]
+            out[a, b] = mu * (s - (1.0 if a == b else 0.0)) + (lam * log_J if a == b else 0.0)
+
+
 @njit(parallel=True, cache=True)
 def neo_hookean_stress(F, Jp, idx, mu, lam, tau):
-    r""":math:`\tau = \mu(FF^T - I) + \lambda \ln J\, I` (Bonet & Wood 2008 §6.4.3) of the particles ``idx``."""
-    d = F.shape[1]
+    """Neo-Hookean Kirchhoff stress (:func:`neo_hookean_stress_into`) of the particles ``idx``."""
     for k in prange(idx.shape[0]):
         p = idx[k]
-        log_J = np.log(np.linalg.det(np.ascontiguousarray(F[p])))
-        for a in range(d):
-            for b in range(d):
-                s = 0.0
-                for c in range(d):
-                    s += F[p, a, c] * F[p, b, c]
-                tau[p, a, b] = mu * (s - (1.0 if a == b else 0.0)) + (lam * log_J if a == b else 0.0)
+        neo_hookean_stress_into(F[p], mu, lam, tau[p])
+
+
+@njit(cache=True, inline="always")
+def fluid_stress_into(J, K, gamma, out):
+    r"""``out`` = :math:`\tau = -p J\, I`, :math:`p = K(J^{-\gamma} - 1)` (Tait fluid) at volume ratio ``J``."""
+    d = out.shape[0]
+    s = -(K * ((1.0 / J if gamma == 1.0 else J ** (-gamma)) - 1.0)) * J
+    for a in range(d):
+        for b in range(d):
+            out[a, b] = s if a == b else 0.0
 
 
 @njit(parallel=True, cache=True)
 def fluid_stress(J, idx, K, gamma, tau):
-    r""":math:`\tau = -p J\, I`, :math:`p = K(J^{-\gamma} - 1)` (Tait fluid) of the particles ``idx``."""
-    d = tau.shape[1]
+    """Fluid Kirchhoff stress (:func:`fluid_stress_into`) of the particles ``idx``."""
     for k in prange(idx.shape[0]):
         p = idx[k]
-        s = -(K * (J[p] ** (-gamma) - 1.0)) * J[p]
-        for a in range(d):
-            for b in range(d):
-                tau[p, a, b] = s if a == b else 0.0
+        fluid_stress_into(J[p], K, gamma, tau[p])
 
 
 @njit(parallel=True, cache=True)
@@ -162,23 +174,31 @@ def hencky_strain_into(F, U, eps, Vt):
     return trace
 
 
+@njit(cache=True, inline="always")
+def sand_stress_into(F, mu, lam, out, Ut, U, eps, Vt):
+    r"""``out`` = :math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\, I)U^T` (Klar et al. 2016 §4).
+
+    Unique where singular values repeat (equal :math:`\sigma_i`, equal principal stresses). ``Ut``, ``U``,
+    ``eps``, ``Vt`` are work arrays."""
+    d = F.shape[0]
+    trace = hencky_strain_into(F, U, eps, Vt)
+    for a in range(d):
+        eps[a] = 2.0 * mu * eps[a] + lam * trace
+        for b in range(d):
+            Ut[a, b] = U[b, a]
+    compose_into(U, eps, Ut, out)
+
+
 @njit(parallel=True, cache=True)
 def sand_stress(F, Jp, idx, mu, lam, tau):
-    r""":math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\, I)U^T` (Klar et al. 2016 §4) of ``idx``.
-
-    Unique where singular values repeat (equal :math:`\sigma_i`, equal principal stresses)."""
+    """Drucker-Prager sand's Kirchhoff stress (:func:`sand_stress_into`) of the particles ``idx``."""
     d = F.shape[1]
     n = idx.shape[0]
     for chunk in prange(n_chunks(n)):
         Ut, U, eps, Vt, _ = work_arrays(d, F.dtype)
         for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
             p = idx[k]
-            trace = hencky_strain_into(F[p], U, eps, Vt)
-            for a in range(d):
-                eps[a] = 2.0 * mu * eps[a] + lam * trace
-                for b in range(d):
-                    Ut[a, b] = U[b, a]
-            compose_into(U, eps, Ut, tau[p])
+            sand_stress_into(F[p], mu, lam, tau[p], Ut, U, eps, Vt)
 
 
 @njit(parallel=True, cache=True)
@@ -235,3 +255,42 @@ KERNELS = {
         lambda m, F, Jp, idx: sand_return_map(F, Jp, idx, m.mu, m.lam, m.alpha, m.cohesion),
     ),
 }
+
+
+# --------------------------------------------------------------------------- one particle, any material
+#: material class -> (code of :func:`stress_of`, its parameters as a tuple of at most 3 floats)
+PARTICLE_STRESS = {
+    WeaklyCompressibleFluid: (0, lambda m: (m.K, m.gamma)),
+    FixedCorotated: (1, lambda m: (m.mu, m.lam)),
+    NeoHookean: (2, lambda m: (m.mu, m.lam)),
+    SnowPlasticity: (3, lambda m: (m.mu, m.lam, m.hardening)),
+    DruckerPragerSand: (4, lambda m: (m.mu, m.lam)),
+}
+
+
+def stress_table(materials):
+    """``(codes (k,) int64, params (k, 3) float64)`` of a scene's materials for :func:`stress_of`."""
+    codes = np.empty(len(materials), dtype=np.int64)
+    params = np.zeros((len(materials), 3), dtype=np.float64)
+    for i, material in enumerate(materials):
+        codes[i], get = PARTICLE_STRESS[type(material)][0], PARTICLE_STRESS[type(material)][1]
+        values = get(material)
+        params[i, :len(values)] = values
+    return codes, params
+
+
+@njit(cache=True, inline="always")
+def stress_of(code, prm, F, J, Jp, p, out, R, U, sigma, Vt):
+    """Kirchhoff stress of particle ``p`` into ``out``: the per-particle body of the material kernels above,
+    chosen by ``code`` (:data:`PARTICLE_STRESS`), with the same operations, so the result is the same bits
+    as the separate stress stage's. ``R``, ``U``, ``sigma``, ``Vt`` are work arrays."""
+    if code == 0:
+        fluid_stress_into(J[p], prm[0], prm[1], out)
+    elif code == 1:
+        corotated_stress_into(F[p], prm[0], prm[1], 1.0, out, R, U, sigma, Vt)
+    elif code == 2:
+        neo_hookean_stress_into(F[p], prm[0], prm[1], out)
+    elif code == 3:
+        corotated_stress_into(F[p], prm[0], prm[1], np.exp(prm[2] * (1.0 - Jp[p])), out, R, U, sigma, Vt)
+    else:
+        sand_stress_into(F[p], prm[0], prm[1], out, R, U, sigma, Vt)

@@ -8,8 +8,8 @@ cached on disk like any other ``cache=True`` function: Numba keys a closure's ca
 values of its constants, which is why they are plain ints, bools and a string and never other compiled
 functions (a dispatcher pickles differently in every process, which would defeat the cache).
 
-P2G runs block-parallel over the colour classes of :mod:`.blocks` (no atomics, bitwise the same for any
-thread count); G2P gathers, so it runs block-parallel over all blocks at once.
+P2G runs slab-parallel over the two colour classes of :mod:`.blocks` (no atomics, bitwise the same for any
+thread count); G2P gathers, so it runs in parallel over the particles in their storage order.
 """
 
 import hashlib
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
+from .materials import stress_of
 from .stencil import KERNEL_CODES, kernel_axis, polypic_axis_basis
 
 
@@ -53,38 +54,56 @@ def make_g2p(spec):
 @lru_cache(maxsize=None)
 def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
-    :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
+    :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
 
-    The returned function ``p2g(x, v, C, modes, mass, vol0, tau, origin, dx, inertia, strides, mode_index,
-    order, block_start, colour_blocks, colour_start, grid_mass, grid_momentum, grid_force)`` accumulates
-    into the zeroed grid arrays. Per particle the stencil is a nest of ``S`` x ``S`` (x ``S``) loops with
-    the per-axis weights in registers; :math:`x_i - x_p`, :math:`w_{ip}` and the gradient weight
-    :math:`g_{ip}` are formed per node and handed to :func:`p2g_node`, which scatters.
+    The returned function ``p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params,
+    origin, dx, inertia, strides, mode_index, order, slab_start, slabs, colour_start, grid)`` adds into the
+    zeroed ``grid`` (N, 1 + 2d), one row per node: mass, momentum, internal force, slab by slab in the two
+    colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
+    particles, so they are handed to the threads one at a time). Per particle it first
+    computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p`
+    (:func:`.materials.stress_of`, the stress stage's own arithmetic, fused here instead of stored), the
+    force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
+    momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
+    :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
+    :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)` for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic
+    MPM (:func:`p2g_node`). Products are contracted to fused multiply-adds where the CPU has them
+    (``fastmath={"contract"}``, no other fast-math licence: still IEEE operations, one rounding fewer).
     """
     SOURCES = SOURCE_DIGEST
 
-    @njit(parallel=True, cache=True)
-    def p2g(x, v, C, modes, mass, vol0, tau, origin, dx, inertia, strides, mode_index,
-            order, block_start, colour_blocks, colour_start, grid_mass, grid_momentum, grid_force):
+    @njit(parallel=True, cache=True, fastmath={"contract"})
+    def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
+            strides, mode_index, order, slab_start, slabs, colour_start, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
-        n_modes = mode_index.shape[0]
+        inv_dx = 1.0 / dx
+        T = grid.dtype.type
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
-            for bi in prange(colour_start[colour + 1] - first):
-                block = colour_blocks[first + bi]
-                q = np.empty((DIM, S, S))
-                qnorm = np.empty((DIM, S))
-                w_arr = np.empty((DIM, S))
-                fx_arr = np.empty(DIM)
-                for k in range(block_start[block], block_start[block + 1]):
+            for si in prange(colour_start[colour + 1] - first):
+                slab = slabs[first + si]
+                work = np.empty((5, DIM, DIM), grid.dtype)  # one allocation per slab: tau, R, U, Vt, sigma
+                tau, R, U, Vt, sigma = work[0], work[1], work[2], work[3], work[4, 0]
+                q = np.empty((DIM if POLY else 0, S, S))
+                qnorm = np.empty((DIM if POLY else 0, S))
+                w_arr = np.empty((DIM if POLY else 0, S))
+                fx_arr = np.empty(DIM if POLY else 0)
+                for k in range(slab_start[slab], slab_start[slab + 1]):
                     p = order[k]
-                    m, vel, stress_volume = mass[p], row(v, p, DIM), matrix(tau, p, DIM, vol0[p])
+                    mat = material[p]
+                    stress_of(stress_codes[mat], stress_params[mat], F, J, Jp, p, tau, R, U, sigma, Vt)
+                    m = mass[p]
+                    Q = matrix(tau, T(-vol0[p] / inertia if MLS else -vol0[p]), DIM)
+                    mv = scaled_row(v, p, m, DIM)
                     if AFFINE:
-                        Cp = matrix(C, p, DIM, 1.0)
+                        mC = matrix(C[p], m, DIM)
                     else:
-                        Cp = stress_volume  # unused
+                        mC = Q  # unused
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                     b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                    d0, d1 = cast(offsets(f0, dx, S), T, S), cast(offsets(f1, dx, S), T, S)
+                    g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
+                    v0, v1 = cast(w0, T, S), cast(w1, T, S)
                     if DIM == 2:
                         base = b0 * strides[0] + b1 * strides[1]
                         if POLY:
@@ -93,19 +112,15 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                             fx_arr[0], fx_arr[1] = f0, f1
                             polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                         for i in range(S):
-                            d0 = (i - f0) * dx
                             for j in range(S):
-                                d1 = (j - f1) * dx
-                                w = w0[i] * w1[j]
-                                if MLS:
-                                    g = (w * d0 / inertia, w * d1 / inertia)
-                                else:
-                                    g = (dw0[i] / dx * w1[j], dw1[j] / dx * w0[i])
-                                p2g_node(base + i * strides[0] + j * strides[1], w, (d0, d1), g, (i, j), m, vel, Cp,
-                                         stress_volume, p, modes, q, mode_index, grid_mass, grid_momentum,
-                                         grid_force, AFFINE, POLY)
+                                w = v0[i] * v1[j]
+                                d = (d0[i], d1[j])
+                                fw = (w * d[0], w * d[1]) if MLS else (g0[i] * v1[j], g1[j] * v0[i])
+                                p2g_node(grid, base + i * strides[0] + j * strides[1], w, d, fw, (i, j), m, mv, mC,
+                                         Q, p, modes, q, mode_index, AFFINE, POLY)
                     else:
                         b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
+                        d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
                         base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
                         if POLY:
                             for j in range(S):
@@ -113,22 +128,58 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                             fx_arr[0], fx_arr[1], fx_arr[2] = f0, f1, f2
                             polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                         for i in range(S):
-                            d0 = (i - f0) * dx
                             for j in range(S):
-                                d1 = (j - f1) * dx
+                                w01 = v0[i] * v1[j]
                                 for l in range(S):
-                                    d2 = (l - f2) * dx
-                                    w = w0[i] * w1[j] * w2[l]
+                                    w = w01 * v2[l]
+                                    d = (d0[i], d1[j], d2[l])
                                     if MLS:
-                                        g = (w * d0 / inertia, w * d1 / inertia, w * d2 / inertia)
+                                        fw = (w * d[0], w * d[1], w * d[2])
                                     else:
-                                        g = (dw0[i] / dx * w1[j] * w2[l], dw1[j] / dx * w0[i] * w2[l],
-                                             dw2[l] / dx * w0[i] * w1[j])
-                                    p2g_node(base + i * strides[0] + j * strides[1] + l * strides[2], w,
-                                             (d0, d1, d2), g, (i, j, l), m, vel, Cp, stress_volume, p, modes,
-                                             q, mode_index, grid_mass, grid_momentum, grid_force, AFFINE, POLY)
+                                        fw = (g0[i] * v1[j] * v2[l], g1[j] * v0[i] * v2[l], g2[l] * w01)
+                                    p2g_node(grid, base + i * strides[0] + j * strides[1] + l * strides[2], w, d,
+                                             fw, (i, j, l), m, mv, mC, Q, p, modes, q, mode_index, AFFINE, POLY)
 
     return p2g
+
+
+@njit(parallel=True, cache=True)
+def zero_rows(a):
+    """``a[:] = 0`` for an (N, k) array, in parallel."""
+    for i in prange(a.shape[0]):
+        for c in range(a.shape[1]):
+            a[i, c] = 0.0
+
+
+@njit(cache=True, inline="always")
+def offsets(f, dx, S):
+    """Node offsets :math:`(k - f)\\Delta x`, ``k = 0 .. S-1``, of one axis as a tuple."""
+    if S == 2:
+        return ((0.0 - f) * dx, (1.0 - f) * dx)
+    if S == 3:
+        return ((0.0 - f) * dx, (1.0 - f) * dx, (2.0 - f) * dx)
+    return ((0.0 - f) * dx, (1.0 - f) * dx, (2.0 - f) * dx, (3.0 - f) * dx)
+
+
+@njit(cache=True, inline="always")
+def scaled(t, s, S):
+    """``s * t`` for a tuple ``t`` of ``S`` = 2 to 4 values."""
+    if S == 2:
+        return (s * t[0], s * t[1])
+    if S == 3:
+        return (s * t[0], s * t[1], s * t[2])
+    return (s * t[0], s * t[1], s * t[2], s * t[3])
+
+
+@njit(cache=True, inline="always")
+def cast(t, T, S):
+    """A tuple ``t`` of ``S`` = 2 to 4 values converted to the scalar type ``T`` (so a float32 run's
+    per-node arithmetic stays in float32)."""
+    if S == 2:
+        return (T(t[0]), T(t[1]))
+    if S == 3:
+        return (T(t[0]), T(t[1]), T(t[2]))
+    return (T(t[0]), T(t[1]), T(t[2]), T(t[3]))
 
 
 @njit(cache=True, inline="always")
@@ -140,41 +191,49 @@ def row(a, p, dim):
 
 
 @njit(cache=True, inline="always")
-def matrix(a, p, dim, scale):
-    """``scale * a[p]`` of an (n, d, d) array as a d-tuple of d-tuples."""
+def scaled_row(a, p, scale, dim):
+    """``scale * a[p]`` of an (n, d) array as a d-tuple."""
     if dim == 2:
-        return ((scale * a[p, 0, 0], scale * a[p, 0, 1]), (scale * a[p, 1, 0], scale * a[p, 1, 1]))
-    return ((scale * a[p, 0, 0], scale * a[p, 0, 1], scale * a[p, 0, 2]),
-            (scale * a[p, 1, 0], scale * a[p, 1, 1], scale * a[p, 1, 2]),
-            (scale * a[p, 2, 0], scale * a[p, 2, 1], scale * a[p, 2, 2]))
+        return (scale * a[p, 0], scale * a[p, 1])
+    return (scale * a[p, 0], scale * a[p, 1], scale * a[p, 2])
 
 
 @njit(cache=True, inline="always")
-def p2g_node(idx, w, d, g, ks, m, vel, Cp, stress_volume, p, modes, q, mode_index, grid_mass, grid_momentum,
-             grid_force, affine, poly):
-    r"""P2G scatter of one particle to one node: :math:`w_{ip} m_p`, :math:`w_{ip} m_p (v_p + C_p (x_i - x_p)
-    + \sum_r c_{pr} s_r(x_i))` and :math:`-V_p^0 \tau_p g_{ip}` (``d`` = :math:`x_i - x_p`, ``g`` = :math:`g_{ip}`,
-    ``ks`` the node's per-axis stencil index; ``vel``, ``Cp``, ``stress_volume`` = :math:`V_p^0\tau_p` are the
+def matrix(a, scale, dim):
+    """``scale * a`` of a (d, d) array as a d-tuple of d-tuples."""
+    if dim == 2:
+        return ((scale * a[0, 0], scale * a[0, 1]), (scale * a[1, 0], scale * a[1, 1]))
+    return ((scale * a[0, 0], scale * a[0, 1], scale * a[0, 2]),
+            (scale * a[1, 0], scale * a[1, 1], scale * a[1, 2]),
+            (scale * a[2, 0], scale * a[2, 1], scale * a[2, 2]))
+
+
+@njit(cache=True, inline="always")
+def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, affine, poly):
+    r"""P2G scatter of one particle to one node ``idx`` of ``grid`` (rows: mass, momentum, force):
+    :math:`w_{ip} m_p`, :math:`w_{ip} (m_p v_p + m_p C_p (x_i - x_p) + m_p \sum_r c_{pr} s_r(x_i))` and
+    :math:`Q_p\, \mathrm{fw}` (``d`` = :math:`x_i - x_p`; ``fw`` = :math:`w_{ip}(x_i - x_p)` with the MLS
+    force matrix :math:`Q_p = -V_p^0\tau_p D_p^{-1}`, or :math:`\nabla w_{ip}` with the classic
+    :math:`Q_p = -V_p^0\tau_p`; ``ks`` the node's per-axis stencil index; ``mv``, ``mC``, ``Q`` are the
     particle's values as tuples)."""
     dim = len(d)
-    wm = w * m
-    grid_mass[idx] += wm
+    grid[idx, 0] += w * m
     for a in range(dim):
-        mom = vel[a]
+        mom = mv[a]
         if affine:
             for b in range(dim):
-                mom += Cp[a][b] * d[b]
+                mom += mC[a][b] * d[b]
         if poly:
             for r in range(mode_index.shape[0]):
-                s = 1.0
+                s = m
                 for c in range(dim):
                     s *= q[c, mode_index[r, c], ks[c]]
                 mom += s * modes[p, r, a]
-        grid_momentum[idx, a] += wm * mom
-        f = 0.0
-        for b in range(dim):
-            f += stress_volume[a][b] * g[b]
-        grid_force[idx, a] -= f
+        grid[idx, 1 + a] += w * mom
+        f = Q[a][0] * fw[0]
+        for b in range(1, dim):
+            f += Q[a][b] * fw[b]
+        grid[idx, 1 + dim + a] += f
 
 
 @lru_cache(maxsize=None)
@@ -182,43 +241,43 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, order,
-    block_start, blocks, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new
-    particle arrays. The stencil loops are those of :func:`make_p2g`; :func:`g2p_node` gathers. ``MLS`` here is
-    the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart from the force.
+    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde,
+    x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays. A gather writes only its
+    own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
+    are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
+    :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
+    :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
+    (:func:`gather_modes`).
+    ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
+    from the force.
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
 
-    @njit(parallel=True, cache=True)
-    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, order, block_start, blocks,
-            v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
+    @njit(parallel=True, cache=True, fastmath={"contract"})
+    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde, x_new, v_new,
+            C_new, F_new, J_new, modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         n_modes = mode_index.shape[0]
-        for bi in prange(blocks.shape[0]):
-            block = blocks[bi]
-            v_pic = np.empty(DIM)
-            dv_flip = np.empty(DIM)
-            B = np.empty((DIM, DIM))
-            grad_v = np.empty((DIM, DIM))
+        T = x_new.dtype.type
+        inv_dx = 1.0 / dx
+        n = x.shape[0]
+        for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
             q = np.empty((DIM, S, S))
             qnorm = np.empty((DIM, S))
             w_arr = np.empty((DIM, S))
             fx_arr = np.empty(DIM)
             acc = np.empty((max(n_modes, 1), DIM))
-
-            for k in range(block_start[block], block_start[block + 1]):
-                p = order[k]
-                for a in range(DIM):
-                    v_pic[a] = 0.0
-                    dv_flip[a] = 0.0
-                    for b in range(DIM):
-                        B[a, b] = 0.0
-                        grad_v[a, b] = 0.0
+            for p in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
                 if POLY:
                     acc[:] = 0.0
+                v_pic, dv_flip = zeros(T, DIM), zeros(T, DIM)
+                B, grad_v = zeros2(T, DIM), zeros2(T, DIM)
                 b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                 b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                d0, d1 = cast(offsets(f0, dx, S), T, S), cast(offsets(f1, dx, S), T, S)
+                g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
+                v0, v1 = cast(w0, T, S), cast(w1, T, S)
                 if DIM == 2:
                     base = b0 * strides[0] + b1 * strides[1]
                     if POLY:
@@ -227,15 +286,22 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                         fx_arr[0], fx_arr[1] = f0, f1
                         polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                     for i in range(S):
-                        d0 = (i - f0) * dx
                         for j in range(S):
-                            d1 = (j - f1) * dx
-                            w = w0[i] * w1[j]
-                            g = (dw0[i] / dx * w1[j], dw1[j] / dx * w0[i])
-                            g2p_node(base + i * strides[0] + j * strides[1], w, (d0, d1), g, (i, j), v_grid, v_tilde, v_pic,
-                                     B, grad_v, dv_flip, acc, q, mode_index, NEED_B, MLS, FLIP, POLY)
+                            idx = base + i * strides[0] + j * strides[1]
+                            w = v0[i] * v1[j]
+                            vi = row(v_grid, idx, DIM)
+                            v_pic = axpy(v_pic, w, vi, DIM)
+                            if NEED_B:
+                                B = add_outer(B, scaled(vi, w, DIM), (d0[i], d1[j]), DIM)
+                            if not MLS:
+                                grad_v = add_outer(grad_v, vi, (g0[i] * v1[j], g1[j] * v0[i]), DIM)
+                            if FLIP:
+                                dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
+                            if POLY:
+                                gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
                 else:
                     b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
+                    d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
                     base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
                     if POLY:
                         for j in range(S):
@@ -243,17 +309,22 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                         fx_arr[0], fx_arr[1], fx_arr[2] = f0, f1, f2
                         polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                     for i in range(S):
-                        d0 = (i - f0) * dx
                         for j in range(S):
-                            d1 = (j - f1) * dx
+                            w01 = v0[i] * v1[j]
                             for l in range(S):
-                                d2 = (l - f2) * dx
-                                w = w0[i] * w1[j] * w2[l]
-                                g = (dw0[i] / dx * w1[j] * w2[l], dw1[j] / dx * w0[i] * w2[l],
-                                     dw2[l] / dx * w0[i] * w1[j])
-                                g2p_node(base + i * strides[0] + j * strides[1] + l * strides[2], w, (d0, d1, d2),
-                                         g, (i, j, l), v_grid, v_tilde, v_pic, B, grad_v, dv_flip, acc, q,
-                                         mode_index, NEED_B, MLS, FLIP, POLY)
+                                idx = base + i * strides[0] + j * strides[1] + l * strides[2]
+                                w = w01 * v2[l]
+                                vi = row(v_grid, idx, DIM)
+                                v_pic = axpy(v_pic, w, vi, DIM)
+                                if NEED_B:
+                                    B = add_outer(B, scaled(vi, w, DIM), (d0[i], d1[j], d2[l]), DIM)
+                                if not MLS:
+                                    g = (g0[i] * v1[j] * v2[l], g1[j] * v0[i] * v2[l], g2[l] * w01)
+                                    grad_v = add_outer(grad_v, vi, g, DIM)
+                                if FLIP:
+                                    dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
+                                if POLY:
+                                    gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
                 finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
                                 mode_index, x_new, v_new, C_new, F_new, J_new, modes_new,
                                 AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J)
@@ -261,30 +332,55 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
     return g2p
 
 
+#: particles per task of G2P's parallel loop
+G2P_CHUNK = 256
+
+
 @njit(cache=True, inline="always")
-def g2p_node(idx, w, d, g, ks, v_grid, v_tilde, v_pic, B, grad_v, dv_flip, acc, q, mode_index, need_B, mls, flip,
-             poly):
-    r"""G2P gathers of one node: :math:`\sum_i w_{ip} v_i`, :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`,
-    :math:`\sum_i v_i \nabla w_{ip}^T` (classic force), the FLIP increment and PolyPIC's mode projections."""
-    dim = len(d)
-    for a in range(dim):
-        vi = v_grid[idx, a]
-        v_pic[a] += w * vi
-        if need_B:
-            for b in range(dim):
-                B[a, b] += (w * vi) * d[b]
-        if not mls:
-            for b in range(dim):
-                grad_v[a, b] += vi * g[b]
-        if flip:
-            dv_flip[a] += w * (vi - v_tilde[idx, a])
-    if poly:
-        for r in range(mode_index.shape[0]):
-            s = 1.0
-            for c in range(dim):
-                s *= q[c, mode_index[r, c], ks[c]]
-            for a in range(dim):
-                acc[r, a] += (w * s) * v_grid[idx, a]
+def zeros(T, dim):
+    """A d-tuple of zeros of scalar type ``T``."""
+    if dim == 2:
+        return (T(0.0), T(0.0))
+    return (T(0.0), T(0.0), T(0.0))
+
+
+@njit(cache=True, inline="always")
+def zeros2(T, dim):
+    """A d x d matrix of zeros of scalar type ``T`` as a flat tuple (row-major)."""
+    if dim == 2:
+        return (T(0.0), T(0.0), T(0.0), T(0.0))
+    return (T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0))
+
+
+@njit(cache=True, inline="always")
+def axpy(y, a, x, dim):
+    """``y + a x`` of d-tuples."""
+    if dim == 2:
+        return (y[0] + a * x[0], y[1] + a * x[1])
+    return (y[0] + a * x[0], y[1] + a * x[1], y[2] + a * x[2])
+
+
+@njit(cache=True, inline="always")
+def add_outer(M, u, d, dim):
+    """``M + u d^T`` of a d x d matrix ``M`` held as a flat row-major tuple and d-tuples ``u``, ``d``."""
+    if dim == 2:
+        return (M[0] + u[0] * d[0], M[1] + u[0] * d[1], M[2] + u[1] * d[0], M[3] + u[1] * d[1])
+    return (M[0] + u[0] * d[0], M[1] + u[0] * d[1], M[2] + u[0] * d[2],
+            M[3] + u[1] * d[0], M[4] + u[1] * d[1], M[5] + u[1] * d[2],
+            M[6] + u[2] * d[0], M[7] + u[2] * d[1], M[8] + u[2] * d[2])
+
+
+@njit(cache=True, inline="always")
+def gather_modes(acc, idx, w, ks, v_grid, q, mode_index):
+    r"""PolyPIC's mode projections of one node: ``acc[r] += w s_r(x_i) v_i`` (``ks`` the node's per-axis stencil
+    index; :math:`s_r = \prod_a q_{a, r_a}`)."""
+    d = v_grid.shape[1]
+    for r in range(mode_index.shape[0]):
+        s = 1.0
+        for c in range(d):
+            s *= q[c, mode_index[r, c], ks[c]]
+        for a in range(d):
+            acc[r, a] += (w * s) * v_grid[idx, a]
 
 
 @njit(cache=True, inline="always")
@@ -293,24 +389,21 @@ def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, g
     r"""G2P's per-particle update from the gathered sums (see :func:`mpmref.backends.numpy.transfers.g2p`).
 
     :math:`C_p = B_p D_p^{-1}`; :math:`\nabla v_p = C_p` (MLS) or the gathered :math:`\sum_i v_i \nabla w_{ip}^T`;
-    :math:`x_p \leftarrow x_p + \Delta t\, v^{PIC}_p`; the FLIP blend; :math:`F_p \leftarrow F_p + \Delta t\,
-    \nabla v_p F_p`; :math:`J_p \leftarrow J_p (1 + \Delta t \operatorname{tr} \nabla v_p)`; PolyPIC modes
-    :math:`c_{pr} = \sum_i w_{ip} s_r v_i / \prod_a \langle q_{r_a}, q_{r_a}\rangle_a`.
+    :math:`x_p \leftarrow x_p + \Delta t\, v^{PIC}_p`; the FLIP blend (``dv_flip`` holds
+    :math:`\sum_i w_{ip}(v_i - \tilde v_i)` less :math:`v^{PIC}_p`, added back here); :math:`F_p \leftarrow
+    F_p + \Delta t\, \nabla v_p F_p`; :math:`J_p \leftarrow J_p (1 + \Delta t \operatorname{tr} \nabla v_p)`;
+    PolyPIC modes :math:`c_{pr} = \sum_i w_{ip} s_r v_i / \prod_a \langle q_{r_a}, q_{r_a}\rangle_a`.
     """
     d = x.shape[1]
-    if mls:
-        for a in range(d):
-            for b in range(d):
-                grad_v[a, b] = B[a, b] / inertia
     for a in range(d):
         x_new[p, a] = x[p, a] + dt * v_pic[a]
         if flip:
-            v_new[p, a] = flip_alpha * (v[p, a] + dv_flip[a]) + (1.0 - flip_alpha) * v_pic[a]
+            v_new[p, a] = flip_alpha * (v[p, a] + (v_pic[a] + dv_flip[a])) + (1.0 - flip_alpha) * v_pic[a]
         else:
             v_new[p, a] = v_pic[a]
         if affine:
             for b in range(d):
-                C_new[p, a, b] = B[a, b] / inertia
+                C_new[p, a, b] = B[a * d + b] / inertia
     if poly:
         for r in range(mode_index.shape[0]):
             norm = 1.0
@@ -323,12 +416,12 @@ def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, g
             for b in range(d):
                 s = 0.0
                 for c in range(d):
-                    s += dt * grad_v[a, c] * F[p, c, b]
+                    s += dt * (B[a * d + c] / inertia if mls else grad_v[a * d + c]) * F[p, c, b]
                 F_new[p, a, b] = F[p, a, b] + s
     if tracks_J:
         trace = 0.0
         for a in range(d):
-            trace += grad_v[a, a]
+            trace += B[a * d + a] / inertia if mls else grad_v[a * d + a]
         J_new[p] = J[p] * (1.0 + dt * trace)
 
 
