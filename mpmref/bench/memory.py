@@ -38,7 +38,7 @@ from .timing import set_threads
 
 CLEAR_REFS = Path("/proc/self/clear_refs")
 STATUS = Path("/proc/self/status")
-#: steps of the probe: the first allocates what a step keeps (a backend's reused buffers), the others reuse it
+#: how many steps the probe runs; the first allocates what a step keeps (a backend's reused buffers), the others reuse it
 PROBE_STEPS = 3
 #: glibc serves every allocation above 128 KiB by mmap and returns it on free (a fixed threshold turns off
 #: glibc's adaptive one), so memory freed before the step cannot hide the step's own allocations

@@ -276,7 +276,7 @@ class Case:
 
 def backend_stage(backend, stage):
     """The callable of ``stage`` for a backend object (``step``: the pipeline over its stages; CPIC stages:
-    their runners of :mod:`.cpic` bound to it)."""
+    their runners of :mod:`mpmref.conformance.cpic` bound to it)."""
     if stage == "step":
         return partial(composed_step, backend)
     if stage in CPIC_STAGES:

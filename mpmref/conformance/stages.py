@@ -19,7 +19,7 @@ from ..state import GridState, Particles
 from .cpic import CPIC_STAGES
 
 STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
-#: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies (:mod:`.cpic`)
+#: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies (:mod:`mpmref.conformance.cpic`)
 ALL_STAGES = STAGES + CPIC_STAGES
 PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
 #: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
@@ -107,7 +107,7 @@ def run_stage(stage, fn, flat):
     """Call the stage function ``fn`` on copies of the inputs ``flat``; return its outputs as a flat dict.
 
     ``fn`` has the backend signature of ``stage`` (see :mod:`mpmref.conformance`), or for a CPIC stage takes
-    the flat inputs (:mod:`.cpic`); the inputs are copied, so a stage that writes into its arguments cannot
+    the flat inputs (:mod:`mpmref.conformance.cpic`); the inputs are copied, so a stage that writes into its arguments cannot
     change the case.
     """
     return _CALLERS[stage](fn, flat)

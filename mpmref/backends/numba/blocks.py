@@ -81,7 +81,7 @@ def colour_classes(block_start, blocks_per_axis):
     """Non-empty blocks grouped by the colour ``sum_a (b_a mod 2) 2^a`` of all their coordinates (:math:`2^d`
     colours; blocks of one colour never share a node when ``B >= S - 1``): ``(colour_blocks, colour_start)``,
     ``colour_blocks[colour_start[c]:colour_start[c+1]]`` having colour ``c``. The CPIC kernels
-    (:mod:`.cpic`) run block by block in these classes; the plain P2G uses the two slab colours."""
+    (:mod:`mpmref.backends.numba.cpic`) run block by block in these classes; the plain P2G uses the two slab colours."""
     d = blocks_per_axis.shape[0]
     n_colours = 2**d
     n_blocks = block_start.shape[0] - 1
