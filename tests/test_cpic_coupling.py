@@ -24,7 +24,7 @@ def builder(scheme="pic", coupling=None, **body):
     return b
 
 
-def refused(data, field, words):
+def assert_refused(data, field, words):
     with pytest.raises(SceneError) as info:
         Scene.from_dict(data)
     assert info.value.field == field, str(info.value)
@@ -47,21 +47,21 @@ def refused(data, field, words):
      "greater than"),
 ])
 def test_rigid_body_refusals_name_the_field(body, field, words):
-    refused(builder(**body).as_dict(), field, words)
+    assert_refused(builder(**body).as_dict(), field, words)
 
 
 def test_method_refusals_say_why():
-    refused(builder("flip").as_dict(), "method.scheme", "FLIP's increment")
-    refused(builder("polypic").as_dict(), "method.scheme", "PolyPIC")
-    refused(builder("mls", {"coupling": "cpic", "momentum_exact": True}).as_dict(), "method.momentum_exact",
+    assert_refused(builder("flip").as_dict(), "method.scheme", "FLIP's increment")
+    assert_refused(builder("polypic").as_dict(), "method.scheme", "PolyPIC")
+    assert_refused(builder("mls", {"coupling": "cpic", "momentum_exact": True}).as_dict(), "method.momentum_exact",
             "needs PIC")
-    refused(builder("pic", {"coupling": "cpic", "momentum_exact": True, "pushing_force": 1.0}).as_dict(),
+    assert_refused(builder("pic", {"coupling": "cpic", "momentum_exact": True, "pushing_force": 1.0}).as_dict(),
             "method.pushing_force", "no body receives")
-    refused(builder("pic", {}).as_dict(), "method.coupling", "'cpic' when the scene has")
+    assert_refused(builder("pic", {}).as_dict(), "method.coupling", "'cpic' when the scene has")
     no_bodies = builder().as_dict()
     del no_bodies["rigid_bodies"]
-    refused(no_bodies, "method.coupling", "without [[rigid_bodies]]")
-    refused(builder("pic", {"penalty": 1.0}).as_dict(), "method.penalty", "only with method.coupling")
+    assert_refused(no_bodies, "method.coupling", "without [[rigid_bodies]]")
+    assert_refused(builder("pic", {"penalty": 1.0}).as_dict(), "method.penalty", "only with method.coupling")
 
 
 def test_no_cpic_state_without_bodies():
