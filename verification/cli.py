@@ -58,7 +58,7 @@ def cmd_verify(args):
         _progress(args, "compiling the Numba kernels of later cases in a background process (cache: "
                         f"{os.environ.get('NUMBA_CACHE_DIR', 'Numba default')}; delete it to recompile)")
     try:
-        records = _run_cases(args, names, executor)
+        records = _run_cases(args, names, executor, compiling)
     finally:
         warmup.stop(compiling)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
@@ -75,21 +75,27 @@ def cmd_verify(args):
     return 0 if all(o.passed for o in outcomes) else 1
 
 
-def _run_cases(args, names, executor):
-    """Run and report each case in turn, with a progress line when it starts and when it ends."""
-    records = []
-    for i, name in enumerate(names, 1):
-        tag = f"[{i}/{len(names)}] {name}"
+def _run_cases(args, names, executor, compiling):
+    """Run and report each case, with a progress line when it starts and when it ends; the records come
+    back in the order of ``names``. The cases that run a compiled backend go last, after the background
+    compilation (:mod:`.warmup`) has finished, so that no kernel is compiled twice."""
+    later = [n for n in names if warmup.compiles(n, args.preset, args.backend)]
+    order = [n for n in names if n not in later] + later
+    records = {}
+    for i, name in enumerate(order, 1):
+        if name in later:
+            warmup.wait(compiling, lambda line: _progress(args, line))
+        tag = f"[{i}/{len(order)}] {name}"
         _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
         case_dir = args.out / name
         outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
         record = case_record(outcome, case_dir)
         write_case_report(record, case_dir)
-        records.append(record)
+        records[name] = record
         _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
                         f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
                         f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
-    return records
+    return [records[n] for n in names]
 
 
 def _progress(args, line):

@@ -6,8 +6,15 @@ of ``items``. ``fn`` must be a module-level function and ``items`` picklable, so
 unchanged in a local process pool or on a ``dask.distributed`` cluster.
 """
 
+import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
+
+#: Local workers start from a fork server, a clean process started once: forking the main process is
+#: unsafe after it has run a parallel Numba kernel (GNU OpenMP aborts the child), and spawning a fresh
+#: interpreter per pool would import NumPy, SciPy and Numba again every time.
+_CONTEXT = multiprocessing.get_context("forkserver")
+_CONTEXT.set_forkserver_preload(["numpy", "scipy.linalg", "mpmref", "verification.registry"])
 
 
 class Executor:
@@ -37,7 +44,7 @@ class Executor:
                 return client.gather(client.map(fn, items, pure=False))
         if self.workers <= 1 or len(items) <= 1:
             return [fn(item) for item in items]
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(items))) as pool:
+        with ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=_CONTEXT) as pool:
             return list(pool.map(fn, items))
 
     def describe(self):

@@ -107,9 +107,13 @@ def max_relative_difference(a, b):
     return worst
 
 
+#: the tick of the one-level comparison (s)
+ONE_LEVEL_TICK = 2e-4
+
+
 def one_level(params, backend):
     """Async with one level against sync at Δt = one tick: max relative difference and bit equality."""
-    tick, steps = 2e-4, params.one_level_steps
+    tick, steps = ONE_LEVEL_TICK, params.one_level_steps
     a = Simulation(two_bodies(cfl=0.5, tick=tick, levels=0, steps=steps), backend=backend)
     s = Simulation(two_bodies(stepping="sync", dt=tick, steps=steps), backend=backend)
     a.run()
@@ -203,11 +207,7 @@ def schedule(params, backend):
     sim.step()
     sim.step()
     trace = [(e["tick"], e["level"], e["active"], e["level_ghosts"], e["shadow_ghosts"]) for e in sim.stepper.trace]
-    scene = (SceneBuilder(dim=2).grid(size=1.0, cells=16, block=4).method("mls")
-             .material("m", "fixed_corotated", E=50.0, nu=0.3, rho=1.0)
-             .ball("m", center=[0.5, 0.5], radius=0.2, ppc=1, velocity=[0.6, -0.4], angular_velocity=3.0)
-             .walls(type="separate").time(stepping="async", cfl=0.5, tick=1e-4, levels=4, steps=1).build())
-    census = with_stepper(Simulation(scene, backend="numba"), RandomLevels)
+    census = with_stepper(Simulation(census_scene(), backend="numba"), RandomLevels)
     ids, levels, intervals = np.sort(census.id.copy()), set(), 0
     while census.state.tick < params.census_ticks:
         census.step()  # raises AsyncCensusError on a lost or duplicated id
@@ -304,6 +304,21 @@ def stork_pair(name, t_end, backend, frames, stepper=None, cells=None):
     """The example ``name`` (at ``cells`` cells if given) asynchronously and synchronously (:func:`run_pair`)."""
     return run_pair(lambda stepping, dt: example_scene(name, t_end, dt if stepping == "sync" else None, cells),
                     backend, frames, stepper)
+
+
+def census_scene():
+    """The id census's scene: a spinning ball on four levels, on a 16-cell grid (:func:`schedule`)."""
+    return (SceneBuilder(dim=2).grid(size=1.0, cells=16, block=4).method("mls")
+            .material("m", "fixed_corotated", E=50.0, nu=0.3, rho=1.0)
+            .ball("m", center=[0.5, 0.5], radius=0.2, ppc=1, velocity=[0.6, -0.4], angular_velocity=3.0)
+            .walls(type="separate").time(stepping="async", cfl=0.5, tick=1e-4, levels=4, steps=1).build())
+
+
+def compiled_scenes(params, backend="numpy"):
+    """``[(backend, scene)]`` this case runs on Numba whatever ``backend`` is: the one-level comparison's
+    two scenes and the census (see :mod:`verification.warmup`)."""
+    return [("numba", two_bodies(cfl=0.5, tick=ONE_LEVEL_TICK, levels=0, steps=1)),
+            ("numba", two_bodies(stepping="sync", dt=ONE_LEVEL_TICK, steps=1)), ("numba", census_scene())]
 
 
 # --------------------------------------------------------------------------------------------- run
