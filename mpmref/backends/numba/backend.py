@@ -6,6 +6,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
+from ...errors import SceneError
 from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
@@ -81,6 +82,9 @@ class NumbaBackend:
     name = "numba"
 
     def __init__(self, scene):
+        if scene.rigid_bodies and scene.dim == 3:
+            raise SceneError("rigid_bodies", f"{len(scene.rigid_bodies)} bodies in a 3D scene on the numba backend",
+                             "3D rigid bodies on the numpy backend only (the Numba CPIC stages are 2D)")
         self.scene = scene
         grid = scene.grid
         self.dtype = scene.dtype
