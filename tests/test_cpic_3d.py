@@ -163,11 +163,3 @@ def test_restart_and_outputs_with_a_3d_body(tmp_path):
     mesh = pv.read(tmp_path / "full" / "rigid_bodies_000004.vtp")
     assert mesh.n_cells == 2 and np.allclose(mesh.points[:, 1], 0.4 + 0.5 * 4e-3)
     assert "rigid0_omega_y" in (tmp_path / "full" / "diagnostics.csv").read_text().splitlines()[0]
-
-
-def test_numba_refuses_3d_bodies_naming_the_field():
-    from mpmref.backends import make_backend
-
-    with pytest.raises(SceneError) as info:
-        make_backend("numba", builder().build())
-    assert info.value.field == "rigid_bodies" and "numpy" in str(info.value)

@@ -57,6 +57,7 @@ class Contact:
     tau : (n, 2, 2)             the particles' Kirchhoff stress (computed once for the step)
     dt : float                  the step
     ghost_force : bool          ghost velocities include the particle's own internal force (``method.ghost_force``)
+    dim : int                   2, or 3 for the 3D stages (:mod:`.cpic3d`; vectors then have 3 components)
     """
 
     cdf: ColoredDistanceField
@@ -68,11 +69,12 @@ class Contact:
     tau: np.ndarray
     dt: float
     ghost_force: bool
+    dim: int = 2
 
     @property
     def compatible(self):
         """``(K, n)`` bool: node ``k`` of particle ``p``'s stencil is compatible (the reference's layout)."""
-        k = np.arange(self.support**2, dtype=np.int64)
+        k = np.arange(self.support**self.dim, dtype=np.int64)
         return ((self.incompatible[None, :] >> k[:, None]) & 1) == 0
 
 
