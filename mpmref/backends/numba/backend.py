@@ -10,7 +10,7 @@ from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
-from . import cpic, cpic3d, materials, transfers
+from . import cpic, materials, transfers
 from .blocks import colour_classes, slab_colours, sort_into_blocks
 from .buffers import BufferPool
 from .stencil import BASE_SHIFT
@@ -82,7 +82,6 @@ class NumbaBackend:
 
     def __init__(self, scene):
         self.scene = scene
-        self.cpic = cpic3d if scene.dim == 3 else cpic  # the CPIC stages of the scene's dimension
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = scene.transfer
@@ -139,7 +138,7 @@ class NumbaBackend:
         """
         blocks = prepared or self.prepare(particles)
         if contact is not None:
-            return self.cpic.p2g(self, particles, blocks, contact)
+            return cpic.p2g(self, particles, blocks, contact)
         n, d = particles.x.shape
         grid, = self.buffers.take("grid", (self.scene.grid.n_nodes, 1 + 2 * d))
         transfers.zero_rows(grid)
@@ -193,13 +192,13 @@ class NumbaBackend:
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):
-        return self.cpic.contact(self, particles, prepared or self.prepare(particles), rigid, dt)
+        return cpic.contact(self, particles, prepared or self.prepare(particles), rigid, dt)
 
     def cpic_impulses(self, grid_state, contact, rigid, dt):
-        return self.cpic.impulses(grid_state, contact, rigid, dt)
+        return cpic.impulses(grid_state, contact, rigid, dt)
 
     def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid):
-        return self.cpic.g2p(self, particles, v_grid, dt, prepared or self.prepare(particles), contact, rigid)
+        return cpic.g2p(self, particles, v_grid, dt, prepared or self.prepare(particles), contact, rigid)
 
     # ------------------------------------------------------------------ warm-up
     def warm_up(self, particles, per_material=2):
@@ -217,4 +216,4 @@ class NumbaBackend:
             keep[idx[:per_material]] = True
         substep(self, particles.select(keep), 0.0, 0.0)
         if self.scene.rigid_bodies:
-            self.cpic.warm_up(self, particles.select(keep))
+            cpic.warm_up(self, particles.select(keep))

@@ -1,5 +1,7 @@
-r"""CPIC stages of the Numba backend in 3D: the colored distance field of triangle meshes, the particles' tags
-and distance, P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, compiled.
+r"""CPIC kernels of the Numba backend in 3D: the colored distance field of triangle meshes, the particles' tags
+and distance, P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, compiled. The stages
+that call them (``contact``, ``p2g``, ``impulses``, ``g2p``, ``warm_up``) are those of :mod:`.cpic`, which
+picks this module's kernels in 3D (:func:`.cpic.kernels`).
 
 The equations are those of the NumPy reference (:mod:`mpmref.backends.numpy.cpic`, :mod:`mpmref.physics.cdf`,
 :func:`mpmref.physics.rigid_dynamics.friction_projection`, :mod:`mpmref.physics.rigid_dynamics3d`); Hu et al.
@@ -18,13 +20,11 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from ...physics.cdf import (BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, TAG_THRESHOLD,
-                            ColoredDistanceField)
-from ...physics.rigid_dynamics import current_shapes, initial_state
+from ...physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
+from ...physics.rigid_dynamics import current_shapes
 from ...physics.trimesh import surface_samples
-from ...state import GridState
 from ..numpy.cpic import PENALTY_WINDOW
-from .cpic import Contact, sum_in_order
+from .cpic import settle_body, sticky_tag
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
 
@@ -125,16 +125,7 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
                 count += 1
                 d_r[flat] = min(d_r[flat], abs(h))
                 A[flat, r] = True
-        for c in range(count):
-            if abs(pair_h[c]) == d_r[pair_node[c]]:
-                T[pair_node[c], r] = pair_h[c] < 0.0
-        for c in range(count):
-            flat = pair_node[c]
-            if d_r[flat] < d[flat]:
-                d[flat] = d_r[flat]
-                nearest[flat] = r
-        for c in range(count):
-            d_r[pair_node[c]] = np.inf
+        settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T)
 
 
 # -------------------------------------------------------------------- tags, distance and compatibility
@@ -242,12 +233,7 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
                     S0[r] += w * d[flat]
     tagged = False
     for r in range(n_bodies):
-        a = tag_A[p, r] and near_r[r]
-        t = tag_T[p, r] and a
-        if near_r[r] and not a and S0[r] + S1[r] > TAG_THRESHOLD:
-            a, t = True, S1[r] > S0[r]
-        A_new[p, r], T_new[p, r] = a, t
-        tagged = tagged or a
+        tagged = sticky_tag(p, r, near_r, S0, S1, tag_A, tag_T, A_new, T_new) or tagged
     if tagged:
         reconstruct_particle(p, (b0, b1, b2), (f0, f1, f2), w0, w1, w2, dx, shape, d, A, T, A_new, T_new, phi,
                              normal, near, M, rhs)
@@ -588,99 +574,3 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                     J_new[p] = J[p] * (1.0 + dt * (G[0, 0] + G[1, 1] + G[2, 2]))
 
     return g2p
-
-
-# --------------------------------------------------------------------------- the stages, for the backend
-def contact(backend, particles, blocks, rigid, dt):
-    """The step's :class:`.cpic.Contact` and the particles with their new tags, distance, normal and ``near``
-    flag, in 3D (see :func:`mpmref.backends.numpy.cpic.contact`)."""
-    scene, spec = backend.scene, backend.cfg
-    bodies = scene.rigid_bodies
-    cdf = build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
-    x = np.ascontiguousarray(particles.x, dtype=np.float64)
-    n, nb = particles.n, len(bodies)
-    A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
-    phi, normal, near = np.zeros(n), np.zeros((n, 3)), np.zeros(n, dtype=np.bool_)
-    incompatible = np.zeros(n, dtype=np.int64)
-    tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
-        x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
-        np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
-        incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block, backend.blocks_per_axis)
-    friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
-    c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
-                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
-                dt=float(dt), ghost_force=bool(scene.method.ghost_force), dim=3)
-    return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
-
-
-def p2g(backend, particles, blocks, contact):
-    """CPIC P2G in 3D (:func:`p2g_kernel`): a :class:`~mpmref.state.GridState` with the rejected momentum and force."""
-    spec, N = backend.cfg, backend.scene.grid.n_nodes
-    gs = GridState(mass=np.zeros(N, dtype=backend.dtype), momentum=np.zeros((N, 3), dtype=backend.dtype),
-                   force=np.zeros((N, 3), dtype=backend.dtype), rejected_momentum=np.zeros((N, 3)),
-                   rejected_force=np.zeros((N, 3)))
-    rigid, cdf = contact.rigid, contact.cdf
-    kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
-    kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, 3, 3), particles.mass, particles.vol0,
-           contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
-           blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
-           cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
-           rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
-           gs.rejected_momentum, gs.rejected_force)
-    return gs
-
-
-def impulses(grid_state, contact, rigid, dt):
-    """Impulses ``(J (nb, 3), L (nb, 3))`` of the incompatible nodes on the bodies (:func:`node_impulses`)."""
-    nb = len(rigid.angle)
-    J, L = np.zeros((nb, 3)), np.zeros((nb, 3))
-    cdf = contact.cdf
-    node_impulses(grid_state.rejected_momentum, grid_state.rejected_force, dt, cdf.body,
-                  np.array(cdf.shape, dtype=np.int64), cdf.origin, cdf.dx, rigid.position, J, L)
-    return J, L
-
-
-def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
-    """CPIC G2P in 3D (:func:`g2p_kernel`) with the bodies ``rigid`` as G2P sees them; returns ``(new particles,
-    (J, L))``, the penalty's impulses on the bodies, summed per block by the kernel, then over blocks in order."""
-    spec, method = backend.cfg, backend.scene.method
-    n = particles.n
-
-    def empty(*shape):
-        return np.empty(shape, dtype=backend.dtype)
-
-    x_new, v_new = empty(n, 3), empty(n, 3)
-    C_new = empty(n, 3, 3) if particles.C is not None else empty(0, 3, 3)
-    F_new = empty(n, 3, 3) if particles.F is not None else empty(0, 3, 3)
-    J_new = empty(n) if particles.J is not None else empty(0)
-    nb = len(rigid.angle)
-    block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 6))
-    kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
-                        spec.tracks_F, spec.tracks_J)
-    cdf = contact.cdf
-    kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, 3, 3),
-           backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
-           backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
-           blocks.block_start, blocks.block_colours[0], v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
-           particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
-           rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
-           J_new, block_impulse)
-    total = sum_in_order(block_impulse)
-    changes = {"x": x_new, "v": v_new}
-    for name, array in (("C", C_new), ("F", F_new), ("J", J_new)):
-        if getattr(particles, name) is not None:
-            changes[name] = array
-    return particles.with_(**changes), (total[:, :3], total[:, 3:])
-
-
-def warm_up(backend, particles):
-    """Compile (or load) the 3D CPIC kernels by running the stages once with Δt = 0 (see :func:`.cpic.warm_up`)."""
-    n, nb = particles.n, len(backend.scene.rigid_bodies)
-    if particles.tag_A is None:
-        particles = particles.with_(tag_A=np.zeros((n, nb), dtype=np.bool_), tag_T=np.zeros((n, nb), dtype=np.bool_))
-    rigid = initial_state(backend.scene.rigid_bodies)
-    blocks = backend.prepare(particles)
-    particles, c = contact(backend, particles, blocks, rigid, 0.0)
-    gs = p2g(backend, particles, blocks, c)
-    impulses(gs, c, rigid, 0.0)
-    g2p(backend, particles, np.zeros_like(gs.momentum), 0.0, blocks, c, rigid)
