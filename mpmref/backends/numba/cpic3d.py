@@ -92,29 +92,32 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
     cap = 27 * (start[n_bodies] - start[0])
     pair_node = np.empty(cap, dtype=np.int64)
     pair_h = np.empty(cap)
+    base = np.empty((x.shape[0], 3), dtype=np.int64)  # each sample's stencil base node, computed once
+    for s in range(x.shape[0]):
+        for axis in range(3):
+            base[s, axis] = quadratic_axis((x[s, axis] - origin[axis]) / dx)[0]
+    gram = np.empty((a.shape[0], 4))  # per triangle: g11, g12, g22 and the determinant g11 g22 - g12^2
+    for t in range(a.shape[0]):
+        g11 = e1[t, 0] * e1[t, 0] + e1[t, 1] * e1[t, 1] + e1[t, 2] * e1[t, 2]
+        g12 = e1[t, 0] * e2[t, 0] + e1[t, 1] * e2[t, 1] + e1[t, 2] * e2[t, 2]
+        g22 = e2[t, 0] * e2[t, 0] + e2[t, 1] * e2[t, 1] + e2[t, 2] * e2[t, 2]
+        gram[t, 0], gram[t, 1], gram[t, 2], gram[t, 3] = g11, g12, g22, g11 * g22 - g12 * g12
     for r in range(n_bodies):
         count = 0
         for k in range(27):
             oi, oj, ok = k // 9, (k // 3) % 3, k % 3
             for s in range(start[r], start[r + 1]):
-                b0 = quadratic_axis((x[s, 0] - origin[0]) / dx)[0]
-                b1 = quadratic_axis((x[s, 1] - origin[1]) / dx)[0]
-                b2 = quadratic_axis((x[s, 2] - origin[2]) / dx)[0]
-                i0, i1, i2 = b0 + oi, b1 + oj, b2 + ok
+                i0, i1, i2 = base[s, 0] + oi, base[s, 1] + oj, base[s, 2] + ok
                 if i0 < 0 or i1 < 0 or i2 < 0 or i0 >= shape[0] or i1 >= shape[1] or i2 >= shape[2]:
                     continue
                 t = tri[s]
                 r0 = (origin[0] + i0 * dx) - a[t, 0]
                 r1 = (origin[1] + i1 * dx) - a[t, 1]
                 r2 = (origin[2] + i2 * dx) - a[t, 2]
-                g11 = e1[t, 0] * e1[t, 0] + e1[t, 1] * e1[t, 1] + e1[t, 2] * e1[t, 2]
-                g12 = e1[t, 0] * e2[t, 0] + e1[t, 1] * e2[t, 1] + e1[t, 2] * e2[t, 2]
-                g22 = e2[t, 0] * e2[t, 0] + e2[t, 1] * e2[t, 1] + e2[t, 2] * e2[t, 2]
                 q1 = r0 * e1[t, 0] + r1 * e1[t, 1] + r2 * e1[t, 2]
                 q2 = r0 * e2[t, 0] + r1 * e2[t, 1] + r2 * e2[t, 2]
-                det = g11 * g22 - g12 * g12
-                lam_b = (g22 * q1 - g12 * q2) / det
-                lam_c = (g11 * q2 - g12 * q1) / det
+                lam_b = (gram[t, 2] * q1 - gram[t, 1] * q2) / gram[t, 3]
+                lam_c = (gram[t, 0] * q2 - gram[t, 1] * q1) / gram[t, 3]
                 if (lam_b < -BARYCENTRIC_TOLERANCE or lam_c < -BARYCENTRIC_TOLERANCE
                         or 1.0 - lam_b - lam_c < -BARYCENTRIC_TOLERANCE):
                     continue
