@@ -329,27 +329,33 @@ def in_band(b0, b1, shape, d):
 
 
 @njit(cache=True, inline="always")
+def fit_target(p, flat, dx, d, A, T, A_p, T_p):
+    r"""Whether node ``flat`` enters particle ``p``'s least-squares fit, and its target :math:`y_i`: the node carries a
+    body and at most one body shared with the particle puts them on different sides; :math:`y_i = +d_i/\Delta x`
+    if none does (compatible), :math:`-d_i/\Delta x` if one does (:func:`mpmref.physics.cdf.reconstruct`)."""
+    has_body = False
+    differing = 0
+    for r in range(A_p.shape[1]):
+        if A[flat, r]:
+            has_body = True
+            if A_p[p, r] and T[flat, r] != T_p[p, r]:
+                differing += 1
+    y = d[flat] / dx
+    return has_body and differing <= 1, (-y if differing == 1 else y)
+
+
+@njit(cache=True, inline="always")
 def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p, phi, normal, near, M, rhs):
     """The weighted least-squares fit of :func:`tag_particle` for one tagged particle (``M``, ``rhs``: scratch)."""
-    n_bodies = A_p.shape[1]
     M[:] = 0.0
     rhs[:] = 0.0
     for k in range(9):
         flat = stencil_node(b0, b1, k, shape)
         if flat < 0:
             continue
-        has_body = False
-        differing = 0
-        for r in range(n_bodies):
-            if A[flat, r]:
-                has_body = True
-                if A_p[p, r] and T[flat, r] != T_p[p, r]:
-                    differing += 1
-        if not has_body or differing > 1:
+        use, y = fit_target(p, flat, dx, d, A, T, A_p, T_p)
+        if not use:
             continue
-        y = d[flat] / dx
-        if differing == 1:
-            y = -y
         w = w0[k // 3] * w1[k % 3]
         z0, z1 = ((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx  # (x_i - x_p) / dx, as the reference forms it
         wz0, wz1, wy = w * z0, w * z1, w * y

@@ -24,7 +24,7 @@ from ...physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRES
 from ...physics.rigid_dynamics import current_shapes
 from ...physics.trimesh import surface_samples
 from ..numpy.cpic import PENALTY_WINDOW
-from .cpic import settle_body, sticky_tag
+from .cpic import fit_target, settle_body, sticky_tag
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
 
@@ -248,25 +248,15 @@ def reconstruct_particle(p, base, f, w0, w1, w2, dx, shape, d, A, T, A_p, T_p, p
     r"""The weighted least-squares fit of :func:`mpmref.physics.cdf.reconstruct` for one tagged particle in 3D:
     minimise :math:`\sum_i w_{ip}(\mathbf n\cdot\mathbf z_i + c - y_i)^2` (a 4 × 4 normal system); ``near``
     iff :math:`|\det M| > 10^{-4}`. ``M``, ``rhs``: scratch."""
-    n_bodies = A_p.shape[1]
     M[:] = 0.0
     rhs[:] = 0.0
     for k in range(27):
         flat = stencil_node(base[0], base[1], base[2], k, shape)
         if flat < 0:
             continue
-        has_body = False
-        differing = 0
-        for r in range(n_bodies):
-            if A[flat, r]:
-                has_body = True
-                if A_p[p, r] and T[flat, r] != T_p[p, r]:
-                    differing += 1
-        if not has_body or differing > 1:
+        use, y = fit_target(p, flat, dx, d, A, T, A_p, T_p)
+        if not use:
             continue
-        y = d[flat] / dx
-        if differing == 1:
-            y = -y
         w = w0[k // 9] * w1[(k // 3) % 3] * w2[k % 3]
         # (x_i - x_p) / dx, as the reference forms it, and the constant term
         z = (((k // 9) - f[0]) * dx / dx, (((k // 3) % 3) - f[1]) * dx / dx, ((k % 3) - f[2]) * dx / dx, 1.0)
