@@ -22,6 +22,7 @@ from .physics.kernels import KERNELS, get_kernel
 from .physics.catalogue import MATERIALS as MATERIAL_TYPES
 from .physics.materials import lame_parameters
 from .physics.rigid import validate_polyline
+from .physics.trimesh import mass_properties, read_trimesh, validate_trimesh
 from .physics.rigid_dynamics import (CONTACT_TYPES, MOTIONS, RigidBody, area_mass_properties, encode_friction,
                                      line_mass_properties)
 from .physics.scheme import resolve
@@ -44,6 +45,8 @@ COUPLINGS = ("none", "cpic")
 #: schemes CPIC is defined for (docs/cpic.md are written for PIC, APIC and MLS-MPM)
 CPIC_SCHEMES = ("pic", "apic", "mls")
 RIGID_COMMON_KEYS = {"vertices", "segments", "closed", "motion", "type", "friction"}
+#: the same in 3D: a triangle mesh inline (vertices, triangles) or from a file read by meshio (mesh)
+RIGID_COMMON_KEYS_3D = {"vertices", "triangles", "mesh", "closed", "motion", "type", "friction"}
 #: keys each rigid-body motion accepts besides the common ones
 RIGID_MOTION_KEYS = {
     "fixed": set(),
@@ -260,7 +263,7 @@ class Scene:
         gravity = _vector(data, "gravity", "", dim, default=[0.0] * dim)
         boundary = _parse_boundary(data.get("boundary", {}), dim, grid)
         time = _parse_time(data.get("time", {}))
-        rigid_bodies = _parse_rigid_bodies(data.get("rigid_bodies", []), dim, grid, method, time)
+        rigid_bodies = _parse_rigid_bodies(data.get("rigid_bodies", []), dim, grid, method, time, base_dir)
         output = _parse_output(data.get("output", {}))
         limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
                                    "transfer": resolve(method, dim, list(materials.values())),
@@ -503,19 +506,19 @@ def _parse_bodies(bodies, dim, materials):
     return out
 
 
-def _parse_rigid_bodies(bodies, dim, grid, method, time):
-    """The ``[[rigid_bodies]]`` (CPIC): validated 2D polylines with their motion and contact per side."""
+def _parse_rigid_bodies(bodies, dim, grid, method, time, base_dir=None):
+    """The ``[[rigid_bodies]]`` (CPIC): validated 2D polylines or 3D triangle meshes with their motion and contact."""
     if not isinstance(bodies, list):
         _fail("rigid_bodies", bodies, "an array of tables, e.g. [[rigid_bodies]]")
     if bodies and method.coupling != "cpic":
         _fail("method.coupling", method.coupling, "'cpic' when the scene has [[rigid_bodies]]")
     if method.coupling == "cpic" and not bodies:
         _fail("method.coupling", "cpic", "'none' in a scene without [[rigid_bodies]]")
-    if bodies and dim != 2:
-        _fail("rigid_bodies", f"{len(bodies)} bodies in a {dim}D scene", "rigid bodies only in 2D scenes for now")
     if bodies and time.stepping != "sync":
         _fail("time.stepping", time.stepping, "'sync' in a scene with [[rigid_bodies]] (CPIC runs in the synchronous "
               "step)")
+    if dim == 3:
+        return [_parse_rigid_body3d(b, i, grid, base_dir) for i, b in enumerate(bodies)]
     return [_parse_rigid_body(b, i, grid) for i, b in enumerate(bodies)]
 
 
@@ -542,6 +545,71 @@ def _parse_rigid_body(b, i, grid):
     elif motion == "dynamic":
         params.update(_dynamic(b, path, shape))
     return RigidBody(**params)
+
+
+def _parse_rigid_body3d(b, i, grid, base_dir):
+    """One 3D ``[[rigid_bodies]]`` entry: a triangle mesh inline or read by meshio, its motion and contact."""
+    path = f"rigid_bodies[{i}]"
+    if not isinstance(b, dict):
+        _fail(path, b, "a table")
+    motion = _choice(b, "motion", path, MOTIONS, default="fixed")
+    _section(b, path, RIGID_COMMON_KEYS_3D | RIGID_MOTION_KEYS[motion])
+    closed = b.get("closed", False)
+    if not isinstance(closed, bool):
+        _fail(f"{path}.closed", closed, "true or false")
+    domain = (grid.origin, grid.origin + np.array(grid.cells) * grid.dx)
+    if "mesh" in b:
+        inline = sorted({"vertices", "triangles"} & set(b))
+        if inline:
+            _fail(f"{path}.{inline[0]}", b[inline[0]], "absent when mesh = \"file\" gives the geometry")
+        if not isinstance(b["mesh"], str):
+            _fail(f"{path}.mesh", b["mesh"], "a file name (a triangle mesh meshio can read)")
+        shape = read_trimesh(b["mesh"], closed=closed, index=i, domain=domain, base_dir=base_dir or ".")
+    else:
+        shape = validate_trimesh(b.get("vertices"), b.get("triangles"), closed=closed, index=i, domain=domain)
+    params = {"shape": shape, "motion": motion, "friction": _contact_sides(b, path),
+              "center": shape.vertices.mean(axis=0), "velocity": np.zeros(3), "angular_velocity": np.zeros(3)}
+    if motion == "scripted":
+        params.update(_script3d(b, path, shape))
+    elif motion == "dynamic":
+        params.update(_dynamic3d(b, path, shape))
+    return RigidBody(**params)
+
+
+def _script3d(b, path, shape):
+    """A scripted 3D body: constant ``velocity`` and ``angular_velocity`` vectors, or keyframes of offset and rotation."""
+    center = _vector(b, "center", path, 3, default=shape.vertices.mean(axis=0))
+    if "keyframes" not in b:
+        return {"center": center, "velocity": _vector(b, "velocity", path, 3, default=[0.0] * 3),
+                "angular_velocity": _vector(b, "angular_velocity", path, 3, default=[0.0] * 3)}
+    for key in ("velocity", "angular_velocity"):
+        if key in b:
+            _fail(f"{path}.{key}", b[key], "absent when keyframes are given (the keyframes set the motion)")
+    frames = b["keyframes"]
+    if not isinstance(frames, list) or len(frames) < 2:
+        _fail(f"{path}.keyframes", frames, "a list of at least two tables {time, offset, rotation}")
+    out = []
+    for k, f in enumerate(frames):
+        where = f"{path}.keyframes[{k}]"
+        _section(f, where, {"time", "offset", "rotation"})
+        t = _number(f, "time", where, required=True, lo=0.0)
+        if out and t <= out[-1][0]:
+            _fail(f"{where}.time", t, f"greater than the previous keyframe's time {out[-1][0]}")
+        out.append((t, _vector(f, "offset", where, 3, default=[0.0] * 3),
+                    _vector(f, "rotation", where, 3, default=[0.0] * 3)))
+    return {"center": center, "keyframes": tuple(out)}
+
+
+def _dynamic3d(b, path, shape):
+    """A dynamic 3D body: mass, centre and inertia tensor from ``density`` over the volume (closed) or area (open)."""
+    density = _number(b, "density", path, required=True, lo=0.0, lo_open=True)
+    gravity = b.get("gravity", True)
+    if not isinstance(gravity, bool):
+        _fail(f"{path}.gravity", gravity, "true or false")
+    mass, center, inertia = mass_properties(shape, density)
+    return {"mass": mass, "center": center, "inertia": inertia, "gravity": gravity,
+            "velocity": _vector(b, "velocity", path, 3, default=[0.0] * 3),
+            "angular_velocity": _vector(b, "angular_velocity", path, 3, default=[0.0] * 3)}
 
 
 def _contact_sides(b, path):
@@ -763,8 +831,9 @@ class SceneBuilder:
         return self
 
     def rigid_body(self, vertices, segments, **params):
-        """Add a ``[[rigid_bodies]]`` entry (CPIC; see docs/cpic.md for the keys)."""
-        entry = {"vertices": np.asarray(vertices).tolist(), "segments": np.asarray(segments).tolist(), **params}
+        """Add a ``[[rigid_bodies]]`` entry (CPIC; see docs/cpic.md for the keys); 3D: ``segments`` are triangles."""
+        cells = "triangles" if self._data.get("dim") == 3 else "segments"
+        entry = {"vertices": np.asarray(vertices).tolist(), cells: np.asarray(segments).tolist(), **params}
         self._data.setdefault("rigid_bodies", []).append(entry)
         return self
 

@@ -13,6 +13,7 @@ from .errors import AllParticlesLeftError, DomainExitError, InstabilityError, Mp
 from .io.run_output import RunOutput
 from .physics.materials import material_groups
 from .physics.rigid_dynamics import current_shapes
+from .physics.trimesh import TriMesh
 from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 from .steppers import make_stepper
 
@@ -298,7 +299,7 @@ class Simulation:
         """Write a particle frame (and grid frame), a diagnostics row and, if enabled, a checkpoint."""
         out = self.output
         rigid = self.state.rigid
-        polylines = None if rigid is None else [(b.vertices, b.segments)
+        polylines = None if rigid is None else [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
                                                 for b in current_shapes(self.scene.rigid_bodies, rigid)]
         out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
                         self.grid_data() if self.scene.output.grid else None, polylines)

@@ -1,6 +1,6 @@
 r"""CPIC: thin rigid bodies that are not crossed, cut material, exchange momentum both ways and carry friction.
 
-Four 2D scenes on the NumPy reference (compatible PIC, Hu et al. 2018 §4–5; docs/cpic.md):
+2D scenes and one 3D scene on the NumPy reference (compatible PIC, Hu et al. 2018 §4–5; docs/cpic.md):
 
 * **No crossing.** A jelly block falls under gravity onto a fixed zero-thickness segment and rests on it;
   a scripted blade moves at 1 m/s through a layer of sand. A *crossing* is a particle whose signed offset
@@ -23,6 +23,10 @@ Four 2D scenes on the NumPy reference (compatible PIC, Hu et al. 2018 §4–5; d
 * **Cutting.** A jelly block falls onto a static wedge blade (two zero-thickness segments meeting at an
   edge): it must end as 2 connected components (particles linked when closer than one cell), with no
   crossing.
+* **Cutting in 3D.** A jelly block falls onto two crossed static blades (zero-thickness open triangle meshes,
+  each a wedge of two faces meeting at a sharp top edge, one edge along x, the other along z): it must end
+  as 4 connected components, and no particle may cross a blade (a crossing as above, with the projection on
+  a triangle both times). NumPy reference unless another backend is asked for; coarse in the quick preset.
 * **Friction.** A block slides at 1 m/s on a fixed segment with Coulomb friction :math:`\mu` under gravity
   :math:`g`; a block decelerating at :math:`\mu g` stops after :math:`v^2/(2\mu g)`. Bound: within 15 %.
 * **Rotor** (default and full presets; reported, not judged). A thin plate spins at 10 rad/s inside a jelly
@@ -50,6 +54,7 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.io.vtk import write_polylines_vtp
 from mpmref.physics.rigid import segment_frame, validate_polyline
 from mpmref.physics.rigid_dynamics import current_shapes
+from mpmref.physics.trimesh import TriMesh, triangle_frame, validate_trimesh
 
 from .common import Check, Finding, checks_table
 from .report import pyplot, save_figure, snapshot, write_series
@@ -73,17 +78,19 @@ class Params:
     mu: float = 0.3
     g: float = 10.0
     frames: int = 8
+    cut3d_cells: int = 24     # the 3D cut: cells across the unit cube
+    cut3d_t_end: float = 0.3
     extended: bool = True  # the rotor and the baselines (default and full presets)
     backend: str = "numpy"  # every simulation of the case runs on it (``run`` sets it from its argument)
 
     @classmethod
     def quick(cls):
         return cls(cells=32, drop_t_end=0.5, sand_t_end=0.15, ball_t_end=0.1, cut_t_end=0.6, friction_t_end=0.45,
-                   extended=False)
+                   extended=False, cut3d_cells=16, cut3d_t_end=0.1)
 
     @classmethod
     def full(cls):
-        return cls(cells=128)
+        return cls(cells=128, cut3d_cells=40, cut3d_t_end=0.4)
 
 
 # ------------------------------------------------------------------------------------------- scenes
@@ -155,6 +162,35 @@ def cut_scene(params):
     b.box("jelly", lower=[0.35, 0.5], upper=[0.65, 0.6])
     b.rigid_body(WEDGE, [[0, 1], [1, 2]], motion="fixed")
     return b.time(dt=_dt(params, 2e4, 100.0), t_end=params.cut_t_end).build()
+
+
+def wedge_blade(edge_axis, top=0.4, foot=0.06, half_base=0.06, extent=(0.25, 0.75), index=0):
+    """An open wedge blade: two planar faces meeting at a sharp top edge at height ``top`` over the line
+    ``x = 0.5`` or ``z = 0.5``, running along ``edge_axis`` (0: x, 2: z) over ``extent``; the faces reach
+    ``half_base`` to either side at height ``foot``. Four triangles, zero thickness, consistently oriented."""
+    across = 2 - edge_axis
+    vertices = []
+    for offset, y in ((0.0, top), (-half_base, foot), (half_base, foot)):
+        for e in extent:
+            point = [0.0, y, 0.0]
+            point[edge_axis], point[across] = e, 0.5 + offset
+            vertices.append(point)
+    return validate_trimesh(vertices, [[0, 2, 3], [0, 3, 1], [0, 1, 5], [0, 5, 4]], index=index)
+
+
+def cut3d_scene(params):
+    """A jelly block thrown down at 2 m/s onto two crossed fixed wedge blades (:func:`wedge_blade`) whose top edges
+    cross at (0.5, 0.4, 0.5): the blades cut it into four pieces that slide down their faces (3D)."""
+    b = (SceneBuilder(dim=3, name="cpic_cut3d").grid(size=1.0, cells=params.cut3d_cells)
+         .method("mls", coupling="cpic", penalty=1e3).walls("separate", domain_exit="delete")
+         .gravity([0.0, -params.g, 0.0]))
+    b.material("jelly", "fixed_corotated", E=5e3, nu=0.3, rho=100.0)
+    b.box("jelly", lower=[0.35, 0.42, 0.35], upper=[0.65, 0.52, 0.65], velocity=[0.0, -2.0, 0.0])
+    for index, axis in enumerate((0, 2)):
+        blade = wedge_blade(axis, index=index)
+        b.rigid_body(blade.vertices, blade.triangles, motion="fixed")
+    dt = 0.3 / params.cut3d_cells / (np.sqrt(5e3 / 100.0) + 4.0)  # CFL 0.3 with 4 m/s of motion
+    return b.time(dt=dt, t_end=params.cut3d_t_end).build()
 
 
 def friction_scene(params, ghost_force=True):
@@ -231,9 +267,22 @@ def segment_offsets(sim, shapes=None):
     x = sim.x[order]
     out = []
     for shape in shapes or current_shapes(sim.scene.rigid_bodies, sim.state.rigid):
+        if isinstance(shape, TriMesh):
+            out += triangle_offsets(shape, x)
+            continue
         for k in range(len(shape.segments)):
             out.append(segment_frame(shape, np.full(len(x), k), x))
     return out, sim.id[order]
+
+
+def triangle_offsets(mesh, x):
+    """Per triangle of ``mesh``: ``(s, h)`` with ``s`` the smallest barycentric coordinate of the projection of
+    ``x`` (in [0, 1] iff it lies on the triangle, as a segment's edge parameter) and ``h`` the signed offset."""
+    out = []
+    for k in range(len(mesh.triangles)):
+        bary, h = triangle_frame(mesh, np.full(len(x), k), x)
+        out.append((bary.min(axis=1), h))
+    return out
 
 
 def count_crossings(before, after):
@@ -317,6 +366,13 @@ def cutting(params):
     return out
 
 
+def cutting3d(params):
+    """The 3D cut: crossings of the blades over the run and connected components at the end."""
+    sim, out = run_watching(cut3d_scene(params), params.frames, backend=params.backend)
+    out["components"] = components(sim.x, 1.0 / params.cut3d_cells)
+    return out
+
+
 def friction(params, ghost_force=True):
     """The block's centre-of-mass travel until it stops (v_com below 1 % of the initial speed)."""
     com = []
@@ -343,7 +399,7 @@ def run(params=Params(), backend="numpy"):
     return {"params": params, "backend": backend, "no_crossing": no_crossing(params),
             "exact": momentum_run(params, exact=True), "default": momentum_run(params, exact=False),
             "exact_reference": momentum_run(params, exact=True, ghost_force=False) if params.extended else None,
-            "cut": cutting(params), "friction": friction(params),
+            "cut": cutting(params), "cut3d": cutting3d(params), "friction": friction(params),
             "friction_reference": friction(params, ghost_force=False) if params.extended else None,
             "baselines": [baseline(params, kind, width) for kind, width in BASELINES] if params.extended else [],
             "rotor": (run_watching(rotor_scene(params), params.frames, backend=params.backend)[1]
@@ -374,7 +430,16 @@ def checks(result):
            Check("friction: |stopping distance / (v^2 / 2 mu g) - 1|",
                  abs(fr["distance"] / fr["expected"] - 1.0) if fr["stopped"] else float("inf"), "<=", 0.15,
                  "Coulomb friction decelerates the block at mu g (acceptance: within 15 %)")]
-    return out
+    return out + (_cut3d_checks(result["cut3d"]) if result.get("cut3d") else [])
+
+
+def _cut3d_checks(cut):
+    return [Check("3D cutting: connected components after the crossed blades", cut["components"], ">=", 4,
+                  "two crossed blades split the block into four: material on the faces of a blade exchanges nothing"),
+            Check("3D cutting: connected components after the crossed blades (at most)", cut["components"], "<=", 4,
+                  "two cuts give four pieces, no debris"),
+            Check("3D cutting: particles that crossed a blade (any step)", cut["crossings"], "<=", 0,
+                  "sticky side tags and compatible transfers: no particle changes side of a triangle it projects on")]
 
 
 def findings(result):
@@ -483,7 +548,9 @@ def table(result):
                     ("hard impact", nc["impact"]),
                     ("ball onto a free plate (exact)", result["exact"]), ("ball onto a free plate (default)",
                                                                             result["default"]),
-                    ("jelly onto a wedge blade", result["cut"]), ("block sliding (friction)", result["friction"])):
+                    ("jelly onto a wedge blade", result["cut"]),
+                    *((("3D: jelly onto two crossed wedge blades", result["cut3d"]),) if result.get("cut3d") else ()),
+                    ("block sliding (friction)", result["friction"])):
         rows.append(f"| {name} | {r['n']} | {r['steps']} | {r['crossings']} | {r['far_side']} |")
     return "\n".join(rows + ["", "*side at the end against side at the start, for particles projecting onto a "
                               "segment both times: for the moving blade it also counts sand that flowed under "
@@ -507,11 +574,13 @@ def report(result, out_dir):
     paths = [_momentum_plot(result, out / "momentum.png"), _friction_plot(result, out / "friction.png")]
     runs = {**result["no_crossing"], "ball": result["exact"],
             **({"rotor": result["rotor"]} if result.get("rotor") else {}),
-            "cut": result["cut"], "friction": result["friction"]}
+            "cut": result["cut"], **({"cut3d": result["cut3d"]} if result.get("cut3d") else {}),
+            "friction": result["friction"]}
     for key, r in runs.items():
         paths.append(write_series(out / "vtk" / key, r["frames"]))
         paths.append(out / "vtk" / key / "rigid_bodies_end.vtp")  # the bodies where the run ends
-        write_polylines_vtp(paths[-1], [(b.vertices, b.segments) for b in r["bodies"]])
+        write_polylines_vtp(paths[-1], [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
+                                        for b in r["bodies"]])
     baselines = (f"## Baselines: the same block over a vertical cut line\n\n{baseline_table(result)}\n\n"
                  if result["baselines"] else "")
     text = (f"# CPIC (backend {result['backend']})\n\n{table(result)}\n\n{baselines}"

@@ -15,7 +15,7 @@ Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend
 * ``step(particles, dt, time) -> Particles``: P2G, grid update, G2P and return map.
 
 Backends that couple rigid bodies by CPIC also have the stages ``cpic_field``, ``cpic_tags``, ``cpic_p2g``,
-``cpic_g2p`` and ``cpic_step`` (2D, float64; :mod:`.cpic`), which run the backend from flat inputs to flat
+``cpic_g2p`` and ``cpic_step`` (2D and 3D, float64; :mod:`.cpic`), which run the backend from flat inputs to flat
 outputs; ``make_cases`` gives their cases when asked for them (``stages=ALL_STAGES`` or ``CPIC_STAGES``).
 
 Grid arrays have one row per node in C order (node ``(i_0, .., i_{d-1})`` is row ``sum_a i_a stride_a``,

@@ -299,30 +299,30 @@ def cpic_methods():
     return [m for m in valid_methods() if m["scheme"] in CPIC_SCHEMES]
 
 
-def _cpic_case(stage, label, method):
-    return Case(stage, 2, label, cpic_scene_dict(scene_dict(2, TRANSFER_MATERIALS), method))
+def _cpic_case(stage, label, method, dim=2):
+    return Case(stage, dim, label, cpic_scene_dict(scene_dict(dim, TRANSFER_MATERIALS), method))
 
 
 def _cpic_cases(stage, dim, dtype):
-    """The CPIC cases of ``stage`` (2D, float64; none otherwise): the field once; the tags on each kernel (the
-    compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
+    """The CPIC cases of ``stage`` (2D and 3D, float64; none in float32): the field once; the tags on each kernel
+    (the compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
     variants of the step: momentum-exact, and ghost velocities without the particle's internal force."""
-    if dim != 2 or dtype != "float64":
+    if dtype != "float64":
         return []
     methods = cpic_methods()
     if stage == "cpic_field":
-        return [_cpic_case(stage, "bodies", methods[0])]
+        return [_cpic_case(stage, "bodies", methods[0], dim)]
     if stage == "cpic_tags":
         first = {}
         for m in methods:
             first.setdefault(m["kernel"], m)
-        return [_cpic_case(stage, method_label(m), m) for m in first.values()]
-    cases = [_cpic_case(stage, method_label(m), m) for m in methods]
+        return [_cpic_case(stage, method_label(m), m, dim) for m in first.values()]
+    cases = [_cpic_case(stage, method_label(m), m, dim) for m in methods]
     if stage == "cpic_step":
         exact = {"scheme": "pic", "force": "mls", "kernel": "quadratic", "momentum_exact": True}
         plain_ghosts = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "ghost_force": False}
-        cases += [_cpic_case(stage, "pic-mls-quadratic-exact", exact),
-                  _cpic_case(stage, "mls-mls-quadratic-no-ghost-force", plain_ghosts)]
+        cases += [_cpic_case(stage, "pic-mls-quadratic-exact", exact, dim),
+                  _cpic_case(stage, "mls-mls-quadratic-no-ghost-force", plain_ghosts, dim)]
     return cases
 
 

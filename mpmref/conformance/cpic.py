@@ -1,4 +1,4 @@
-r"""Conformance of the CPIC stages (2D): the colored distance field, the tagging and reconstruction, P2G and
+r"""Conformance of the CPIC stages (2D and 3D): the colored distance field, the tagging and reconstruction, P2G and
 G2P with bodies, and whole coupled steps.
 
 A backend provides CPIC through its methods ``cpic_contact``, ``p2g(particles, prepared, contact)``,
@@ -29,11 +29,18 @@ The scene is the conformance box (8 × 8 cells) with three bodies crossing it: a
 body's previous tag set with probability 1/2 on a random side (so that some particles have "penetrated",
 with :math:`\phi_p < 0`, and the penalty acts), the bodies moved and turned a little from where they were
 declared and given random velocities. Source of the equations: Hu et al. 2018 §4–5, docs/cpic.md.
+
+In 3D (:data:`BODIES_3D`, the conformance box of 8³ cells) the bodies are triangle meshes of the same three
+kinds: a dynamic open "V" sheet of four triangles, a scripted closed tetrahedron turning about an oblique axis,
+and a fixed, slightly warped vertical quadrilateral; vectors have 3 components, ``rigid_angle`` is the
+orientation quaternion (nb, 4) and ``rigid_angular_velocity``, ``rigid_angular_impulse``, ``impulse_L``,
+``penalty_L`` are (nb, 3) (:mod:`mpmref.physics.rigid_dynamics3d`).
 """
 
 import numpy as np
 
 from ..physics.rigid_dynamics import RigidState
+from ..physics.rigid_dynamics3d import quaternion_from_rotation_vector
 from ..state import Particles
 
 CPIC_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
@@ -51,6 +58,18 @@ BODIES = (
      "motion": "scripted", "velocity": [0.2, -0.1], "angular_velocity": 1.5, "type": "sticky"},
     {"vertices": [[0.3, 0.28], [0.37, 0.7]], "segments": [[0, 1]], "type": ["separate", "sticky"], "friction": 0.0},
 )
+#: the 3D bodies of every 3D CPIC case (unit box, 8³ cells): a dynamic open "V" sheet, a scripted closed
+#: tetrahedron that turns about an oblique axis, a fixed warped quadrilateral
+BODIES_3D = (
+    {"vertices": [[0.25, 0.62, 0.3], [0.5, 0.42, 0.3], [0.75, 0.63, 0.3], [0.25, 0.6, 0.72], [0.5, 0.41, 0.7],
+                  [0.74, 0.62, 0.71]], "triangles": [[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]],
+     "motion": "dynamic", "density": 2.0, "type": ["separate", "slip"], "friction": [0.3, 0.2]},
+    {"vertices": [[0.42, 0.25, 0.42], [0.62, 0.27, 0.45], [0.5, 0.26, 0.62], [0.52, 0.42, 0.5]],
+     "triangles": [[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]], "closed": True, "motion": "scripted",
+     "velocity": [0.2, -0.1, 0.1], "angular_velocity": [0.5, 1.5, -0.7], "type": "sticky"},
+    {"vertices": [[0.33, 0.28, 0.3], [0.35, 0.28, 0.7], [0.36, 0.7, 0.68], [0.32, 0.7, 0.31]],
+     "triangles": [[0, 1, 2], [0, 2, 3]], "type": ["separate", "sticky"], "friction": 0.0},
+)
 #: CPIC's options in the cases: a pushing force and a penalty large enough to matter in one step
 COUPLING = {"coupling": "cpic", "pushing_force": 2.0e4, "penalty": 1.0e3}
 
@@ -58,23 +77,38 @@ COUPLING = {"coupling": "cpic", "pushing_force": 2.0e4, "penalty": 1.0e3}
 def cpic_scene_dict(scene_dict, method):
     """``scene_dict`` (from :func:`~.cases.scene_dict`) with the CPIC bodies and ``method`` plus :data:`COUPLING`."""
     coupling = {**COUPLING, **({"pushing_force": 0.0} if method.get("momentum_exact") else {})}
+    bodies = BODIES_3D if scene_dict["dim"] == 3 else BODIES
     return {**scene_dict, "method": {**scene_dict["method"], **coupling, **method},
-            "rigid_bodies": [dict(b) for b in BODIES]}
+            "rigid_bodies": [dict(b) for b in bodies]}
 
 
 def random_cpic_state(scene, rng, flat):
     """Add previous tags and a random state of the bodies to the particle state ``flat`` (in place): poses
-    near the declared ones, velocities N(0, 1) and angular velocities N(0, 2²) (zero for a fixed body)."""
+    near the declared ones, velocities N(0, 1) and angular velocities N(0, 2²) (zero for a fixed body); in 3D
+    the orientation is the quaternion of a rotation vector N(0, 0.05²) per axis."""
     n, nb = len(flat["x"]), len(scene.rigid_bodies)
     flat["tag_A"] = rng.random((n, nb)) < 0.5
     flat["tag_T"] = flat["tag_A"] & (rng.random((n, nb)) < 0.5)
     center = np.array([b.center for b in scene.rigid_bodies])
     moving = np.array([b.motion != "fixed" for b in scene.rigid_bodies])
+    if scene.dim == 3:
+        return _random_state_3d(flat, rng, center, moving)
     flat.update({"rigid_position": center + 0.01 * rng.standard_normal((nb, 2)),
                  "rigid_angle": 0.05 * rng.standard_normal(nb),
                  "rigid_velocity": rng.standard_normal((nb, 2)) * moving[:, None],
                  "rigid_angular_velocity": 2.0 * rng.standard_normal(nb) * moving, "rigid_impulse": np.zeros((nb, 2)),
                  "rigid_angular_impulse": np.zeros(nb)})
+    return flat
+
+
+def _random_state_3d(flat, rng, center, moving):
+    """The bodies' part of :func:`random_cpic_state` in 3D."""
+    nb = len(center)
+    flat.update({"rigid_position": center + 0.01 * rng.standard_normal((nb, 3)),
+                 "rigid_angle": quaternion_from_rotation_vector(0.05 * rng.standard_normal((nb, 3))),
+                 "rigid_velocity": rng.standard_normal((nb, 3)) * moving[:, None],
+                 "rigid_angular_velocity": 2.0 * rng.standard_normal((nb, 3)) * moving[:, None],
+                 "rigid_impulse": np.zeros((nb, 3)), "rigid_angular_impulse": np.zeros((nb, 3))})
     return flat
 
 

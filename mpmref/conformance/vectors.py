@@ -79,14 +79,19 @@ def resolved_scene(case):
 
 
 def _rigid_entry(body):
-    """A rigid body as a flat table: its polyline at time 0, reference point, motion, mass properties, script
-    and encoded friction of side 0 and side 1 (see :func:`mpmref.physics.rigid_dynamics.encode_friction`)."""
-    return {"vertices": body.shape.vertices.tolist(), "segments": body.shape.segments.tolist(),
+    """A rigid body as a flat table: its polyline (``segments``) or triangle mesh (``triangles``) at time 0,
+    reference point, motion, mass properties (3D: the inertia tensor, or ``"inf"``), script and encoded friction
+    of side 0 and side 1 (see :func:`mpmref.physics.rigid_dynamics.encode_friction`)."""
+    cells = {"triangles": body.shape.triangles.tolist()} if hasattr(body.shape, "triangles") else {
+        "segments": body.shape.segments.tolist()}
+    inertia = np.asarray(body.inertia)
+    return {"vertices": body.shape.vertices.tolist(), **cells,
             "closed": body.shape.closed, "motion": body.motion, "center": np.asarray(body.center).tolist(),
-            "mass": _jsonable_number(body.mass), "inertia": _jsonable_number(body.inertia),
-            "velocity": np.asarray(body.velocity).tolist(), "angular_velocity": body.angular_velocity,
-            "keyframes": [[t, np.asarray(o).tolist(), a] for t, o, a in body.keyframes], "gravity": body.gravity,
-            "friction": np.asarray(body.friction).tolist()}
+            "mass": _jsonable_number(body.mass),
+            "inertia": inertia.tolist() if inertia.ndim else _jsonable_number(body.inertia),
+            "velocity": np.asarray(body.velocity).tolist(), "angular_velocity": np.asarray(body.angular_velocity).tolist(),
+            "keyframes": [[t, np.asarray(o).tolist(), np.asarray(a).tolist()] for t, o, a in body.keyframes],
+            "gravity": body.gravity, "friction": np.asarray(body.friction).tolist()}
 
 
 def _jsonable_number(value):

@@ -52,10 +52,10 @@ def write_grid_vti(path, origin, dx, node_shape, point_data):
 
 
 def write_polylines_vtp(path, polylines):
-    """Write 2D polylines as one VTK PolyData file (ASCII ``.vtp``; line cells, cell data ``body``), atomically.
+    """Write 2D polylines or 3D triangle meshes as one VTK PolyData file (ASCII ``.vtp``), atomically.
 
-    ``polylines`` is a list of ``(vertices (n, 2), segments (m, 2))``, one per body; the ``body`` cell
-    array holds each segment's body index.
+    ``polylines`` is a list of ``(vertices (n, 2), segments (m, 2))`` (line cells) or ``(vertices (n, 3),
+    triangles (m, 3))`` (polygon cells), one per body; the ``body`` cell array holds each cell's body index.
     """
     points, lines, body, offset = [], [], [], 0
     for r, (vertices, segments) in enumerate(polylines):
@@ -64,6 +64,8 @@ def write_polylines_vtp(path, polylines):
         body.append(np.full(len(segments), r, dtype=np.int64))
         offset += len(vertices)
     points, lines, body = np.concatenate(points), np.concatenate(lines), np.concatenate(body)
+    corners = lines.shape[1]  # 2: line cells, 3: triangles
+    section, counts = ("Lines", (len(lines), 0)) if corners == 2 else ("Polys", (0, len(lines)))
 
     def ascii(a, fmt):
         return " ".join(fmt % v for v in np.ravel(a))
@@ -71,14 +73,14 @@ def write_polylines_vtp(path, polylines):
     text = f"""<?xml version="1.0"?>
 <VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">
   <PolyData>
-    <Piece NumberOfPoints="{len(points)}" NumberOfVerts="0" NumberOfLines="{len(lines)}" NumberOfStrips="0" NumberOfPolys="0">
+    <Piece NumberOfPoints="{len(points)}" NumberOfVerts="0" NumberOfLines="{counts[0]}" NumberOfStrips="0" NumberOfPolys="{counts[1]}">
       <Points>
         <DataArray type="Float64" NumberOfComponents="3" format="ascii">{ascii(points, "%.17g")}</DataArray>
       </Points>
-      <Lines>
+      <{section}>
         <DataArray type="Int64" Name="connectivity" format="ascii">{ascii(lines, "%d")}</DataArray>
-        <DataArray type="Int64" Name="offsets" format="ascii">{ascii(2 * np.arange(1, len(lines) + 1), "%d")}</DataArray>
-      </Lines>
+        <DataArray type="Int64" Name="offsets" format="ascii">{ascii(corners * np.arange(1, len(lines) + 1), "%d")}</DataArray>
+      </{section}>
       <CellData Scalars="body">
         <DataArray type="Int64" Name="body" format="ascii">{ascii(body, "%d")}</DataArray>
       </CellData>

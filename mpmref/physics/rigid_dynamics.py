@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from . import rigid_dynamics3d
 from .rigid import Polyline
 
 MOTIONS = ("fixed", "scripted", "dynamic")
@@ -49,6 +50,10 @@ class RigidBody:
     keyframes : tuple           scripted keyframes ``(time, offset (2,), angle)``, sorted; empty if none
     gravity : bool              a dynamic body feels the scene's gravity
     friction : (2,) array       the encoded friction value :math:`\\mu` of side 0 and side 1 (:func:`encode_friction`)
+
+    A 3D body (shape a :class:`~mpmref.physics.trimesh.TriMesh`) has ``center``, ``velocity`` and
+    ``angular_velocity`` of shape (3,), ``inertia`` the (3, 3) tensor about the centre in the declared pose,
+    and keyframes ``(time, offset (3,), rotation vector (3,))`` (:mod:`mpmref.physics.rigid_dynamics3d`).
     """
 
     shape: Polyline
@@ -75,6 +80,10 @@ class RigidState:
     angular_velocity : (nb,)    :math:`\\omega`
     impulse : (nb, 2)           linear impulse received from the material since time 0
     angular_impulse : (nb,)     angular impulse about the reference point received since time 0
+
+    For 3D bodies (:mod:`mpmref.physics.rigid_dynamics3d`) ``position``, ``velocity``, ``impulse``,
+    ``angular_velocity`` and ``angular_impulse`` are (nb, 3) and ``angle`` is the orientation, a unit
+    quaternion (w, x, y, z) of shape (nb, 4).
     """
 
     position: np.ndarray
@@ -182,6 +191,8 @@ def area_mass_properties(shape, density):
 # ------------------------------------------------------------------------------------------ state
 def initial_state(bodies):
     """The :class:`RigidState` at time 0 of the declared ``bodies``."""
+    if _in_3d(bodies):
+        return rigid_dynamics3d.initial_state(bodies, RigidState)
     nb = len(bodies)
     return RigidState(position=np.array([b.center for b in bodies], dtype=np.float64).reshape(nb, 2),
                       angle=np.zeros(nb),
@@ -206,6 +217,8 @@ def posed_shape(body, position, angle):
 
 def current_shapes(bodies, state):
     """Every body's polyline where the state puts it."""
+    if _in_3d(bodies):
+        return [rigid_dynamics3d.posed_mesh(b, state.position[r], state.angle[r]) for r, b in enumerate(bodies)]
     return [posed_shape(b, state.position[r], state.angle[r]) for r, b in enumerate(bodies)]
 
 
@@ -226,6 +239,8 @@ def scripted_pose(body, t):
 
 def begin_step(bodies, state, time, dt):
     """The state with each scripted body's velocity over the step ``[time, time + dt]`` (finite difference)."""
+    if _in_3d(bodies):
+        return rigid_dynamics3d.begin_step(bodies, state, time, dt)
     velocity, omega = state.velocity.copy(), state.angular_velocity.copy()
     for r, body in enumerate(bodies):
         if body.motion == "scripted":
@@ -236,6 +251,8 @@ def begin_step(bodies, state, time, dt):
 
 def point_velocity(state, body_ids, x):
     r"""Velocity :math:`\mathbf v_r + \omega_r \hat{\mathbf z}\times(\mathbf x - \mathbf c_r)` of body ``body_ids`` at ``x`` (..., 2)."""
+    if state.position.shape[1] == 3:
+        return rigid_dynamics3d.point_velocity(state, body_ids, x)
     r = state.position[body_ids]
     w = state.angular_velocity[body_ids][..., None]
     rel = x - r
@@ -248,6 +265,8 @@ def body_impulses(n_bodies, body_ids, x, impulse, position):
     Returns ``(J, L)``: :math:`\mathbf J_r = \sum \mathbf J` and :math:`L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J`
     about each body's reference point (docs/cpic.md, "after all particles").
     """
+    if x.shape[-1] == 3:
+        return rigid_dynamics3d.body_impulses(n_bodies, body_ids, x, impulse, position)
     rel = x - position[body_ids]
     torque = rel[:, 0] * impulse[:, 1] - rel[:, 1] * impulse[:, 0]
     J = np.stack([np.bincount(body_ids, weights=impulse[:, a], minlength=n_bodies) for a in range(2)], axis=1)
@@ -261,6 +280,8 @@ def apply_impulses(bodies, state, J, L):
 
     (docs/cpic.md). Fixed and scripted bodies have infinite mass: they only record what they received.
     """
+    if _in_3d(bodies):
+        return rigid_dynamics3d.apply_impulses(bodies, state, J, L)
     inv_m = np.array([1.0 / b.mass for b in bodies])
     inv_i = np.array([1.0 / b.inertia for b in bodies])
     return state.with_(velocity=state.velocity + J * inv_m[:, None],
@@ -275,6 +296,8 @@ def end_step(bodies, state, time, dt, gravity):
     then the gravity impulse :math:`\mathbf v \mathrel{+}= \mathbf g \Delta t` (if the body feels gravity).
     Scripted: the script's pose at ``time + dt``. Fixed: unchanged.
     """
+    if _in_3d(bodies):
+        return rigid_dynamics3d.end_step(bodies, state, time, dt, gravity)
     position, angle, velocity = state.position.copy(), state.angle.copy(), state.velocity.copy()
     for r, body in enumerate(bodies):
         if body.motion == "dynamic":
@@ -290,11 +313,14 @@ def end_step(bodies, state, time, dt, gravity):
 
 def momentum(bodies, state):
     """Linear momentum :math:`\\sum_r M_r \\mathbf v_r` of the dynamic bodies (finite mass), shape (2,)."""
-    return sum((b.mass * state.velocity[r] for r, b in enumerate(bodies) if b.motion == "dynamic"), np.zeros(2))
+    return sum((b.mass * state.velocity[r] for r, b in enumerate(bodies) if b.motion == "dynamic"),
+               np.zeros(state.velocity.shape[1]))
 
 
 def diagnostics(bodies, state):
     """Per body ``r``: ``rigid{r}_`` position, angle, velocity, angular velocity and impulse received (dict)."""
+    if _in_3d(bodies):
+        return rigid_dynamics3d.diagnostics(bodies, state) | _momentum_columns(bodies, state)
     out = {}
     for r in range(len(bodies)):
         out.update({f"rigid{r}_x": state.position[r, 0], f"rigid{r}_y": state.position[r, 1],
@@ -305,3 +331,13 @@ def diagnostics(bodies, state):
     p = momentum(bodies, state)
     out.update({"rigid_momentum_x": p[0], "rigid_momentum_y": p[1]})
     return out
+
+
+def _in_3d(bodies):
+    """Whether the declared bodies are 3D triangle meshes (:mod:`mpmref.physics.rigid_dynamics3d` moves them)."""
+    return bool(bodies) and not isinstance(bodies[0].shape, Polyline)
+
+
+def _momentum_columns(bodies, state):
+    """``rigid_momentum_x``, ``_y`` (and ``_z`` in 3D) of :func:`momentum`."""
+    return {f"rigid_momentum_{a}": v for a, v in zip("xyz", momentum(bodies, state))}

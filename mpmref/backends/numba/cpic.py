@@ -1,5 +1,6 @@
-r"""CPIC stages of the Numba backend (2D): the colored distance field, the particles' tags and distance,
-P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, compiled.
+r"""CPIC stages of the Numba backend: the colored distance field, the particles' tags and distance,
+P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, compiled (the 2D kernels here,
+the 3D ones in :mod:`.cpic3d`; the stages at the end of this module serve both).
 
 The equations are those of the NumPy reference (:mod:`mpmref.backends.numpy.cpic`,
 :mod:`mpmref.physics.cdf`, :func:`mpmref.physics.rigid_dynamics.friction_projection`); Hu et al. 2018,
@@ -25,6 +26,7 @@ particle) stay in NumPy (:func:`mpmref.physics.rigid_dynamics.current_shapes`,
 :func:`mpmref.physics.rigid.surface_samples`).
 """
 
+import sys
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -57,6 +59,7 @@ class Contact:
     tau : (n, 2, 2)             the particles' Kirchhoff stress (computed once for the step)
     dt : float                  the step
     ghost_force : bool          ghost velocities include the particle's own internal force (``method.ghost_force``)
+    dim : int                   2, or 3 for the 3D stages (:mod:`.cpic3d`; vectors then have 3 components)
     """
 
     cdf: ColoredDistanceField
@@ -68,11 +71,12 @@ class Contact:
     tau: np.ndarray
     dt: float
     ghost_force: bool
+    dim: int = 2
 
     @property
     def compatible(self):
         """``(K, n)`` bool: node ``k`` of particle ``p``'s stencil is compatible (the reference's layout)."""
-        k = np.arange(self.support**2, dtype=np.int64)
+        k = np.arange(self.support**self.dim, dtype=np.int64)
         return ((self.incompatible[None, :] >> k[:, None]) & 1) == 0
 
 
@@ -162,16 +166,24 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
                 count += 1
                 d_r[flat] = min(d_r[flat], abs(h))
                 A[flat, r] = True
-        for c in range(count):
-            if abs(pair_h[c]) == d_r[pair_node[c]]:
-                T[pair_node[c], r] = pair_h[c] < 0.0
-        for c in range(count):
-            flat = pair_node[c]
-            if d_r[flat] < d[flat]:
-                d[flat] = d_r[flat]
-                nearest[flat] = r
-        for c in range(count):
-            d_r[pair_node[c]] = np.inf
+        settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T)
+
+
+@njit(cache=True, inline="always")
+def settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T):
+    r"""After body ``r``'s ``count`` rasterised (node, :math:`h`) pairs: :math:`T_{ir} = [h < 0]` from the pairs at
+    the body's distance :math:`d_{ir}` (the last such pair wins), node :math:`i`'s nearest body is ``r`` if
+    :math:`d_{ir} < d_i` (so the first body wins a tie), and ``d_r`` is reset to ``inf`` for the next body."""
+    for c in range(count):
+        if abs(pair_h[c]) == d_r[pair_node[c]]:
+            T[pair_node[c], r] = pair_h[c] < 0.0
+    for c in range(count):
+        flat = pair_node[c]
+        if d_r[flat] < d[flat]:
+            d[flat] = d_r[flat]
+            nearest[flat] = r
+    for c in range(count):
+        d_r[pair_node[c]] = np.inf
 
 
 # -------------------------------------------------------------------- tags, distance and compatibility
@@ -279,15 +291,22 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
                     S0[r] += w * d[flat]
     tagged = False
     for r in range(n_bodies):
-        a = tag_A[p, r] and near_r[r]
-        t = tag_T[p, r] and a
-        if near_r[r] and not a and S0[r] + S1[r] > TAG_THRESHOLD:
-            a, t = True, S1[r] > S0[r]
-        A_new[p, r], T_new[p, r] = a, t
-        tagged = tagged or a
+        tagged = sticky_tag(p, r, near_r, S0, S1, tag_A, tag_T, A_new, T_new) or tagged
     if tagged:
         reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_new, T_new, phi, normal, near, M, rhs)
     return tagged
+
+
+@njit(cache=True, inline="always")
+def sticky_tag(p, r, near_r, S0, S1, tag_A, tag_T, A_new, T_new):
+    r"""Particle ``p``'s new tag of body ``r``: kept while the body stays near (``near_r[r]``), cleared otherwise; a
+    newly near body tags it if :math:`S_0 + S_1 > 10^{-7}`, on side :math:`[S_1 > S_0]`. Returns :math:`A_{pr}`."""
+    a = tag_A[p, r] and near_r[r]
+    t = tag_T[p, r] and a
+    if near_r[r] and not a and S0[r] + S1[r] > TAG_THRESHOLD:
+        a, t = True, S1[r] > S0[r]
+    A_new[p, r], T_new[p, r] = a, t
+    return a
 
 
 @njit(cache=True, inline="always")
@@ -310,27 +329,33 @@ def in_band(b0, b1, shape, d):
 
 
 @njit(cache=True, inline="always")
+def fit_target(p, flat, dx, d, A, T, A_p, T_p):
+    r"""Whether node ``flat`` enters particle ``p``'s least-squares fit, and its target :math:`y_i`: the node carries a
+    body and at most one body shared with the particle puts them on different sides; :math:`y_i = +d_i/\Delta x`
+    if none does (compatible), :math:`-d_i/\Delta x` if one does (:func:`mpmref.physics.cdf.reconstruct`)."""
+    has_body = False
+    differing = 0
+    for r in range(A_p.shape[1]):
+        if A[flat, r]:
+            has_body = True
+            if A_p[p, r] and T[flat, r] != T_p[p, r]:
+                differing += 1
+    y = d[flat] / dx
+    return has_body and differing <= 1, (-y if differing == 1 else y)
+
+
+@njit(cache=True, inline="always")
 def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p, phi, normal, near, M, rhs):
     """The weighted least-squares fit of :func:`tag_particle` for one tagged particle (``M``, ``rhs``: scratch)."""
-    n_bodies = A_p.shape[1]
     M[:] = 0.0
     rhs[:] = 0.0
     for k in range(9):
         flat = stencil_node(b0, b1, k, shape)
         if flat < 0:
             continue
-        has_body = False
-        differing = 0
-        for r in range(n_bodies):
-            if A[flat, r]:
-                has_body = True
-                if A_p[p, r] and T[flat, r] != T_p[p, r]:
-                    differing += 1
-        if not has_body or differing > 1:
+        use, y = fit_target(p, flat, dx, d, A, T, A_p, T_p)
+        if not use:
             continue
-        y = d[flat] / dx
-        if differing == 1:
-            y = -y
         w = w0[k // 3] * w1[k % 3]
         z0, z1 = ((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx  # (x_i - x_p) / dx, as the reference forms it
         wz0, wz1, wy = w * z0, w * z1, w * y
@@ -664,25 +689,35 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
 
 
 # --------------------------------------------------------------------------- the stages, for the backend
+def kernels(dim):
+    """The module whose kernels serve ``dim``: this one in 2D, :mod:`.cpic3d` in 3D (the stages below are shared)."""
+    if dim == 3:
+        from . import cpic3d
+
+        return cpic3d
+    return sys.modules[__name__]
+
+
 def contact(backend, particles, blocks, rigid, dt):
     """The step's :class:`Contact` and the particles with their new tags, distance, normal and ``near`` flag
     (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
     scene, spec = backend.scene, backend.cfg
-    bodies = scene.rigid_bodies
-    cdf = build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
+    bodies, d = scene.rigid_bodies, particles.dim
+    k = kernels(d)
+    cdf = k.build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
     x = np.ascontiguousarray(particles.x, dtype=np.float64)
     n, nb = particles.n, len(bodies)
     A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
-    phi, normal, near = np.zeros(n), np.zeros((n, 2)), np.zeros(n, dtype=np.bool_)
+    phi, normal, near = np.zeros(n), np.zeros((n, d)), np.zeros(n, dtype=np.bool_)
     incompatible = np.zeros(n, dtype=np.int64)
-    tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
+    k.tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
         x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
         np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
         incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block, backend.blocks_per_axis)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
-                dt=float(dt), ghost_force=bool(scene.method.ghost_force))
+                dt=float(dt), ghost_force=bool(scene.method.ghost_force), dim=d)
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
@@ -695,7 +730,7 @@ def p2g(backend, particles, blocks, contact):
                    force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
                    rejected_force=np.zeros((N, d)))
     rigid, cdf = contact.rigid, contact.cdf
-    kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
+    kernel = kernels(d).p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
            blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
@@ -706,11 +741,12 @@ def p2g(backend, particles, blocks, contact):
 
 
 def impulses(grid_state, contact, rigid, dt):
-    """Impulses ``(J (nb, 2), L (nb,))`` of the incompatible nodes on the bodies (:func:`node_impulses`)."""
-    nb = len(rigid.angle)
-    J, L = np.zeros((nb, 2)), np.zeros(nb)
+    """Impulses ``(J (nb, 2), L (nb,))`` (3D: ``(nb, 3)`` both) of the incompatible nodes on the bodies
+    (:func:`node_impulses`)."""
+    nb, d = rigid.position.shape
+    J, L = np.zeros((nb, d)), np.zeros((nb,) if d == 2 else (nb, 3))
     cdf = contact.cdf
-    node_impulses(grid_state.rejected_momentum, grid_state.rejected_force, dt, cdf.body,
+    kernels(d).node_impulses(grid_state.rejected_momentum, grid_state.rejected_force, dt, cdf.body,
                   np.array(cdf.shape, dtype=np.int64), cdf.origin, cdf.dx, rigid.position, J, L)
     return J, L
 
@@ -729,8 +765,8 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
     J_new = empty(n) if particles.J is not None else empty(0)
     nb = len(rigid.angle)
-    block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3))
-    kernel = g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
+    block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3 if d == 2 else 6))  # J, then L
+    kernel = kernels(d).g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
                         spec.tracks_F, spec.tracks_J)
     cdf = contact.cdf
     kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
@@ -741,7 +777,7 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
            rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
            J_new, block_impulse)
     total = sum_in_order(block_impulse)
-    J, L = total[:, :2], total[:, 2]
+    J, L = total[:, :d], (total[:, d] if d == 2 else total[:, d:])
     changes = {"x": x_new, "v": v_new}
     for name, array in (("C", C_new), ("F", F_new), ("J", J_new)):
         if getattr(particles, name) is not None:
