@@ -165,3 +165,27 @@ def segment_frame(body, segment, x):
     s = np.einsum("ij,ij->i", r, e) / length2
     h = (r[:, 1] * e[:, 0] - r[:, 0] * e[:, 1]) / np.sqrt(length2)  # r · (-e_y, e_x) / |e|
     return s, h
+
+
+def wheel(center, ring_radius, ring_segments, blade_inner, blade_outer, blades):
+    r"""The sand wheel of Hu et al. 2018 (§7, the 2D sand wheel): a ring and slanted blades, as two polylines.
+
+    The ring is a regular polygon of ``ring_segments`` segments on the circle of radius ``ring_radius``,
+    traversed clockwise, so that its side 0 (left of each segment) is outside and side 1 inside. Blade
+    :math:`i` runs from radius ``blade_inner`` at angle :math:`-i\alpha` to radius ``blade_outer`` at angle
+    :math:`-(i+1)\alpha`, :math:`\alpha = 2\pi/` ``blades`` (slanted by one blade spacing, as in the authors'
+    reference scene).
+
+    Returns ``((ring_vertices, ring_segments), (blade_vertices, blade_segments))`` as lists (TOML-ready).
+    """
+    c = np.asarray(center, dtype=np.float64)
+    phi = -2.0 * np.pi * np.arange(ring_segments) / ring_segments
+    ring = c + ring_radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    ring_segs = np.stack([np.arange(ring_segments), (np.arange(ring_segments) + 1) % ring_segments], axis=1)
+    alpha = 2.0 * np.pi / blades
+    start, end = -alpha * np.arange(blades), -alpha * (np.arange(blades) + 1)
+    inner = c + blade_inner * np.stack([np.cos(start), np.sin(start)], axis=1)
+    outer = c + blade_outer * np.stack([np.cos(end), np.sin(end)], axis=1)
+    blade_vertices = np.stack([inner, outer], axis=1).reshape(-1, 2)
+    blade_segs = np.arange(2 * blades).reshape(blades, 2)
+    return (ring.tolist(), ring_segs.tolist()), (blade_vertices.tolist(), blade_segs.tolist())
