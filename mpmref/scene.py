@@ -641,7 +641,7 @@ def _welds(parsed, declared, grid):
             _fail(path, k, f"a weld of two pinned bodies (set pinned = true on rigid_bodies[{i}] and "
                   f"rigid_bodies[{k}]; welds of free bodies are not built)")
         gap = float(np.linalg.norm(body.center - parsed[k].center))
-        if gap > 1e-9 * grid.dx:
+        if gap > 1e-6 * grid.dx:
             _fail(path, k, f"a body pinned at the same centre (centres of mass {body.center.tolist()} and "
                   f"{parsed[k].center.tolist()} differ by {gap:.3g})")
         if "angular_velocity" in declared[i]:

@@ -189,3 +189,24 @@ def wheel(center, ring_radius, ring_segments, blade_inner, blade_outer, blades):
     blade_vertices = np.stack([inner, outer], axis=1).reshape(-1, 2)
     blade_segs = np.arange(2 * blades).reshape(blades, 2)
     return (ring.tolist(), ring_segs.tolist()), (blade_vertices.tolist(), blade_segs.tolist())
+
+
+def inside_closed(shape, x):
+    """Whether each point of ``x`` (n, 2) is inside the closed polyline ``shape`` (the even-odd rule: a ray from
+    the point towards +x crosses the polyline an odd number of times)."""
+    a, b = shape.starts, shape.ends
+    y = x[:, 1:2]
+    spans = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return np.count_nonzero(spans & (x[:, 0:1] < x_cross), axis=1) % 2 == 1
+
+
+def distance_to_polyline(shape, x):
+    r"""Euclidean distance from each point of ``x`` (n, 2) to the nearest segment of ``shape``:
+    :math:`\min_k |\mathbf x - \mathbf a_k - \mathrm{clamp}(s_k, 0, 1)(\mathbf b_k - \mathbf a_k)|`
+    (:func:`segment_frame`'s edge parameter :math:`s_k`)."""
+    a, b = shape.starts[None], shape.ends[None]
+    e = b - a
+    s = np.clip(np.einsum("nkd,nkd->nk", x[:, None] - a, e) / np.einsum("nkd,nkd->nk", e, e), 0.0, 1.0)
+    return np.linalg.norm(x[:, None] - a - s[..., None] * e, axis=2).min(axis=1)
