@@ -53,7 +53,8 @@ from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.bodies import sample_particles
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.vtk import write_polylines_vtp
-from mpmref.physics.rigid import distance_to_polyline, inside_closed, segment_frame, validate_polyline, wheel
+from mpmref.bench.cpic import add_sand_wheel
+from mpmref.physics.rigid import SAND_WHEEL, distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.physics.rigid_dynamics import current_shapes
 
 from .common import Check, Finding, checks_table
@@ -174,11 +175,7 @@ def friction_scene(params, ghost_force=True):
     return b.time(dt=_dt(params, 1e5, 1000.0), t_end=params.friction_t_end).build()
 
 
-#: the sand wheel (Hu et al. 2018's 2D scene): centre, ring radius and segments, blade radii and count,
-#: shell density, angular damping, and the sand source's centre, radius, velocity and end of emission
-WHEEL = {"center": [0.5, 0.35], "ring_radius": 0.16, "ring_segments": 60, "blade_inner": 0.136, "blade_outer": 0.24,
-         "blades": 18}
-WHEEL_DENSITY, WHEEL_DAMPING, WHEEL_SLIP = 100.0, 2.7, 0.4
+#: the sand wheel's source (Hu et al. 2018's 2D scene): centre, radius, velocity and end of emission; the sand
 SOURCE = {"center": [0.6, 0.64], "radius": 0.05, "velocity": [-1.0, 0.0], "until": 2.5}
 SAND = {"E": 3e4, "nu": 0.3, "rho": 1000.0, "friction_angle": 45.0}
 
@@ -200,13 +197,7 @@ def wheel_scene(params):
          .walls("separate", domain_exit="delete").gravity([0.0, -params.g]))
     b.material("sand", "sand", **SAND)
     b.ball("sand", center=SOURCE["center"], radius=SOURCE["radius"], velocity=SOURCE["velocity"])
-    (ring, ring_segments), (blades, blade_segments) = wheel(**WHEEL)
-    turning = {"motion": "dynamic", "density": WHEEL_DENSITY, "pinned": True, "angular_damping": WHEEL_DAMPING,
-               "type": "slip", "friction": WHEEL_SLIP}
-    b.rigid_body(ring, ring_segments, **turning)
-    b.rigid_body(blades, blade_segments, welded_to=0, **turning)
-    b.rigid_body([[0.03, 0.1], [0.97, 0.1]], [[0, 1]], motion="fixed", type="sticky")
-    data = b.time(dt=dt, t_end=params.wheel_t_end).as_dict()
+    data = add_sand_wheel(b).time(dt=dt, t_end=params.wheel_t_end).as_dict()
     interval = 2.0 * SOURCE["radius"] / np.linalg.norm(SOURCE["velocity"])
     data["emitters"] = [{"material": "sand", "center": SOURCE["center"], "radius": SOURCE["radius"],
                          "velocity": SOURCE["velocity"], "start": interval, "interval": interval,
@@ -230,7 +221,7 @@ def wheel_omega_floor(scene):
     speed = float(np.linalg.norm(source.body.params["velocity"]))
     inertia = sum(b.inertia for b in scene.rigid_bodies if b.motion == "dynamic")
     damping = scene.rigid_bodies[0].angular_damping
-    return 0.1 * mass_rate * speed * WHEEL["blade_outer"] / (damping * inertia)
+    return 0.1 * mass_rate * speed * SAND_WHEEL["blade_outer"] / (damping * inertia)
 
 
 def sand_wheel(params):

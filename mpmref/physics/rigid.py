@@ -167,6 +167,11 @@ def segment_frame(body, segment, x):
     return s, h
 
 
+#: the geometry of Hu et al. 2018's 2D sand wheel (the authors' reference scene), for :func:`wheel`
+SAND_WHEEL = {"center": [0.5, 0.35], "ring_radius": 0.16, "ring_segments": 60, "blade_inner": 0.136,
+              "blade_outer": 0.24, "blades": 18}
+
+
 def wheel(center, ring_radius, ring_segments, blade_inner, blade_outer, blades):
     r"""The sand wheel of Hu et al. 2018 (§7, the 2D sand wheel): a ring and slanted blades, as two polylines.
 
