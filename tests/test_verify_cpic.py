@@ -54,11 +54,12 @@ def _passing(params, impact):
 
 def test_sand_wheel_turns_one_way_and_sand_enters_the_ring_only_at_blade_corners(result):
     """The wheel's check holds (above); the open finding's cause is pinned down: every particle found inside
-    the ring was within one cell of a blade, i.e. it came through a corner where a blade meets the ring."""
+    the ring was within 1.5 cells of a blade when first found there, i.e. it had blade nodes in its stencil
+    (the quadratic stencil's reach): it came through a corner where a blade meets the ring."""
     wheel = result["wheel"]
     h = wheel["history"]
     assert np.all(h[h[:, 0] >= 0.5 * wheel["t_end"], 1] > 0.0)  # counter-clockwise throughout the judged half
-    assert wheel["entry_blade_distance"] <= 1.0
+    assert wheel["entry_blade_distance"] <= 1.5
     assert "sand wheel (open" in " ".join(f.name for f in case.findings(result))
 
 

@@ -587,12 +587,10 @@ def _friction_plot(result, path):
 
 
 def _wheel_plot(result, path):
-    plt = pyplot()
     w = result["wheel"]
-    h = w["history"]
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    h, sign = w["history"], np.sign(w["omega_end"]) or 1.0
+    fig, ax = pyplot().subplots(figsize=(6, 3.5))
     ax.plot(h[:, 0], h[:, 1], "C0-", label="omega of the wheel")
-    sign = np.sign(w["omega_end"]) or 1.0
     ax.axhline(sign * w["floor"], color="k", ls="--", lw=0.8, label="floor (omega*/10)")
     ax.axvspan(0.5 * w["t_end"], w["t_end"], color="0.9", label="last half (judged)")
     ax.set(xlabel="time [s]", ylabel="angular velocity [rad/s]", title="sand wheel")
