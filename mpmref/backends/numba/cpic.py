@@ -28,7 +28,6 @@ particle) stay in NumPy (:func:`mpmref.physics.rigid_dynamics.current_shapes`,
 from dataclasses import dataclass
 from functools import lru_cache
 
-import numba
 import numpy as np
 from numba import njit, prange
 
@@ -682,59 +681,24 @@ def contact(backend, particles, blocks, rigid, dt):
         incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block, backend.blocks_per_axis)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
-                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid,
-                tau=stress_where_incompatible(backend, particles, incompatible), dt=float(dt),
-                ghost_force=bool(scene.method.ghost_force))
+                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
+                dt=float(dt), ghost_force=bool(scene.method.ghost_force))
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
-def stress_where_incompatible(backend, particles, incompatible):
-    """The Kirchhoff stress (n, d, d) of the particles with an incompatible node, zero elsewhere: only they use it
-    outside the plain P2G, which computes its own (:func:`p2g`, :func:`g2p_kernel`)."""
-    n, d = particles.x.shape
-    tau = np.zeros((n, d, d), dtype=particles.x.dtype)
-    rows = np.flatnonzero(incompatible)
-    if rows.size:
-        tau[rows] = backend.stress(particles.select(rows))
-    return tau
-
-
-def subset(order, starts, keep):
-    """The particles of ``order`` (sorted) with ``keep`` set, and the ``starts`` of the same groups among them."""
-    kept_before = np.concatenate([[0], np.cumsum(keep, dtype=np.int64)])
-    return np.ascontiguousarray(order[keep]), np.ascontiguousarray(kept_before[starts])
-
-
 def p2g(backend, particles, blocks, contact):
-    """CPIC P2G: a :class:`~mpmref.state.GridState` with ``rejected_momentum`` and ``rejected_force``.
-
-    The particles whose stencil has no incompatible node (most of them) go through the backend's plain P2G
-    kernel (the stress fused in, slab by slab); the others, added after them, through :func:`p2g_kernel`.
-    Both run in the fixed colour order, so the sums are the same for any thread count.
-    """
+    """CPIC P2G (:func:`p2g_kernel`): a :class:`~mpmref.state.GridState` with ``rejected_momentum`` and
+    ``rejected_force``."""
     spec, N = backend.cfg, backend.scene.grid.n_nodes
     d = particles.dim
-    grid = np.zeros((N, 1 + 2 * d), dtype=backend.dtype)
-    gs = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:],
-                   rejected_momentum=np.zeros((N, d)), rejected_force=np.zeros((N, d)))
-    free = contact.incompatible[blocks.order] == 0
-    order, slab_start = subset(blocks.order, blocks.slab_start, free)
-    chunk = numba.set_parallel_chunksize(1)  # as the plain P2G: slabs hold unequal numbers of particles
-    try:
-        backend._p2g(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d),
-                     backend._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
-                     backend._or_empty(particles.F, 0, d, d), backend._or_empty(particles.J, 0),
-                     backend._or_empty(particles.Jp, 0), particles.material, backend.stress_codes,
-                     backend.stress_params, backend.origin, backend.dx, backend.inertia, backend.strides,
-                     backend.mode_index, order, slab_start, blocks.slabs, blocks.colour_start, grid)
-    finally:
-        numba.set_parallel_chunksize(chunk)
-    order, block_start = subset(blocks.order, blocks.block_start, ~free)
+    gs = GridState(mass=np.zeros(N, dtype=backend.dtype), momentum=np.zeros((N, d), dtype=backend.dtype),
+                   force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
+                   rejected_force=np.zeros((N, d)))
     rigid, cdf = contact.rigid, contact.cdf
     kernel = p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
-           contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, order,
-           block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
+           contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
+           blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
            cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
            rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
            gs.rejected_momentum, gs.rejected_force)
