@@ -130,7 +130,8 @@ class Simulation:
 
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
-        again); ``dt`` must be ``None``.
+        again); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
+        (:func:`mpmref.emitters.emit`).
         """
         synchronous = self.stepper.name == "sync"
         if self.scene.emitters:  # releases due now join before the step (docs/scenes.md, [[emitters]])
