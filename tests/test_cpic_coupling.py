@@ -10,6 +10,8 @@ from mpmref.physics.rigid_dynamics import (area_mass_properties, encode_friction
                                            line_mass_properties, scripted_pose)
 from mpmref.physics.rigid import validate_polyline
 
+from helpers import full_and_resumed_runs
+
 PLATE = {"vertices": [[0.3, 0.4], [0.7, 0.4]], "segments": [[0, 1]]}
 
 
@@ -134,15 +136,7 @@ def test_restart_with_bodies_is_bit_identical(tmp_path):
     scene = builder("mls", {"coupling": "cpic", "penalty": 100.0}, motion="dynamic", density=0.1,
                     vertices=[[0.3, 0.465], [0.7, 0.465]]).time(
         dt=2e-4, steps=6).gravity([0.0, -10.0]).build()
-    full = Simulation(scene, out_dir=tmp_path / "full")
-    full.run()
-    first = Simulation(scene, out_dir=tmp_path / "half")
-    first.run(steps=3)
-    resumed = Simulation.resume(scene, tmp_path / "half")
-    resumed.run()
-    assert resumed.step_count == 6
-    for name, arr in full.particles.arrays().items():
-        assert np.array_equal(arr, getattr(resumed.particles, name)), name
+    full, resumed = full_and_resumed_runs(scene, tmp_path, steps=6, stop_at=3)
     for name, arr in full.state.rigid.arrays().items():
         assert np.array_equal(arr, getattr(resumed.state.rigid, name)), name
     assert full.particles.tag_A.any()  # the tags that were carried over are not trivial
