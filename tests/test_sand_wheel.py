@@ -13,6 +13,8 @@ from mpmref.errors import SceneError
 from mpmref.physics.rigid import distance_to_polyline, inside_closed, validate_polyline, wheel
 from mpmref.physics.rigid_dynamics import apply_impulses, end_step, initial_state
 
+from helpers import full_and_resumed_runs
+
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "sand_wheel2d.toml"
 EMITTER = {"material": "s", "center": [0.5, 0.7], "radius": 0.05, "velocity": [0.0, -1.0], "until": 0.35}
 
@@ -50,22 +52,18 @@ def test_emitter_releases_a_disk_every_interval_with_new_ids():
 def test_a_resumed_run_with_emitters_and_a_turning_wheel_is_bit_identical(tmp_path):
     data = tomllib.loads(EXAMPLE.read_text())
     data["grid"]["cells"] = 32
-    data["time"] = {"dt": 2e-3, "t_end": 0.3}
+    data["time"] = {"dt": 2e-3}
     data["method"]["penalty"] = 500.0
     data["output"] = {"every": 40}
     scene = Scene.from_dict(data)
-    whole = Simulation(scene)
-    whole.run()
-    first = Simulation(scene, out_dir=tmp_path)
-    first.run(steps=80)  # a checkpoint at step 80, after the releases at 0.1 s
-    resumed = Simulation.resume(scene, tmp_path)
-    resumed.run()
-    assert resumed.n_particles == whole.n_particles > first.n_particles - 1
-    for name, array in whole.particles.arrays().items():
-        assert np.array_equal(getattr(resumed.particles, name), array), name
-    for name, array in whole.state.rigid.arrays().items():
+    # stopped at step 80, after the release at 0.1 s; the run goes on past the releases at 0.2 and 0.3 s
+    full, resumed = full_and_resumed_runs(scene, tmp_path, steps=160, stop_at=80)
+    assert resumed.n_particles == full.n_particles == 4 * Simulation(scene).n_particles
+    for name, array in full.state.rigid.arrays().items():
         assert np.array_equal(getattr(resumed.state.rigid, name), array), name
-    assert whole.state.rigid.angular_velocity[0] == whole.state.rigid.angular_velocity[1] != 0.0
+    for name, array in full.state.stepper.items():
+        assert np.array_equal(resumed.state.stepper[name], array), name
+    assert full.state.rigid.angular_velocity[0] == full.state.rigid.angular_velocity[1] != 0.0
 
 
 def test_example_is_the_reference_wheel_pinned_welded_and_fed():
