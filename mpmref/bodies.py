@@ -118,7 +118,7 @@ def sample_particles(scene):
     identity, ``J`` and ``Jp`` at one. Raises
     :class:`~mpmref.errors.SceneError` if a body has particles outside the grid's valid region.
     """
-    dim, dx, dtype = scene.dim, scene.grid.dx, scene.dtype
+    dim, dx = scene.dim, scene.grid.dx
     lo, hi = scene.valid_region()
     names = list(scene.materials)
     parts = {"x": [], "v": [], "mass": [], "vol0": [], "material": [], "C": []}
@@ -139,13 +139,17 @@ def sample_particles(scene):
         parts["mass"].append(np.full(n, volume * material.rho))
         parts["material"].append(np.full(n, names.index(body.material), dtype=np.int32))
         parts["C"].append(np.broadcast_to(grad, (n, dim, dim)))
-    cat = {k: np.concatenate(v) for k, v in parts.items()}
-    n = len(cat["x"])
+    return make_particles(scene, **{k: np.concatenate(v) for k, v in parts.items()})
+
+
+def make_particles(scene, x, v, mass, vol0, material, C):
+    """A :class:`~mpmref.state.Particles` of the scene's dtype with the fields the scene needs: ``C`` (given)
+    for affine schemes, ``F`` at the identity, ``J`` and ``Jp`` at one, PolyPIC's higher modes at zero."""
+    n, dim, dtype = len(x), scene.dim, scene.dtype
     eye = np.eye(dim, dtype=dtype)
     return Particles(
-        x=cat["x"].astype(dtype), v=cat["v"].astype(dtype), mass=cat["mass"].astype(dtype),
-        vol0=cat["vol0"].astype(dtype), material=cat["material"],
-        C=np.ascontiguousarray(cat["C"], dtype=dtype) if scene.transfer.affine else None,  # one kernel layout
+        x=x.astype(dtype), v=v.astype(dtype), mass=mass.astype(dtype), vol0=vol0.astype(dtype), material=material,
+        C=np.ascontiguousarray(C, dtype=dtype) if scene.transfer.affine else None,  # one kernel layout
         F=np.broadcast_to(eye, (n, dim, dim)).copy() if scene.tracks("F") else None,
         J=np.ones(n, dtype=dtype) if scene.tracks("J") else None,
         Jp=np.ones(n, dtype=dtype) if scene.tracks("Jp") else None,

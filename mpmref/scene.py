@@ -8,7 +8,7 @@ import copy
 import json
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -40,7 +40,7 @@ AXES = "xyz"
 STEPPINGS = ("sync", "async")
 
 TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "colliders", "gravity", "boundary", "time",
-            "output", "name", "rigid_bodies"}
+            "output", "name", "rigid_bodies", "emitters"}
 COUPLINGS = ("none", "cpic")
 #: schemes CPIC is defined for (docs/cpic.md are written for PIC, APIC and MLS-MPM)
 CPIC_SCHEMES = ("pic", "apic", "mls")
@@ -48,10 +48,12 @@ RIGID_COMMON_KEYS = {"vertices", "segments", "closed", "motion", "type", "fricti
 #: the same in 3D: a triangle mesh inline (vertices, triangles) or from a file read by meshio (mesh)
 RIGID_COMMON_KEYS_3D = {"vertices", "triangles", "mesh", "closed", "motion", "type", "friction"}
 #: keys each rigid-body motion accepts besides the common ones
+#: dynamic-body keys of the 2D sand wheel (a pin, angular damping, welds) that 3D bodies do not have yet
+PINNED_KEYS_2D = {"pinned", "angular_damping", "welded_to"}
 RIGID_MOTION_KEYS = {
     "fixed": set(),
     "scripted": {"velocity", "angular_velocity", "center", "keyframes"},
-    "dynamic": {"density", "velocity", "angular_velocity", "gravity"},
+    "dynamic": {"density", "velocity", "angular_velocity", "gravity", "pinned", "angular_damping", "welded_to"},
 }
 COLLIDER_SHAPES = ("plane", "box", "disk", "sphere", "cylinder")
 MATERIAL_KEYS = {
@@ -61,6 +63,8 @@ MATERIAL_KEYS = {
     "snow": {"type", "E", "nu", "rho", "theta_c", "theta_s", "hardening", "Jp_min", "Jp_max"},
     "sand": {"type", "E", "nu", "rho", "friction_angle", "cohesion"},
 }
+EMITTER_KEYS = {"shape", "material", "center", "radius", "velocity", "ppc", "sampling", "seed", "start", "interval",
+                "until"}
 BODY_KEYS = {
     "shape", "material", "lower", "upper", "center", "radius", "positions", "file", "ppc", "sampling",
     "seed", "count", "particle_volume", "velocity", "angular_velocity", "rotation_center",
@@ -214,6 +218,22 @@ class BodySpec:
     params: dict
 
 
+@dataclass(frozen=True)
+class EmitterSpec:
+    """A particle source (``[[emitters]]``): a disk (2D) or sphere (3D) of material released again and again.
+
+    ``body`` is the release as a body at time 0 (sampled by :func:`mpmref.bodies.sample_body`); a release
+    is made at the first step that starts at or after each time ``start + k interval`` before ``until``
+    (:mod:`mpmref.emitters`).
+    """
+
+    index: int
+    body: BodySpec
+    start: float
+    interval: float
+    until: float
+
+
 @dataclass
 class Scene:
     """A validated scene. Build with :meth:`from_toml`, :meth:`from_dict` or :class:`SceneBuilder`."""
@@ -233,6 +253,7 @@ class Scene:
     source: dict = field(repr=False)
     base_dir: Path = field(default_factory=Path.cwd, repr=False)
     rigid_bodies: list = field(default_factory=list)  # RigidBody objects (CPIC coupling)
+    emitters: list = field(default_factory=list)  # EmitterSpec objects
 
     @cached_property
     def transfer(self):
@@ -265,6 +286,7 @@ class Scene:
         time = _parse_time(data.get("time", {}))
         rigid_bodies = _parse_rigid_bodies(data.get("rigid_bodies", []), dim, grid, method, time, base_dir)
         output = _parse_output(data.get("output", {}))
+        emitters = _parse_emitters(data.get("emitters", []), dim, materials, grid, get_kernel(method.kernel), time)
         limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
                                    "transfer": resolve(method, dim, list(materials.values())),
                                    "bodies": bodies, "colliders": colliders,
@@ -275,7 +297,8 @@ class Scene:
             _fail("name", name, "a non-empty string without path separators")
         return cls(name=name, dim=dim, dtype=dtype, grid=grid, method=method, materials=materials,
                    bodies=bodies, colliders=colliders, gravity=gravity, boundary=boundary, time=time, output=output,
-                   source=data, base_dir=Path(base_dir) if base_dir else Path.cwd(), rigid_bodies=rigid_bodies)
+                   source=data, base_dir=Path(base_dir) if base_dir else Path.cwd(), rigid_bodies=rigid_bodies,
+                   emitters=emitters)
 
     # ------------------------------------------------------------------------------- derived
     @property
@@ -519,7 +542,7 @@ def _parse_rigid_bodies(bodies, dim, grid, method, time, base_dir=None):
               "step)")
     if dim == 3:
         return [_parse_rigid_body3d(b, i, grid, base_dir) for i, b in enumerate(bodies)]
-    return [_parse_rigid_body(b, i, grid) for i, b in enumerate(bodies)]
+    return _welds([_parse_rigid_body(b, i, grid) for i, b in enumerate(bodies)], bodies, grid)
 
 
 def _parse_rigid_body(b, i, grid):
@@ -553,6 +576,8 @@ def _parse_rigid_body3d(b, i, grid, base_dir):
     if not isinstance(b, dict):
         _fail(path, b, "a table")
     motion = _choice(b, "motion", path, MOTIONS, default="fixed")
+    for key in PINNED_KEYS_2D & set(b):
+        _fail(f"{path}.{key}", b[key], "absent in 3D (pinned, damped and welded bodies are 2D only for now)")
     _section(b, path, RIGID_COMMON_KEYS_3D | RIGID_MOTION_KEYS[motion])
     closed = b.get("closed", False)
     if not isinstance(closed, bool):
@@ -661,9 +686,87 @@ def _dynamic(b, path, shape):
         mass, center, inertia = area_mass_properties(shape, density)
     else:
         mass, center, inertia = line_mass_properties(shape, density)
-    return {"mass": mass, "center": center, "inertia": inertia, "gravity": gravity,
+    pinned = b.get("pinned", False)
+    if not isinstance(pinned, bool):
+        _fail(f"{path}.pinned", pinned, "true or false")
+    if pinned and "velocity" in b:
+        _fail(f"{path}.velocity", b["velocity"], "absent for a pinned body (its centre of mass does not move)")
+    return {"mass": mass, "center": center, "inertia": inertia, "gravity": gravity, "pinned": pinned,
             "velocity": _vector(b, "velocity", path, 2, default=[0.0, 0.0]),
-            "angular_velocity": _number(b, "angular_velocity", path, default=0.0)}
+            "angular_velocity": _number(b, "angular_velocity", path, default=0.0),
+            "angular_damping": _number(b, "angular_damping", path, default=0.0, lo=0.0),
+            "welded_to": _integer(b, "welded_to", path, default=-1, lo=0)}
+
+
+def _welds(parsed, declared, grid):
+    """Check each ``welded_to`` (a pinned body turning with an earlier, unwelded pinned body about the same
+    centre) and give a welded body its root's initial angular velocity."""
+    out = list(parsed)
+    for i, body in enumerate(parsed):
+        k = body.welded_to
+        if k < 0:
+            continue
+        path = f"rigid_bodies[{i}].welded_to"
+        if k >= i or parsed[k].motion != "dynamic" or parsed[k].welded_to >= 0:
+            _fail(path, k, f"the index of an earlier dynamic body that is not itself welded (0 .. {i - 1})")
+        if not (body.pinned and parsed[k].pinned):
+            _fail(path, k, f"a weld of two pinned bodies (set pinned = true on rigid_bodies[{i}] and "
+                  f"rigid_bodies[{k}]; welds of free bodies are not built)")
+        gap = float(np.linalg.norm(body.center - parsed[k].center))
+        if gap > 1e-6 * grid.dx:
+            _fail(path, k, f"a body pinned at the same centre (centres of mass {body.center.tolist()} and "
+                  f"{parsed[k].center.tolist()} differ by {gap:.3g})")
+        if "angular_velocity" in declared[i]:
+            _fail(f"rigid_bodies[{i}].angular_velocity", declared[i]["angular_velocity"],
+                  "absent on a welded body (it turns with the body it is welded to)")
+        out[i] = replace(body, angular_velocity=parsed[k].angular_velocity)
+    return out
+
+
+def _parse_emitters(emitters, dim, materials, grid, kernel, time):
+    """The ``[[emitters]]``: validated particle sources (synchronous stepping only; docs/scenes.md)."""
+    if not isinstance(emitters, list):
+        _fail("emitters", emitters, "an array of tables, e.g. [[emitters]]")
+    if emitters and time.stepping != "sync":
+        _fail("time.stepping", time.stepping, "'sync' in a scene with [[emitters]] (particles are added between "
+              "synchronous steps)")
+    return [_parse_emitter(e, i, dim, materials, grid, kernel, time) for i, e in enumerate(emitters)]
+
+
+def _parse_emitter(e, i, dim, materials, grid, kernel, time):
+    path = f"emitters[{i}]"
+    _section(e, path, EMITTER_KEYS)
+    shape = "disk" if dim == 2 else "sphere"
+    _choice(e, "shape", path, (shape,), default=shape)
+    p = {"material": _choice(e, "material", path, tuple(materials), required=True),
+         "center": _vector(e, "center", path, dim, required=True),
+         "radius": _number(e, "radius", path, required=True, lo=0.0, lo_open=True),
+         "velocity": _vector(e, "velocity", path, dim, required=True),
+         "ppc": _integer(e, "ppc", path, default=2**dim, lo=1, hi=64),
+         "sampling": _choice(e, "sampling", path, SAMPLINGS, default="regular"),
+         "seed": _integer(e, "seed", path, default=0, lo=0), "count": None, "particle_volume": None,
+         "angular_velocity": 0.0 if dim == 2 else np.zeros(3), "rotation_center": None}
+    if p["sampling"] == "regular" and round(p["ppc"] ** (1.0 / dim)) ** dim != p["ppc"]:
+        _fail(f"{path}.ppc", p["ppc"], f"a perfect {'square' if dim == 2 else 'cube'} for regular sampling")
+    lo = grid.origin + kernel.low_margin * grid.dx
+    hi = grid.origin + (np.array(grid.cells) - kernel.high_margin) * grid.dx
+    if np.any(p["center"] - p["radius"] < lo) or np.any(p["center"] + p["radius"] >= hi):
+        _fail(f"{path}.center", p["center"].tolist(), f"a {shape} of radius {p['radius']} inside the grid's valid "
+              f"region {lo.tolist()} .. {hi.tolist()}")
+    speed = float(np.linalg.norm(p["velocity"]))
+    if speed == 0.0:
+        _fail(f"{path}.velocity", p["velocity"].tolist(), "a nonzero velocity (releases at rest would overlap)")
+    clear = 2.0 * p["radius"] / speed
+    interval = _number(e, "interval", path, default=clear, lo=0.0, lo_open=True)
+    if interval < clear * (1.0 - 1e-12):
+        _fail(f"{path}.interval", interval, f"at least 2 radius / |velocity| = {clear:.6g} s (a release must have "
+              "cleared the previous one, which moved interval |velocity| since)")
+    if time.dt is not None and interval < time.dt:
+        _fail(f"{path}.interval", interval, f"at least time.dt = {time.dt} (one release per step)")
+    start = _number(e, "start", path, default=0.0, lo=0.0)
+    until = _number(e, "until", path, required=True, lo=start, lo_open=True)
+    body = BodySpec(index=i, shape=shape, material=p.pop("material"), params=p)
+    return EmitterSpec(index=i, body=body, start=start, interval=interval, until=until)
 
 
 def _parse_colliders(colliders, dim):

@@ -9,6 +9,7 @@ from .backends import make_backend
 from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
 from .domain import apply_domain_exit, outside
+from .emitters import emit, release_template, with_emitters
 from .errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from .io.run_output import RunOutput
 from .physics.materials import material_groups
@@ -49,7 +50,9 @@ class Simulation:
         self.scene = scene
         self.backend = make_backend(backend, scene)
         self.stepper = make_stepper(scene, self.backend, hooks)
-        self.state = self.stepper.initial_state(particles if particles is not None else sample_particles(scene))
+        state = self.stepper.initial_state(particles if particles is not None else sample_particles(scene))
+        self.state = with_emitters(scene, state)
+        self._releases = [release_template(scene, e) for e in scene.emitters]
         self.output = RunOutput(out_dir, scene) if out_dir is not None else None
         self.last_dt = None
         self.last_updates = 0
@@ -128,9 +131,12 @@ class Simulation:
 
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
-        again); ``dt`` must be ``None``.
+        again); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
+        (:func:`mpmref.emitters.emit`).
         """
         synchronous = self.stepper.name == "sync"
+        if self.scene.emitters:  # releases due now join before the step (docs/scenes.md, [[emitters]])
+            self.state = emit(self.scene, self.state, self._releases)
         if synchronous and self.step_count == 0:
             first_dt = dt if dt is not None else self.stepper.time_step(self.particles)
             warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, first_dt))

@@ -91,8 +91,8 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
     out, err = capsys.readouterr()
-    for i, section in enumerate(("table2", "throughput", "stages", "scaling"), 1):
-        assert f"[{i}/4] {section}: started" in err and f"[{i}/4] {section}: finished in " in err
+    for i, section in enumerate(("table2", "throughput", "stages", "scaling", "cpic"), 1):
+        assert f"[{i}/5] {section}: started" in err and f"[{i}/5] {section}: finished in " in err
     assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
@@ -133,6 +133,14 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
         assert sum(r["stages_s"].values()) <= r["step_s"]
     assert results["scaling"]["sizes"] == [] and results["scaling"]["threads"] == []  # compiled backends only
 
+    cpic = results["cpic"]
+    assert cpic["case"]["bodies"] == 3 and cpic["case"]["segments"] == 60 + 18 + 1 and cpic["goal"] == 1.5
+    (record,) = cpic["results"]
+    assert record["particles"] == cpic["case"]["particles"] and TIMING_KEYS <= set(record["coupled"])
+    assert record["ratio"] == pytest.approx(record["coupled"]["median_s"] / record["plain"]["median_s"])
+    assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
+    assert "CPIC: a step with 3 bodies" in out
+
 
 def test_table2_ratios_divide_mpm_by_mls():
     def timings(mls_p2g):
@@ -148,7 +156,9 @@ def test_table2_ratios_divide_mpm_by_mls():
 
 
 def test_options_from_the_command_line():
-    assert options_from_args(parse(["--vs", "taichi"])).sections == ("table2", "throughput", "stages", "scaling", "peer")
+    assert options_from_args(parse(["--vs", "taichi"])).sections == ("table2", "throughput", "stages", "scaling", "cpic",
+                                                                    "peer")
+    assert options_from_args(parse(["--only", "cpic"])).sections == ("cpic",)
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
     assert opts.dtypes == ("float32",) and opts.threads == (1, 2, 4) and opts.table2_cells == 100
@@ -264,3 +274,16 @@ def test_numba_stages_and_scaling_records_are_consistent():
     for r in scaling["sizes"]:
         assert r["ns_per_particle_step"] == pytest.approx(1e9 * r["median_s"] / r["particles"])
     assert [r["speedup_over_1"] for r in scaling["threads"]] == [1.0]
+
+
+def test_cpic_bench_steps_the_same_sand_outside_the_ring_with_and_without_the_bodies():
+    from mpmref.bench.cpic import bed_particles, wheel_bed_scene
+    from mpmref.physics.rigid import SAND_WHEEL
+
+    coupled, plain = wheel_bed_scene(32), wheel_bed_scene(32, bodies=False)
+    assert len(coupled.rigid_bodies) == 3 and plain.rigid_bodies == [] and plain.method.coupling == "none"
+    assert coupled.rigid_bodies[1].welded_to == 0 and coupled.time.dt == plain.time.dt
+    x = bed_particles(coupled).x
+    np.testing.assert_array_equal(x, bed_particles(plain).x)
+    radius = np.linalg.norm(x - SAND_WHEEL["center"], axis=1)
+    assert radius.min() > SAND_WHEEL["ring_radius"] * np.cos(np.pi / SAND_WHEEL["ring_segments"])  # none inside

@@ -41,6 +41,8 @@ def builder(method=None, steps=4, **body):
     ({"segments": [[0, 1]]}, "rigid_bodies[0].segments", "known keys"),
     ({"mesh": "blade.stl"}, "rigid_bodies[0].triangles", "absent when mesh"),
     ({"friction": [0.3, -1.0]}, "rigid_bodies[0].friction", ">= 0"),
+    ({"motion": "dynamic", "density": 1.0, "pinned": True}, "rigid_bodies[0].pinned", "2D only"),
+    ({"motion": "dynamic", "density": 1.0, "angular_damping": 1.0}, "rigid_bodies[0].angular_damping", "2D only"),
 ])
 def test_3d_rigid_body_refusals_name_the_field(body, field, words):
     assert_refused(builder(**body).as_dict(), field, words)
@@ -163,3 +165,4 @@ def test_restart_and_outputs_with_a_3d_body(tmp_path):
     mesh = pv.read(tmp_path / "full" / "rigid_bodies_000004.vtp")
     assert mesh.n_cells == 2 and np.allclose(mesh.points[:, 1], 0.4 + 0.5 * 4e-3)
     assert "rigid0_omega_y" in (tmp_path / "full" / "diagnostics.csv").read_text().splitlines()[0]
+

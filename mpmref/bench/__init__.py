@@ -19,6 +19,9 @@ Sections of the JSON document (each ``null`` when not run):
   per stage, ``stress_inside_p2g``, ``stress_alone_s``; :mod:`mpmref.bench.stages`).
 * ``scaling``: ``sizes`` (dim, cells, particles, a timing record, ``ns_per_particle_step``) and ``threads``
   (the 262 144-particle 2D case at each thread count, ``speedup_over_1``).
+* ``cpic``: ``case`` (cells, particles, bodies, segments, dt, steps), ``goal`` and ``results`` (backend,
+  threads, dtype, particles, ``coupled`` and ``plain`` timings of whole steps with and without the rigid
+  bodies, ``ratio``, ``coupled_stages_s``; :mod:`mpmref.bench.cpic`).
 * ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``
   (case, particles, threads, backend, ``mpmref`` and ``taichi`` timings, ``ratio``,
   ``mean_position_difference``, ``bound``, ``free_flight``, ``agree``; :mod:`mpmref.bench.peer`).
@@ -37,6 +40,7 @@ from importlib import metadata
 from ..backends import BACKENDS
 from ..io.atomic import write_text_atomic
 from .asynchronous import run_async
+from .cpic import run_cpic
 from .peer import run_peer
 from .report import RENDERERS
 from .scenes import peer_cases, table2_cells, throughput_cases
@@ -49,8 +53,8 @@ SCHEMA = "mpmref-bench/1"
 DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
                "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
                "compilation is reported apart. See docs/performance.md.")
-SECTIONS = ("table2", "throughput", "stages", "scaling", "peer", "async")
-DEFAULT_SECTIONS = ("table2", "throughput", "stages", "scaling")
+SECTIONS = ("table2", "throughput", "stages", "scaling", "peer", "async", "cpic")
+DEFAULT_SECTIONS = ("table2", "throughput", "stages", "scaling", "cpic")
 DEFAULT_PARTICLES = 1_000_000
 QUICK_PARTICLES = 4096
 FULL_CELLS = 100
@@ -140,6 +144,10 @@ def _stages(o, log):
     return run_stages(throughput_cases(o.quick), o.backends, o.threads, o.dtypes, o.steps, log)
 
 
+def _cpic(o, log):
+    return run_cpic(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
+
+
 def _scaling(o, log):
     section = run_scaling(o.backends, o.threads, o.dtypes, o.repeats, o.steps, o.full, o.quick, log)
     if o.plot:
@@ -148,7 +156,7 @@ def _scaling(o, log):
 
 
 SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "stages": _stages, "scaling": _scaling,
-                   "peer": _peer, "async": _async}
+                   "peer": _peer, "async": _async, "cpic": _cpic}
 
 
 def environment():

@@ -35,15 +35,17 @@ THREAD_CASE = "large2d"
 
 
 class TimedStages:
-    """A backend whose stage methods add their wall time to ``seconds[stage]`` (everything else passes through)."""
+    """A backend whose stage methods (``names``, default the standard stages) add their wall time to
+    ``seconds[stage]`` (everything else passes through)."""
 
-    def __init__(self, backend):
+    def __init__(self, backend, names=STAGES):
         self._backend = backend
+        self._names = names
         self.seconds = {}
 
     def __getattr__(self, name):
         attr = getattr(self._backend, name)
-        if name not in STAGES:
+        if name not in self._names:
             return attr
 
         def timed(*args, **kwargs):

@@ -165,3 +165,53 @@ def segment_frame(body, segment, x):
     s = np.einsum("ij,ij->i", r, e) / length2
     h = (r[:, 1] * e[:, 0] - r[:, 0] * e[:, 1]) / np.sqrt(length2)  # r · (-e_y, e_x) / |e|
     return s, h
+
+
+#: the geometry of Hu et al. 2018's 2D sand wheel (the authors' reference scene), for :func:`wheel`
+SAND_WHEEL = {"center": [0.5, 0.35], "ring_radius": 0.16, "ring_segments": 60, "blade_inner": 0.136,
+              "blade_outer": 0.24, "blades": 18}
+
+
+def wheel(center, ring_radius, ring_segments, blade_inner, blade_outer, blades):
+    r"""The sand wheel of Hu et al. 2018 (§7, the 2D sand wheel): a ring and slanted blades, as two polylines.
+
+    The ring is a regular polygon of ``ring_segments`` segments on the circle of radius ``ring_radius``,
+    traversed clockwise, so that its side 0 (left of each segment) is outside and side 1 inside. Blade
+    :math:`i` runs from radius ``blade_inner`` at angle :math:`-i\alpha` to radius ``blade_outer`` at angle
+    :math:`-(i+1)\alpha`, :math:`\alpha = 2\pi/` ``blades`` (slanted by one blade spacing, as in the authors'
+    reference scene).
+
+    Returns ``((ring_vertices, ring_segments), (blade_vertices, blade_segments))`` as lists (TOML-ready).
+    """
+    c = np.asarray(center, dtype=np.float64)
+    phi = -2.0 * np.pi * np.arange(ring_segments) / ring_segments
+    ring = c + ring_radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    ring_segs = np.stack([np.arange(ring_segments), (np.arange(ring_segments) + 1) % ring_segments], axis=1)
+    alpha = 2.0 * np.pi / blades
+    start, end = -alpha * np.arange(blades), -alpha * (np.arange(blades) + 1)
+    inner = c + blade_inner * np.stack([np.cos(start), np.sin(start)], axis=1)
+    outer = c + blade_outer * np.stack([np.cos(end), np.sin(end)], axis=1)
+    blade_vertices = np.stack([inner, outer], axis=1).reshape(-1, 2)
+    blade_segs = np.arange(2 * blades).reshape(blades, 2)
+    return (ring.tolist(), ring_segs.tolist()), (blade_vertices.tolist(), blade_segs.tolist())
+
+
+def inside_closed(shape, x):
+    """Whether each point of ``x`` (n, 2) is inside the closed polyline ``shape`` (the even-odd rule: a ray from
+    the point towards +x crosses the polyline an odd number of times)."""
+    a, b = shape.starts, shape.ends
+    y = x[:, 1:2]
+    spans = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return np.count_nonzero(spans & (x[:, 0:1] < x_cross), axis=1) % 2 == 1
+
+
+def distance_to_polyline(shape, x):
+    r"""Euclidean distance from each point of ``x`` (n, 2) to the nearest segment of ``shape``:
+    :math:`\min_k |\mathbf x - \mathbf a_k - \mathrm{clamp}(s_k, 0, 1)(\mathbf b_k - \mathbf a_k)|`
+    (:func:`segment_frame`'s edge parameter :math:`s_k`)."""
+    a, b = shape.starts[None], shape.ends[None]
+    e = b - a
+    s = np.clip(np.einsum("nkd,nkd->nk", x[:, None] - a, e) / np.einsum("nkd,nkd->nk", e, e), 0.0, 1.0)
+    return np.linalg.norm(x[:, None] - a - s[..., None] * e, axis=2).min(axis=1)

@@ -50,6 +50,10 @@ class RigidBody:
     keyframes : tuple           scripted keyframes ``(time, offset (2,), angle)``, sorted; empty if none
     gravity : bool              a dynamic body feels the scene's gravity
     friction : (2,) array       the encoded friction value :math:`\\mu` of side 0 and side 1 (:func:`encode_friction`)
+    pinned : bool               a dynamic body whose centre of mass is held fixed: it only turns (infinite mass,
+                                finite inertia; the reference code's constant scripted position)
+    angular_damping : float     :math:`c` of :math:`\\dot\\omega = -c\\,\\omega` (1/s; :func:`damp_and_weld`)
+    welded_to : int             the body this pinned body turns with (same centre, one angular velocity), or -1
 
     A 3D body (shape a :class:`~mpmref.physics.trimesh.TriMesh`) has ``center``, ``velocity`` and
     ``angular_velocity`` of shape (3,), ``inertia`` the (3, 3) tensor about the centre in the declared pose,
@@ -66,6 +70,9 @@ class RigidBody:
     keyframes: tuple = ()
     gravity: bool = False
     friction: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    pinned: bool = False
+    angular_damping: float = 0.0
+    welded_to: int = -1
 
 
 @dataclass
@@ -278,37 +285,66 @@ def apply_impulses(bodies, state, J, L):
 
     .. math:: \mathbf v_r \mathrel{+}= \mathbf J_r / M_r, \qquad \omega_r \mathrel{+}= L_r / I_r
 
-    (docs/cpic.md). Fixed and scripted bodies have infinite mass: they only record what they received.
+    (docs/cpic.md). Fixed and scripted bodies have infinite mass: they only record what they received. A
+    pinned body's linear impulse goes to its pin (:math:`1/M_r = 0`); welded bodies then share one angular
+    velocity (:func:`weld`).
     """
     if _in_3d(bodies):
         return rigid_dynamics3d.apply_impulses(bodies, state, J, L)
-    inv_m = np.array([1.0 / b.mass for b in bodies])
+    inv_m = np.array([0.0 if b.pinned else 1.0 / b.mass for b in bodies])
     inv_i = np.array([1.0 / b.inertia for b in bodies])
     return state.with_(velocity=state.velocity + J * inv_m[:, None],
-                       angular_velocity=state.angular_velocity + L * inv_i,
+                       angular_velocity=weld(bodies, state.angular_velocity + L * inv_i),
                        impulse=state.impulse + J, angular_impulse=state.angular_impulse + L)
+
+
+def weld(bodies, omega):
+    r"""The angular velocities ``omega`` (nb,) with every group of welded bodies turning as one.
+
+    Pinned bodies welded at a common centre form one rigid body of inertia :math:`\sum_r I_r`; its angular
+    velocity keeps their total angular momentum about the centre,
+
+    .. math:: \omega_G = \frac{\sum_{r \in G} I_r \omega_r}{\sum_{r \in G} I_r}.
+
+    This is the reference implementation's rotation articulation (Hu et al. 2018's sand wheel joins its
+    blades to its ring so; docs/cpic.md), which for two bodies pinned at one point is a weld.
+    """
+    roots = np.array([r if b.welded_to < 0 else b.welded_to for r, b in enumerate(bodies)], dtype=np.int64)
+    out = omega
+    for root in np.unique(roots[roots != np.arange(len(bodies))]):
+        group = np.nonzero(roots == root)[0]
+        inertia = np.array([bodies[r].inertia for r in group])
+        out = out.copy()
+        out[group] = np.sum(inertia * omega[group]) / np.sum(inertia)
+    return out
 
 
 def end_step(bodies, state, time, dt, gravity):
     r"""Move every body to ``time + dt`` (docs/cpic.md, the rigid step after G2P).
 
     Dynamic: :math:`\mathbf c \mathrel{+}= \Delta t\,\mathbf v`, :math:`\theta \mathrel{+}= \Delta t\,\omega`,
-    then the gravity impulse :math:`\mathbf v \mathrel{+}= \mathbf g \Delta t` (if the body feels gravity).
+    then the gravity impulse :math:`\mathbf v \mathrel{+}= \mathbf g \Delta t` (if the body feels gravity; a
+    pinned body's centre stays), then the angular damping :math:`\omega \mathrel{*}= e^{-c\Delta t}` (the exact
+    decay of :math:`\dot\omega = -c\,\omega` over the step) and the welds (:func:`weld`).
     Scripted: the script's pose at ``time + dt``. Fixed: unchanged.
     """
     if _in_3d(bodies):
         return rigid_dynamics3d.end_step(bodies, state, time, dt, gravity)
     position, angle, velocity = state.position.copy(), state.angle.copy(), state.velocity.copy()
+    omega = state.angular_velocity.copy()
     for r, body in enumerate(bodies):
         if body.motion == "dynamic":
+            angle[r] += dt * omega[r]
+            omega[r] *= np.exp(-body.angular_damping * dt)
+            if body.pinned:
+                continue
             position[r] += dt * velocity[r]
-            angle[r] += dt * state.angular_velocity[r]
             if body.gravity:
                 velocity[r] += dt * gravity
         elif body.motion == "scripted":
             offset, angle[r] = scripted_pose(body, time + dt)
             position[r] = body.center + offset
-    return state.with_(position=position, angle=angle, velocity=velocity)
+    return state.with_(position=position, angle=angle, velocity=velocity, angular_velocity=weld(bodies, omega))
 
 
 def momentum(bodies, state):
