@@ -71,13 +71,15 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
     (``fastmath={"contract"}``, no other fast-math licence: still IEEE operations, one rounding fewer).
     """
     SOURCES = SOURCE_DIGEST
+    CORNERS = 2**DIM  # an owner block and its upper neighbours (see .sparse)
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
-            strides, mode_index, order, slab_start, slabs, colour_start, grid):
+            block, slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         inv_dx = 1.0 / dx
         T = grid.dtype.type
+        block_nodes = block**DIM
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
             for si in prange(colour_start[colour + 1] - first):
@@ -88,6 +90,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                 qnorm = np.empty((DIM if POLY else 0, S))
                 w_arr = np.empty((DIM if POLY else 0, S))
                 fx_arr = np.empty(DIM if POLY else 0)
+                corner = np.empty(CORNERS, np.int64)
                 for k in range(slab_start[slab], slab_start[slab + 1]):
                     p = order[k]
                     mat = material[p]
@@ -105,7 +108,12 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                     g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
                     v0, v1 = cast(w0, T, S), cast(w1, T, S)
                     if DIM == 2:
-                        base = b0 * strides[0] + b1 * strides[1]
+                        o0, o1 = b0 // block, b1 // block  # the owner block
+                        l0, l1 = b0 - o0 * block, b1 - o1 * block
+                        c0, c1 = corner_bits(l0, block, 2, S), corner_bits(l1, block, 1, S)
+                        r0, r1 = local_rows(l0, block, block, S), local_rows(l1, block, 1, S)
+                        corner_rows(slot_of, o0 * table_strides[0] + o1 * table_strides[1], table_strides,
+                                    block_nodes, corner)
                         if POLY:
                             for j in range(S):
                                 w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
@@ -116,12 +124,18 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                                 w = v0[i] * v1[j]
                                 d = (d0[i], d1[j])
                                 fw = (w * d[0], w * d[1]) if MLS else (g0[i] * v1[j], g1[j] * v0[i])
-                                p2g_node(grid, base + i * strides[0] + j * strides[1], w, d, fw, (i, j), m, mv, mC,
+                                p2g_node(grid, corner[c0[i] + c1[j]] + r0[i] + r1[j], w, d, fw, (i, j), m, mv, mC,
                                          Q, p, modes, q, mode_index, AFFINE, POLY)
                     else:
                         b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                         d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
-                        base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
+                        o0, o1, o2 = b0 // block, b1 // block, b2 // block  # the owner block
+                        l0, l1, l2 = b0 - o0 * block, b1 - o1 * block, b2 - o2 * block
+                        c0, c1, c2 = corner_bits(l0, block, 4, S), corner_bits(l1, block, 2, S), corner_bits(l2, block, 1, S)
+                        r0, r1 = local_rows(l0, block, block * block, S), local_rows(l1, block, block, S)
+                        r2 = local_rows(l2, block, 1, S)
+                        corner_rows(slot_of, o0 * table_strides[0] + o1 * table_strides[1] + o2 * table_strides[2],
+                                    table_strides, block_nodes, corner)
                         if POLY:
                             for j in range(S):
                                 w_arr[0, j], w_arr[1, j], w_arr[2, j] = w0[j], w1[j], w2[j]
@@ -137,10 +151,54 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                                         fw = (w * d[0], w * d[1], w * d[2])
                                     else:
                                         fw = (g0[i] * v1[j] * v2[l], g1[j] * v0[i] * v2[l], g2[l] * w01)
-                                    p2g_node(grid, base + i * strides[0] + j * strides[1] + l * strides[2], w, d,
+                                    p2g_node(grid, corner[c0[i] + c1[j] + c2[l]] + r0[i] + r1[j] + r2[l], w, d,
                                              fw, (i, j, l), m, mv, mC, Q, p, modes, q, mode_index, AFFINE, POLY)
 
     return p2g
+
+
+@njit(cache=True, inline="always")
+def corner_bits(local_base, block, bit, S):
+    """Per stencil node ``k = 0 .. S-1`` of one axis whose base node lies ``local_base`` nodes into its block:
+    ``bit`` where node ``k`` lies in the next block along the axis, else 0 (a tuple; see :func:`corner_rows`)."""
+    if S == 2:
+        return (bit * (local_base >= block), bit * (local_base + 1 >= block))
+    if S == 3:
+        return (bit * (local_base >= block), bit * (local_base + 1 >= block), bit * (local_base + 2 >= block))
+    return (bit * (local_base >= block), bit * (local_base + 1 >= block), bit * (local_base + 2 >= block),
+            bit * (local_base + 3 >= block))
+
+
+@njit(cache=True, inline="always")
+def wrapped(local, block):
+    """A node's index within its block, for a ``local`` index of at most ``2 block - 1`` past the owner's start."""
+    return local - block if local >= block else local
+
+
+@njit(cache=True, inline="always")
+def local_rows(local_base, block, row_stride, S):
+    """Per stencil node of one axis (a tuple of ``S``): its index within its block times ``row_stride``, the
+    block's row stride along the axis (:math:`B^{d-1-a}`)."""
+    if S == 2:
+        return (wrapped(local_base, block) * row_stride, wrapped(local_base + 1, block) * row_stride)
+    if S == 3:
+        return (wrapped(local_base, block) * row_stride, wrapped(local_base + 1, block) * row_stride,
+                wrapped(local_base + 2, block) * row_stride)
+    return (wrapped(local_base, block) * row_stride, wrapped(local_base + 1, block) * row_stride,
+            wrapped(local_base + 2, block) * row_stride, wrapped(local_base + 3, block) * row_stride)
+
+
+@njit(cache=True, inline="always")
+def corner_rows(slot_of, owner_entry, table_strides, block_nodes, corner):
+    """First row of the owner block (table entry ``owner_entry``) and of its :math:`2^d - 1` upper neighbours:
+    ``corner[c]``, bit ``d - 1 - a`` of ``c`` set for the neighbour one block up along axis ``a``."""
+    d = table_strides.shape[0]
+    for c in range(corner.shape[0]):
+        t = owner_entry
+        for a in range(d):
+            if (c >> (d - 1 - a)) & 1:
+                t += table_strides[a]
+        corner[c] = slot_of[t] * block_nodes
 
 
 @njit(parallel=True, cache=True)
@@ -253,11 +311,13 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
+    CORNERS = 2**DIM
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde, x_new, v_new,
-            C_new, F_new, J_new, modes_new):
+    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, block, slot_of, table_strides, mode_index, v_grid,
+            v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
+        block_nodes = block**DIM
         n_modes = mode_index.shape[0]
         T = x_new.dtype.type
         inv_dx = 1.0 / dx
@@ -268,6 +328,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
             w_arr = np.empty((DIM, S))
             fx_arr = np.empty(DIM)
             acc = np.empty((max(n_modes, 1), DIM))
+            corner = np.empty(CORNERS, np.int64)
             for p in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
                 if POLY:
                     acc[:] = 0.0
@@ -279,7 +340,12 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                 g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
                 v0, v1 = cast(w0, T, S), cast(w1, T, S)
                 if DIM == 2:
-                    base = b0 * strides[0] + b1 * strides[1]
+                    o0, o1 = b0 // block, b1 // block  # the owner block
+                    l0, l1 = b0 - o0 * block, b1 - o1 * block
+                    c0, c1 = corner_bits(l0, block, 2, S), corner_bits(l1, block, 1, S)
+                    r0, r1 = local_rows(l0, block, block, S), local_rows(l1, block, 1, S)
+                    corner_rows(slot_of, o0 * table_strides[0] + o1 * table_strides[1], table_strides, block_nodes,
+                                corner)
                     if POLY:
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
@@ -287,7 +353,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                         polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                     for i in range(S):
                         for j in range(S):
-                            idx = base + i * strides[0] + j * strides[1]
+                            idx = corner[c0[i] + c1[j]] + r0[i] + r1[j]
                             w = v0[i] * v1[j]
                             vi = row(v_grid, idx, DIM)
                             v_pic = axpy(v_pic, w, vi, DIM)
@@ -302,7 +368,13 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                 else:
                     b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                     d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
-                    base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
+                    o0, o1, o2 = b0 // block, b1 // block, b2 // block  # the owner block
+                    l0, l1, l2 = b0 - o0 * block, b1 - o1 * block, b2 - o2 * block
+                    c0, c1, c2 = corner_bits(l0, block, 4, S), corner_bits(l1, block, 2, S), corner_bits(l2, block, 1, S)
+                    r0, r1 = local_rows(l0, block, block * block, S), local_rows(l1, block, block, S)
+                    r2 = local_rows(l2, block, 1, S)
+                    corner_rows(slot_of, o0 * table_strides[0] + o1 * table_strides[1] + o2 * table_strides[2],
+                                table_strides, block_nodes, corner)
                     if POLY:
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j], w_arr[2, j] = w0[j], w1[j], w2[j]
@@ -312,7 +384,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                         for j in range(S):
                             w01 = v0[i] * v1[j]
                             for l in range(S):
-                                idx = base + i * strides[0] + j * strides[1] + l * strides[2]
+                                idx = corner[c0[i] + c1[j] + c2[l]] + r0[i] + r1[j] + r2[l]
                                 w = w01 * v2[l]
                                 vi = row(v_grid, idx, DIM)
                                 v_pic = axpy(v_pic, w, vi, DIM)
@@ -428,33 +500,61 @@ def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, g
 @njit(parallel=True, cache=True)
 def grid_velocity(mass, momentum, force, dt, gravity, node_shape, strides, wall_width, wall_type, wall_friction,
                   v, v_tilde):
-    r"""Grid update with Eq. 25 walls (see :func:`mpmref.backends.numpy.transfers.grid_update`).
+    r"""Grid update with Eq. 25 walls on the dense grid (node ``i`` at C-order index ``i``); see
+    :func:`node_velocity` for the equations."""
+    for i in prange(mass.shape[0]):
+        if node_velocity(i, mass, momentum, force, dt, gravity, v, v_tilde):
+            for a in range(momentum.shape[1]):
+                project_in_bands(v, i, a, (i // strides[a]) % node_shape[a], node_shape[a], wall_width, wall_type,
+                                 wall_friction)
+
+
+@njit(parallel=True, cache=True)
+def block_grid_velocity(mass, momentum, force, dt, gravity, node_shape, block, blocks, wall_width, wall_type,
+                        wall_friction, v, v_tilde):
+    r"""Grid update with Eq. 25 walls on the sparse grid (row ``r`` of the active blocks ``blocks`` of a
+    :class:`~.sparse.BlockLayout`); the same per-node arithmetic as :func:`grid_velocity`."""
+    d = momentum.shape[1]
+    block_nodes = block**d
+    for r in prange(mass.shape[0]):
+        if node_velocity(r, mass, momentum, force, dt, gravity, v, v_tilde):
+            slot, local = r // block_nodes, r % block_nodes
+            for a in range(d):
+                index = blocks[slot, a] * block + (local // block ** (d - 1 - a)) % block
+                project_in_bands(v, r, a, index, node_shape[a], wall_width, wall_type, wall_friction)
+
+
+@njit(cache=True, inline="always")
+def node_velocity(i, mass, momentum, force, dt, gravity, v, v_tilde):
+    r"""Velocity of node ``i`` before the walls (see :func:`mpmref.backends.numpy.transfers.grid_update`):
 
     .. math:: \tilde v_i = (mv)_i / m_i, \qquad v_i = \tilde v_i + \Delta t\,(f_i / m_i + g)
 
-    then, wall by wall in the order x_min, x_max, y_min, … (the reference's order; a corner node is
-    projected by both of its walls in turn), the talk's Eq. 25 projection at every node of the wall's band
-    (index within ``wall_width`` cells of the wall), with the wall's inward normal. ``wall_type[2a + side]``:
-    0 open, 1 sticky, 2 slip, 3 separate; ``wall_friction`` the Coulomb μ. Nodes without mass get zero
-    velocity.
+    Nodes without mass get zero velocity; returns whether the node has mass.
     """
-    N, d = momentum.shape
-    for i in prange(N):
-        if mass[i] <= 0:
-            for a in range(d):
-                v[i, a] = 0.0
-                v_tilde[i, a] = 0.0
-            continue
-        inv_m = 1.0 / mass[i]
+    d = momentum.shape[1]
+    if mass[i] <= 0:
         for a in range(d):
-            v_tilde[i, a] = momentum[i, a] * inv_m
-            v[i, a] = (momentum[i, a] + dt * force[i, a]) * inv_m + dt * gravity[a]
-        for a in range(d):
-            index = (i // strides[a]) % node_shape[a]
-            if index < wall_width:
-                project_at_wall(v, i, a, 1.0, wall_type[2 * a], wall_friction[2 * a])
-            if index > node_shape[a] - 1 - wall_width:
-                project_at_wall(v, i, a, -1.0, wall_type[2 * a + 1], wall_friction[2 * a + 1])
+            v[i, a] = 0.0
+            v_tilde[i, a] = 0.0
+        return False
+    inv_m = 1.0 / mass[i]
+    for a in range(d):
+        v_tilde[i, a] = momentum[i, a] * inv_m
+        v[i, a] = (momentum[i, a] + dt * force[i, a]) * inv_m + dt * gravity[a]
+    return True
+
+
+@njit(cache=True, inline="always")
+def project_in_bands(v, i, axis, index, n_axis, wall_width, wall_type, wall_friction):
+    """The walls of ``axis`` at node ``i``, whose node index along it is ``index`` (of ``n_axis``): the talk's
+    Eq. 25 projection with the wall's inward normal where the node lies within ``wall_width`` cells of it, the
+    lower wall first (the reference's order; a corner node is projected by each of its walls in turn).
+    ``wall_type[2a + side]``: 0 open, 1 sticky, 2 slip, 3 separate; ``wall_friction`` the Coulomb μ."""
+    if index < wall_width:
+        project_at_wall(v, i, axis, 1.0, wall_type[2 * axis], wall_friction[2 * axis])
+    if index > n_axis - 1 - wall_width:
+        project_at_wall(v, i, axis, -1.0, wall_type[2 * axis + 1], wall_friction[2 * axis + 1])
 
 
 @njit(cache=True)
