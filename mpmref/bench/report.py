@@ -1,6 +1,7 @@
 """Readable tables of the benchmark sections (the JSON holds every figure; these show the medians)."""
 
 from .asynchronous import render_async
+from .domain import render_domain
 from .stages import render_scaling, render_stages
 
 METHOD_COLUMNS = (("mpm", "MPM"), ("mls", "MLS-MPM"))
@@ -103,7 +104,7 @@ def render_peer(section):
 
 
 RENDERERS = {"table2": render_table2, "throughput": render_throughput, "stages": render_stages,
-             "scaling": render_scaling, "peer": render_peer, "async": render_async}
+             "scaling": render_scaling, "domain": render_domain, "peer": render_peer, "async": render_async}
 
 
 def render(results):
