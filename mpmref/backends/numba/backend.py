@@ -97,8 +97,8 @@ class NumbaBackend:
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = scene.transfer
-        self._p2g = transfers.make_p2g(self.cfg)
-        self._g2p = transfers.make_g2p(self.cfg)
+        self._p2g = transfers.make_p2g(self.cfg, grid.block)
+        self._g2p = transfers.make_g2p(self.cfg, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
         self.inertia = 0.0 if scene.kernel.inertia_factor is None else scene.kernel.inertia_factor * self.dx**2
@@ -168,7 +168,7 @@ class NumbaBackend:
                       self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
                       self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                       self._or_empty(particles.Jp, 0), particles.material, self.stress_codes, self.stress_params,
-                      self.origin, self.dx, self.inertia, self.block, layout.slot_of, layout.table_strides,
+                      self.origin, self.dx, self.inertia, layout.slot_of, layout.table_strides,
                       self.mode_index, blocks.order, blocks.slab_start, blocks.slabs, blocks.colour_start, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
@@ -217,8 +217,8 @@ class NumbaBackend:
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, self.block, layout.slot_of,
-                  layout.table_strides, self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
+                  self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
+                  self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
