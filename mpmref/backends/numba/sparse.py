@@ -113,37 +113,50 @@ def active_blocks(block_start, blocks_per_axis, table_shape):
     (``block_start``, over the grid's ``blocks_per_axis``) and their upper neighbours (see the module doc).
 
     Returns ``(slot_of, blocks)``: ``slot_of`` (int32, one entry per block of ``table_shape``, C order) holds
-    each active block's slot and -1 elsewhere; ``blocks[s]`` are the coordinates of slot ``s``'s block.
+    each active block's slot and -1 elsewhere; ``blocks[s]`` are the coordinates of slot ``s``'s block. Only
+    the slabs (blocks sharing their first coordinate) that hold particles, and the table's slabs they mark,
+    are scanned: the work follows the body, bar one pass over the slabs and the table's initialisation.
     """
     d = blocks_per_axis.shape[0]
-    n_table = 1
-    for a in range(d):
-        n_table *= table_shape[a]
-    slot_of = np.full(n_table, -1, dtype=np.int32)
+    per_slab, table_per_slab = 1, 1
+    for a in range(1, d):
+        per_slab *= blocks_per_axis[a]
+        table_per_slab *= table_shape[a]
+    slot_of = np.full(table_shape[0] * table_per_slab, -1, dtype=np.int32)
+    marked_slab = np.zeros(table_shape[0], dtype=np.bool_)
     coords = np.empty(d, dtype=np.int64)
-    for b in range(block_start.shape[0] - 1):
-        if block_start[b + 1] == block_start[b]:
+    for slab in range(blocks_per_axis[0]):
+        if block_start[(slab + 1) * per_slab] == block_start[slab * per_slab]:
             continue
-        rest = b
-        for a in range(d - 1, -1, -1):
-            coords[a] = rest % blocks_per_axis[a]
-            rest //= blocks_per_axis[a]
-        for corner in range(2**d):
-            t = 0
-            for a in range(d):
-                t = t * table_shape[a] + coords[a] + ((corner >> (d - 1 - a)) & 1)
-            slot_of[t] = MARKED
+        marked_slab[slab] = marked_slab[slab + 1] = True
+        for b in range(slab * per_slab, (slab + 1) * per_slab):
+            if block_start[b + 1] == block_start[b]:
+                continue
+            rest = b
+            for a in range(d - 1, -1, -1):
+                coords[a] = rest % blocks_per_axis[a]
+                rest //= blocks_per_axis[a]
+            for corner in range(2**d):
+                t = 0
+                for a in range(d):
+                    t = t * table_shape[a] + coords[a] + ((corner >> (d - 1 - a)) & 1)
+                slot_of[t] = MARKED
     n_slots = 0
-    for t in range(n_table):
-        n_slots += slot_of[t] == MARKED
+    for slab in range(table_shape[0]):
+        if marked_slab[slab]:
+            for t in range(slab * table_per_slab, (slab + 1) * table_per_slab):
+                n_slots += slot_of[t] == MARKED
     blocks = np.empty((n_slots, d), dtype=np.int64)
     slot = 0
-    for t in range(n_table):
-        if slot_of[t] == MARKED:
-            slot_of[t] = slot
-            rest = t
-            for a in range(d - 1, -1, -1):
-                blocks[slot, a] = rest % table_shape[a]
-                rest //= table_shape[a]
-            slot += 1
+    for slab in range(table_shape[0]):
+        if not marked_slab[slab]:
+            continue
+        for t in range(slab * table_per_slab, (slab + 1) * table_per_slab):
+            if slot_of[t] == MARKED:
+                slot_of[t] = slot
+                rest = t
+                for a in range(d - 1, -1, -1):
+                    blocks[slot, a] = rest % table_shape[a]
+                    rest //= table_shape[a]
+                slot += 1
     return slot_of, blocks
