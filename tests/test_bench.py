@@ -149,7 +149,8 @@ def test_table2_ratios_divide_mpm_by_mls():
 
 
 def test_options_from_the_command_line():
-    assert options_from_args(parse(["--vs", "taichi"])).sections == ("table2", "throughput", "stages", "scaling", "peer")
+    assert options_from_args(parse(["--vs", "taichi"])).sections == (
+        "table2", "throughput", "stages", "scaling", "domain", "peer")
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
     assert opts.dtypes == ("float32",) and opts.threads == (1, 2, 4) and opts.table2_cells == 100
