@@ -5,9 +5,10 @@ grids that follow the material: the domain is cut into blocks of :math:`B^d` nod
 :class:`mpmref.state.Grid`), a small **block-pointer table** over all blocks of the domain says which of
 them are active and where each active block's nodes are stored, and the node values themselves live in
 compact storage, block after block. A body that fills a small part of a large domain then costs what it
-costs in a tight domain: node storage, zeroing, the grid update and the output follow the active blocks,
-and only the table (4 bytes per block, :math:`(256/4 + 2)^3 \cdot 4` bytes = 1.1 MiB for :math:`256^3`
-cells) grows with the domain.
+costs about what it costs in a tight domain: node storage, zeroing, the grid update and the output follow
+the active blocks; only the table (4 bytes per block, :math:`(256/4 + 2)^3 \cdot 4` bytes = 1.1 MiB for
+:math:`256^3` cells) and the sort's per-block counts (:mod:`.blocks`, 8 bytes per block) grow with the
+domain, each set once per step.
 
 **Which blocks are active.** A particle's owner block ``b`` (the block of its stencil's base node,
 :mod:`.blocks`) receives its stencil, which spans nodes ``b_a B .. b_a B + B + S - 2`` per axis; with
@@ -83,9 +84,9 @@ class BlockLayout:
         """Which rows are nodes of the grid (not padding beyond its last node), (n_rows,) bool."""
         return np.all(self.node_index < self.node_shape, axis=1)
 
-    def dense_index(self, rows=None):
-        """C-order index in the dense node array of the rows ``rows`` (default: the rows inside the grid)."""
-        index = self.node_index[self.inside if rows is None else rows]
+    def dense_index(self):
+        """C-order index in the dense node array of each row inside the grid (the rows of :attr:`inside`)."""
+        index = self.node_index[self.inside]
         strides = np.array([int(np.prod(self.node_shape[a + 1:])) for a in range(self.dim)], dtype=np.int64)
         return index @ strides
 

@@ -63,10 +63,11 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params,
-    origin, dx, inertia, block, slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start,
+    origin, dx, inertia, slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start,
     grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
     :class:`~.sparse.BlockLayout` (``slot_of`` its block-pointer table, ``table_strides`` the table's strides;
-    rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, slab by slab in the two
+    rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, slab
+    by slab in the two
     colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p`
@@ -116,7 +117,8 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
                     if DIM == 2:
                         k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
                         l0, l1 = b0 % BLOCK, b1 % BLOCK
-                        c0, r0, r1 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S), local_rows(l1, BLOCK, 1, N, S)
+                        c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
+                        r1 = local_rows(l1, BLOCK, 1, N, S)
                         if POLY:
                             for j in range(S):
                                 w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
@@ -320,10 +322,10 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J, BLOC
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, block, slot_of, table_strides,
-    mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays
-    from the node velocities on the rows of a :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes only its
-    own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
+    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index,
+    v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays from the
+    node velocities on the rows of a :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes
+    only its own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
     are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
     :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
@@ -362,7 +364,8 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J, BLOC
                 if DIM == 2:
                     k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
                     l0, l1 = b0 % BLOCK, b1 % BLOCK
-                    c0, r0, r1 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S), local_rows(l1, BLOCK, 1, N, S)
+                    c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
+                    r1 = local_rows(l1, BLOCK, 1, N, S)
                     if POLY:
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
