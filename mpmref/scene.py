@@ -36,6 +36,8 @@ DTYPES = ("float64", "float32")
 SHAPES = ("box", "disk", "sphere", "points", "mesh")
 SAMPLINGS = ("regular", "jittered", "random")
 OUTPUT_FIELDS = ("velocity", "mass", "volume", "J", "stress", "pressure", "material")
+#: what the grid output covers: the block-aligned box of the nodes with mass, or every node of the grid
+GRID_REGIONS = ("active", "all")
 AXES = "xyz"
 STEPPINGS = ("sync", "async")
 
@@ -208,6 +210,7 @@ class OutputSpec:
     fields: tuple
     grid: bool
     checkpoint: bool
+    grid_region: str = "active"
 
 
 @dataclass(frozen=True)
@@ -871,7 +874,7 @@ def _parse_time(t):
 
 
 def _parse_output(o):
-    _section(o, "output", {"every", "fields", "grid", "checkpoint"})
+    _section(o, "output", {"every", "fields", "grid", "grid_region", "checkpoint"})
     every = _integer(o, "every", "output", default=50, lo=1)
     fields_ = o.get("fields", list(OUTPUT_FIELDS))
     if not isinstance(fields_, list) or any(f not in OUTPUT_FIELDS for f in fields_):
@@ -879,8 +882,11 @@ def _parse_output(o):
     for key in ("grid", "checkpoint"):
         if key in o and not isinstance(o[key], bool):
             _fail(f"output.{key}", o[key], "true or false")
+    region = o.get("grid_region", "active")
+    if region not in GRID_REGIONS:
+        _fail("output.grid_region", region, f"one of {list(GRID_REGIONS)}")
     return OutputSpec(every=every, fields=tuple(fields_), grid=o.get("grid", False),
-                      checkpoint=o.get("checkpoint", True))
+                      checkpoint=o.get("checkpoint", True), grid_region=region)
 
 
 # ------------------------------------------------------------------------------------ builder

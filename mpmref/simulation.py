@@ -296,10 +296,29 @@ class Simulation:
         return J
 
     def grid_data(self):
-        gs = self.backend.p2g(self.particles)
+        """Node mass and P2G velocity of the current particles over the scene's ``output.grid_region``:
+        ``(first_node, node_shape, {"mass", "velocity"})``, arrays in C order over the region's nodes.
+
+        ``"active"``: the smallest box of whole blocks (the grid's ``block``) that holds every node with mass,
+        clipped to the grid; ``"all"``: every node. A backend with a sparse grid never builds the dense one
+        for the active region.
+        """
+        gs = self.backend.p2g(self.particles, self.backend.prepare(self.particles))
+        grid = self.scene.grid
+        index = grid.node_indices() if gs.layout is None else gs.layout.node_index
         has = gs.mass > 0
-        vel = np.where(has[:, None], gs.momentum / np.where(has, gs.mass, 1.0)[:, None], 0.0)
-        return {"mass": gs.mass, "velocity": vel}
+        lo, hi = np.zeros(grid.dim, dtype=np.int64), np.array(grid.node_shape)
+        if self.scene.output.grid_region == "active" and has.any():
+            lo = index[has].min(axis=0) // grid.block * grid.block
+            hi = np.minimum((index[has].max(axis=0) // grid.block + 1) * grid.block, hi)
+        inside = np.all((index >= lo) & (index < hi), axis=1)
+        at = np.ravel_multi_index(tuple((index[inside] - lo).T), tuple(hi - lo))
+        velocity = np.where(has[:, None], gs.momentum / np.where(has, gs.mass, 1.0)[:, None], 0.0)
+        data = {}
+        for name, values in (("mass", gs.mass), ("velocity", velocity)):
+            data[name] = np.zeros((int(np.prod(hi - lo)),) + values.shape[1:], dtype=values.dtype)
+            data[name][at] = values[inside]
+        return tuple(lo), tuple(hi - lo), data
 
     def write_output(self):
         """Write a particle frame (and grid frame), a diagnostics row and, if enabled, a checkpoint."""

@@ -164,6 +164,10 @@ class GridState:
 
     With CPIC, also what particles did not give incompatible nodes (N, d): ``rejected_momentum`` and
     ``rejected_force`` (:func:`mpmref.backends.numpy.transfers.p2g`); ``None`` otherwise.
+
+    ``layout`` is ``None`` for dense arrays over every node of the grid in C order. A backend with a sparse
+    grid (the Numba backend's :class:`~mpmref.backends.numba.sparse.BlockLayout`) stores rows of its active
+    blocks instead and says so here; :meth:`dense` gives the C-ordered arrays.
     """
 
     mass: np.ndarray
@@ -171,6 +175,29 @@ class GridState:
     force: np.ndarray
     rejected_momentum: np.ndarray | None = None
     rejected_force: np.ndarray | None = None
+    layout: object = None
+
+    def node_arrays(self):
+        """Mapping of name to node array, for the arrays that are allocated."""
+        names = ("mass", "momentum", "force", "rejected_momentum", "rejected_force")
+        return {name: a for name in names if (a := getattr(self, name)) is not None}
+
+    def dense(self):
+        """This state with dense C-ordered arrays over every node (itself when it has no ``layout``)."""
+        if self.layout is None:
+            return self
+        return GridState(**{name: self.layout.to_dense(a) for name, a in self.node_arrays().items()})
+
+    def assign_dense(self, dense):
+        """Write the values of ``dense`` (a dense state of the same grid, e.g. from :meth:`dense`) into this
+        state's arrays, in place; nodes outside a sparse ``layout`` are not stored and are dropped."""
+        if dense is self:
+            return
+        for name, a in self.node_arrays().items():
+            if self.layout is None:
+                a[...] = getattr(dense, name)
+            else:
+                self.layout.from_dense(getattr(dense, name), out=a)
 
 
 @dataclass

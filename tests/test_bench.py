@@ -91,8 +91,8 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
     out, err = capsys.readouterr()
-    for i, section in enumerate(("table2", "throughput", "stages", "scaling", "cpic"), 1):
-        assert f"[{i}/5] {section}: started" in err and f"[{i}/5] {section}: finished in " in err
+    for i, section in enumerate(("table2", "throughput", "stages", "scaling", "domain", "cpic"), 1):
+        assert f"[{i}/6] {section}: started" in err and f"[{i}/6] {section}: finished in " in err
     assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
@@ -132,6 +132,7 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
         assert set(r["stages_s"]) >= {"prepare", "p2g", "grid_update", "g2p", "return_map"}
         assert sum(r["stages_s"].values()) <= r["step_s"]
     assert results["scaling"]["sizes"] == [] and results["scaling"]["threads"] == []  # compiled backends only
+    assert results["domain"]["results"] == []  # compiled backends only
 
     cpic = results["cpic"]
     assert cpic["case"]["bodies"] == 3 and cpic["case"]["segments"] == 60 + 18 + 1 and cpic["goal"] == 1.5
@@ -156,8 +157,8 @@ def test_table2_ratios_divide_mpm_by_mls():
 
 
 def test_options_from_the_command_line():
-    assert options_from_args(parse(["--vs", "taichi"])).sections == ("table2", "throughput", "stages", "scaling", "cpic",
-                                                                    "peer")
+    assert options_from_args(parse(["--vs", "taichi"])).sections == (
+        "table2", "throughput", "stages", "scaling", "domain", "cpic", "peer")
     assert options_from_args(parse(["--only", "cpic"])).sections == ("cpic",)
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
@@ -287,3 +288,23 @@ def test_cpic_bench_steps_the_same_sand_outside_the_ring_with_and_without_the_bo
     np.testing.assert_array_equal(x, bed_particles(plain).x)
     radius = np.linalg.norm(x - SAND_WHEEL["center"], axis=1)
     assert radius.min() > SAND_WHEEL["ring_radius"] * np.cos(np.pi / SAND_WHEEL["ring_segments"])  # none inside
+
+
+@pytest.mark.parametrize("memory", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_domain_section_puts_the_same_body_in_growing_domains(memory):
+    """The same particles in every domain, the step time's ratio to the smallest domain's, and (in fresh
+    processes) a peak resident memory at least the baseline after compiling."""
+    pytest.importorskip("numba")
+    from mpmref.bench.domain import render_domain, run_domain
+
+    section = run_domain(("numba",), (1,), ("float32",), 1, 1, quick=True, memory=memory, log=lambda m: None)
+    rows = section["results"]
+    assert [r["cells"] for r in rows] == [8, 16] and {r["particles"] for r in rows} == {4**3 * 8}
+    assert [r["nodes"] for r in rows] == [9**3, 17**3]
+    assert rows[0]["step_over_smallest"] == 1.0
+    for r in rows:
+        assert r["step_s"] == pytest.approx(r["median_s"]) and r["step_over_smallest"] == pytest.approx(
+            r["step_s"] / rows[0]["step_s"])
+        if memory:
+            assert r["peak_bytes"] >= r["baseline_bytes"] > 0
+    assert "Domain size at a fixed body" in render_domain(section)

@@ -138,8 +138,8 @@ def test_cli_run_writes_a_series_that_meshio_and_pyvista_read(tmp_path, capsys):
     reader.set_active_time_value(reader.time_values[-1])
     block = reader.read()[0]
     np.testing.assert_allclose(block.points, mesh.points)
-    grid = pv.read(out / "grid_000004.vti")
-    assert grid.dimensions == (65, 65, 1)
+    grid = pv.read(out / "grid_000004.vti")  # the active region: whole 4-node blocks around the nodes with mass
+    assert all(n % 4 == 0 and n < 65 for n in grid.dimensions[:2]) and grid.dimensions[2] == 1
     assert {"mass", "velocity"} <= set(grid.point_data.keys())
     # Σ_i w_ip = 1 and Σ_i w_ip x_i = x_p: grid mass and centre of mass equal the particles' (VTK axis order)
     m_grid = grid.point_data["mass"]

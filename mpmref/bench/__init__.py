@@ -19,6 +19,9 @@ Sections of the JSON document (each ``null`` when not run):
   per stage, ``stress_inside_p2g``, ``stress_alone_s``; :mod:`mpmref.bench.stages`).
 * ``scaling``: ``sizes`` (dim, cells, particles, a timing record, ``ns_per_particle_step``) and ``threads``
   (the 262 144-particle 2D case at each thread count, ``speedup_over_1``).
+* ``domain``: ``domains``, ``body_cells`` and ``results`` (backend, dtype, threads, cells, nodes, particles, a
+  timing record, ``step_s``, ``step_over_smallest``, ``baseline_bytes``, ``peak_bytes``;
+  :mod:`mpmref.bench.domain`).
 * ``cpic``: ``case`` (cells, particles, bodies, segments, dt, steps), ``goal`` and ``results`` (backend,
   threads, dtype, particles, ``coupled`` and ``plain`` timings of whole steps with and without the rigid
   bodies, ``ratio``, ``coupled_stages_s``; :mod:`mpmref.bench.cpic`).
@@ -41,6 +44,7 @@ from ..backends import BACKENDS
 from ..io.atomic import write_text_atomic
 from .asynchronous import run_async
 from .cpic import run_cpic
+from .domain import run_domain
 from .peer import run_peer
 from .report import RENDERERS
 from .scenes import peer_cases, table2_cells, throughput_cases
@@ -53,8 +57,8 @@ SCHEMA = "mpmref-bench/1"
 DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
                "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
                "compilation is reported apart. See docs/performance.md.")
-SECTIONS = ("table2", "throughput", "stages", "scaling", "peer", "async", "cpic")
-DEFAULT_SECTIONS = ("table2", "throughput", "stages", "scaling", "cpic")
+SECTIONS = ("table2", "throughput", "stages", "scaling", "domain", "peer", "async", "cpic")
+DEFAULT_SECTIONS = ("table2", "throughput", "stages", "scaling", "domain", "cpic")
 DEFAULT_PARTICLES = 1_000_000
 QUICK_PARTICLES = 4096
 FULL_CELLS = 100
@@ -79,7 +83,7 @@ class BenchOptions:
     steps : int           steps per timed repeat in the throughput section
     peer_steps : int      steps per timed repeat in the peer section
     quick : bool          tiny throughput and peer cases (a smoke test: the figures mean nothing)
-    memory : bool         run the Table-2 peak-memory probe
+    memory : bool         run the peak-memory probes (Table 2, domain)
     """
 
     size: int = DEFAULT_PARTICLES
@@ -155,8 +159,12 @@ def _scaling(o, log):
     return section
 
 
+def _domain(o, log):
+    return run_domain(o.backends, o.threads, o.dtypes, o.repeats, o.steps, o.quick, o.memory, log)
+
+
 SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "stages": _stages, "scaling": _scaling,
-                   "peer": _peer, "async": _async, "cpic": _cpic}
+                   "domain": _domain, "peer": _peer, "async": _async, "cpic": _cpic}
 
 
 def environment():
@@ -236,7 +244,7 @@ def add_parser(subparsers):
     p.add_argument("--steps", type=_positive, default=10, help="steps per timed repeat, throughput (default 10)")
     p.add_argument("--peer-steps", type=_positive, default=100, help="steps per timed repeat, peer (default 100)")
     p.add_argument("--quick", action="store_true", help="tiny sizes: a smoke test whose figures mean nothing")
-    p.add_argument("--no-memory", action="store_true", help="skip the Table-2 peak-memory probe")
+    p.add_argument("--no-memory", action="store_true", help="skip the peak-memory probes (Table 2, domain)")
     p.add_argument("--json", dest="json_path", help="write the results to this JSON file (atomically)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress lines (they go to standard error; the tables to standard output)")

@@ -47,13 +47,19 @@ FIXED_MALLOC = {"MALLOC_MMAP_THRESHOLD_": "131072", "MALLOC_TRIM_THRESHOLD_": "1
 
 def memory_probe(backend, cells, dtype, threads):
     """Peak memory of one MLS-MPM step of ``backend`` on the Table-2 state, in a fresh process (dict)."""
-    code = (f"import json; from mpmref.bench.memory import probe_step; "
-            f"print(json.dumps(probe_step({backend!r}, {int(cells)}, {str(dtype)!r}, {int(threads)})))")
+    return in_fresh_process("mpmref.bench.memory", "probe_step", backend, int(cells), str(dtype), int(threads))
+
+
+def in_fresh_process(module, function, *args):
+    """``module.function(*args)`` (plain, JSON-able arguments and result) in a fresh Python process, with
+    glibc's fixed mmap threshold (:data:`FIXED_MALLOC`); its result."""
+    code = (f"import json; from {module} import {function}; "
+            f"print(json.dumps({function}(*{list(args)!r})))")
     search_path = [str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")]  # this mpmref
     env = {**os.environ, **FIXED_MALLOC, "PYTHONPATH": os.pathsep.join(p for p in search_path if p)}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False, env=env)
     if done.returncode != 0:
-        raise MpmrefError(f"the memory probe of {backend} failed:\n{done.stderr.strip()}")
+        raise MpmrefError(f"the memory probe {function}{tuple(args)} failed:\n{done.stderr.strip()}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 

@@ -2,6 +2,7 @@
 
 from .asynchronous import render_async
 from .cpic import render_cpic
+from .domain import render_domain
 from .stages import render_scaling, render_stages
 
 METHOD_COLUMNS = (("mpm", "MPM"), ("mls", "MLS-MPM"))
@@ -104,7 +105,8 @@ def render_peer(section):
 
 
 RENDERERS = {"table2": render_table2, "throughput": render_throughput, "stages": render_stages,
-             "scaling": render_scaling, "peer": render_peer, "async": render_async, "cpic": render_cpic}
+             "scaling": render_scaling, "domain": render_domain, "peer": render_peer, "async": render_async,
+             "cpic": render_cpic}
 
 
 def render(results):

@@ -4,6 +4,8 @@ import csv
 import io
 from pathlib import Path
 
+import numpy as np
+
 from .atomic import write_text_atomic
 from .checkpoint import load_checkpoint, save_checkpoint
 from .vtk import write_grid_vti, write_particles_vtu, write_polylines_vtp, write_pvd
@@ -47,7 +49,11 @@ class RunOutput:
         return self.dir / CHECKPOINT_NAME
 
     def write_frame(self, step, time, x, point_data, grid_data=None, polylines=None):
-        """Write one frame: particles, and the grid (``grid_data``) and rigid bodies (``polylines``) if given."""
+        """Write one frame: particles, and the grid and rigid bodies (``polylines``) if given.
+
+        ``grid_data`` is ``(first_node, node_shape, arrays)``: node arrays in C order over the box of nodes
+        that starts at the node index ``first_node`` (see :meth:`mpmref.simulation.Simulation.grid_data`).
+        """
         name = f"particles_{step:06d}.vtu"
         write_particles_vtu(self.dir / name, x, point_data)
         self.particle_series.append((time, name))
@@ -55,7 +61,8 @@ class RunOutput:
         if grid_data is not None:
             gname = f"grid_{step:06d}.vti"
             g = self.scene.grid
-            write_grid_vti(self.dir / gname, g.origin, g.dx, g.node_shape, grid_data)
+            first_node, node_shape, arrays = grid_data
+            write_grid_vti(self.dir / gname, g.origin + g.dx * np.asarray(first_node), g.dx, node_shape, arrays)
             self.grid_series.append((time, gname))
             write_pvd(self.dir / "grid.pvd", self.grid_series)
         if polylines is not None:

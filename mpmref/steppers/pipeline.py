@@ -77,15 +77,28 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
             rigid = begin_step(scene.rigid_bodies, rigid, time, dt)
             particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
         grid_state = backend.p2g(particles, prepared) if contact is None else backend.p2g(particles, prepared, contact)
-        if hooks.body_force is not None:
-            f = nodal_body_force(particles, scene.grid, scene.kernel, hooks.body_force(particles, time))
-            grid_state.force += f.astype(grid_state.force.dtype)
-        for fold in hooks.grid_folds:
-            fold(grid_state, scene.grid)
+        if hooks.body_force is not None or hooks.grid_folds:
+            apply_hooks(hooks, grid_state, particles, scene, time)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
         if contact is None:
             return backend.return_map(backend.g2p(particles, v_grid, v_tilde, dt, prepared))
         return _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time)
+
+
+def apply_hooks(hooks, grid_state, particles, scene, time):
+    """The body force and grid folds of ``hooks``, applied to ``grid_state`` in place.
+
+    Hooks see dense C-ordered node arrays; a sparse grid state (one with a ``layout``) is handed to them as
+    :meth:`~mpmref.state.GridState.dense` and takes the result back on its active nodes (the only ones G2P
+    reads).
+    """
+    dense = grid_state.dense()
+    if hooks.body_force is not None:
+        f = nodal_body_force(particles, scene.grid, scene.kernel, hooks.body_force(particles, time))
+        dense.force += f.astype(dense.force.dtype)
+    for fold in hooks.grid_folds:
+        fold(dense, scene.grid)
+    grid_state.assign_dense(dense)
 
 
 def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time):

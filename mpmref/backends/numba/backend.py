@@ -13,6 +13,7 @@ from ..base import MaterialTable
 from . import cpic, materials, transfers
 from .blocks import colour_classes, slab_colours, sort_into_blocks
 from .buffers import BufferPool
+from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
@@ -56,12 +57,14 @@ KERNELS = {cls: (_stress_adapter(stress), return_map) for cls, (stress, return_m
 
 
 class Blocks:
-    """Particles sorted into the grid's blocks, the two colours of slabs of P2G, and (computed when a CPIC
-    stage asks) the :math:`2^d` colour classes of blocks (see :mod:`.blocks`)."""
+    """Particles sorted into the grid's blocks, the two colours of slabs of P2G, the sparse grid's
+    :class:`~.sparse.BlockLayout` of these particles, and (computed when a CPIC stage asks) the :math:`2^d`
+    colour classes of blocks (see :mod:`.blocks`)."""
 
-    def __init__(self, order, block_start, blocks_per_axis):
+    def __init__(self, order, block_start, blocks_per_axis, layout):
         self.order, self.block_start, self.blocks_per_axis = order, block_start, blocks_per_axis
         self.slab_start, self.slabs, self.colour_start = slab_colours(block_start, blocks_per_axis)
+        self.layout = layout
 
     @cached_property
     def block_colours(self):
@@ -76,6 +79,15 @@ class NumbaBackend:
     force (:func:`~.transfers.make_p2g`, :func:`~.transfers.make_g2p`), and the stress and return-map
     kernels of its materials. Level-set colliders are applied with the backend-neutral
     :meth:`mpmref.physics.colliders.Collider.apply` after the compiled wall projection.
+
+    The grid is sparse (:mod:`.sparse`): P2G, the grid update and G2P store and visit only the blocks that
+    the particles' stencils reach. Node arrays come in two forms. A stage given the ``prepared`` sort of
+    :meth:`prepare` exchanges them in that sort's :class:`~.sparse.BlockLayout` (P2G returns a
+    :class:`~mpmref.state.GridState` whose ``layout`` says so, the grid update keeps its input's form, G2P
+    reads velocities in ``prepared.layout``): that is how the step pipeline runs. Without ``prepared``, they
+    are the dense C-ordered arrays of every node, the stage contract of :mod:`mpmref.backends.base` that the
+    conformance harness checks; the sparse kernels run all the same, with a scatter or gather at the edge.
+    CPIC's stages (:mod:`.cpic`) use the dense grid.
     """
 
     name = "numba"
@@ -85,8 +97,8 @@ class NumbaBackend:
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = scene.transfer
-        self._p2g = transfers.make_p2g(self.cfg)
-        self._g2p = transfers.make_g2p(self.cfg)
+        self._p2g = transfers.make_p2g(self.cfg, grid.block)
+        self._g2p = transfers.make_g2p(self.cfg, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
         self.inertia = 0.0 if scene.kernel.inertia_factor is None else scene.kernel.inertia_factor * self.dx**2
@@ -101,7 +113,6 @@ class NumbaBackend:
         self.wall_type = np.array([WALL_CODES[w.type] for w in walls], dtype=np.int64)
         self.wall_friction = np.array([w.friction for w in walls], dtype=np.float64)
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
-        self.node_x = grid.node_positions() if scene.colliders else None
         self.materials = MaterialTable(scene.material_list, KERNELS)
         self.stress_codes, self.stress_params = materials.stress_table(scene.material_list)
         self.buffers = BufferPool(self.dtype)
@@ -113,11 +124,18 @@ class NumbaBackend:
         return _or_empty(array, self.dtype, *shape)
 
     # ------------------------------------------------------------------ stages
+    @cached_property
+    def node_x(self):
+        """Positions of every node of the dense grid (for colliders on a dense grid state)."""
+        return self.scene.grid.node_positions()
+
     def prepare(self, particles):
-        """Sort the particles into the grid's blocks and the slabs' two colours (what P2G needs)."""
+        """Sort the particles into the grid's blocks and the slabs' two colours (what P2G needs), and the
+        sparse grid's active blocks (:meth:`.sparse.BlockLayout.from_sort`)."""
         order, block_start = sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
                                               self.blocks_per_axis)
-        return Blocks(order, block_start, self.blocks_per_axis)
+        layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
+        return Blocks(order, block_start, self.blocks_per_axis, layout)
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
@@ -129,18 +147,20 @@ class NumbaBackend:
 
     def p2g(self, particles, prepared=None, contact=None):
         """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent);
-        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`).
+        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`, dense).
 
         The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
-        node rows live in one (N, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
-        momentum and force of a node share a cache line); the returned :class:`~mpmref.state.GridState` holds
-        views of it.
+        node rows of the active blocks live in one (rows, 1 + 2d) array from the backend's
+        :class:`~.buffers.BufferPool` (mass, momentum and force of a node share a cache line); the returned
+        :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
+        copies (see the class doc).
         """
         blocks = prepared or self.prepare(particles)
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
+        layout = blocks.layout
         n, d = particles.x.shape
-        grid, = self.buffers.take("grid", (self.scene.grid.n_nodes, 1 + 2 * d))
+        grid, = self.buffers.take("grid", (layout.n_rows, 1 + 2 * d))
         transfers.zero_rows(grid)
         chunk = numba.set_parallel_chunksize(1)  # slabs hold unequal numbers of particles: one at a time
         try:
@@ -148,32 +168,47 @@ class NumbaBackend:
                       self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
                       self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                       self._or_empty(particles.Jp, 0), particles.material, self.stress_codes, self.stress_params,
-                      self.origin, self.dx, self.inertia, self.strides, self.mode_index, blocks.order,
-                      blocks.slab_start, blocks.slabs, blocks.colour_start, grid)
+                      self.origin, self.dx, self.inertia, layout.slot_of, layout.table_strides,
+                      self.mode_index, blocks.order, blocks.slab_start, blocks.slabs, blocks.colour_start, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
-        return GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:])
+        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout)
+        return state if prepared is not None else state.dense()
 
     def grid_update(self, grid_state, dt, time=0.0):
-        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays)."""
+        """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays) in
+        the form of ``grid_state``: the rows of its ``layout``, or dense when it has none."""
         v, v_tilde = self.buffers.take("grid_velocity", grid_state.momentum.shape, grid_state.momentum.shape)
-        transfers.grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
-                                self.node_shape, self.strides, self.scene.boundary.width, self.wall_type,
-                                self.wall_friction, v, v_tilde)
+        layout = grid_state.layout
+        walls = (self.scene.boundary.width, self.wall_type, self.wall_friction, v, v_tilde)
+        if layout is None:
+            transfers.grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
+                                    self.node_shape, self.strides, *walls)
+        else:
+            transfers.block_grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
+                                          self.node_shape, self.block, layout.blocks, *walls)
         if self.scene.colliders:
             has_mass = grid_state.mass > 0
+            node_x = self.node_x if layout is None else self.origin + layout.node_index * self.dx
             for collider in self.scene.colliders:
-                v = collider.apply(v, self.node_x, has_mass, time)
+                v = collider.apply(v, node_x, has_mass, time)
         return v, v_tilde
 
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
         """New particle state from the grid velocities (a parallel gather).
 
-        A gather needs no sort (``prepared`` is not used). The new arrays come from the backend's
-        :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state swaps two
-        sets of them instead of allocating a state per step.
+        A gather needs no sort: it runs over the particles in their storage order; it reads ``v_grid`` and
+        ``v_tilde`` as rows of ``prepared.layout`` or, without ``prepared``, as dense node arrays (gathered
+        into the rows of the particles' layout first; see the class doc). The new arrays come from the
+        backend's :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state
+        swaps two sets of them instead of allocating a state per step.
         """
         n, d = particles.x.shape
+        if prepared is None:
+            layout = self.prepare(particles).layout
+            v_grid, v_tilde = layout.from_dense(v_grid), layout.from_dense(v_tilde)
+        else:
+            layout = prepared.layout
 
         def shape(name, *full):
             return full if getattr(particles, name) is not None else (0,) * len(full)
@@ -182,7 +217,7 @@ class NumbaBackend:
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, self.strides,
+                  self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
                   self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):

@@ -51,11 +51,14 @@ def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
             b = b * blocks_per_axis[a] + base // block
         block_of[p] = b
-    counts = np.zeros(n_blocks + 1, dtype=np.int64)
+    block_start = np.zeros(n_blocks + 1, dtype=np.int64)  # counts first, then their running sum in place
     for p in range(n):
-        counts[block_of[p] + 1] += 1
-    block_start = np.cumsum(counts)
-    fill = block_start[:-1].copy()
+        block_start[block_of[p] + 1] += 1
+    for b in range(n_blocks):
+        block_start[b + 1] += block_start[b]
+    fill = np.empty(n_blocks, dtype=np.int64)  # next free place of each block: touched for occupied blocks only
+    for p in range(n):
+        fill[block_of[p]] = block_start[block_of[p]]
     order = np.empty(n, dtype=np.int64)
     for p in range(n):
         order[fill[block_of[p]]] = p

@@ -9,7 +9,11 @@ values of its constants, which is why they are plain ints, bools and a string an
 functions (a dispatcher pickles differently in every process, which would defeat the cache).
 
 P2G runs slab-parallel over the two colour classes of :mod:`.blocks` (no atomics, bitwise the same for any
-thread count); G2P gathers, so it runs in parallel over the particles in their storage order.
+thread count); G2P gathers, so it runs in parallel over the particles in their storage order. Both address
+the nodes on the sparse grid of :mod:`.sparse`: per particle, the first rows of its owner block and of that
+block's upper neighbours (:func:`block_rows_2d`, :func:`block_rows_3d`: :math:`2^{d-1}` look-ups in the block-pointer
+table), and per axis which of them each stencil node falls in and its offset inside; per node only a sum and
+a choice between two registers remain, as cheap as the strides of a dense grid.
 """
 
 import hashlib
@@ -39,26 +43,31 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def make_p2g(spec):
-    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` (FLIP and the tracked deformation are
-    invisible to P2G, so those variants share one compiled kernel); see :func:`p2g_kernel`."""
-    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls)
+def make_p2g(spec, block):
+    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (FLIP and
+    the tracked deformation are invisible to P2G, so those variants share one compiled kernel); see
+    :func:`p2g_kernel`."""
+    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block)
 
 
-def make_g2p(spec):
-    """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec`; see :func:`g2p_kernel`."""
+def make_g2p(spec, block):
+    """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks; see
+    :func:`g2p_kernel`."""
     return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
-                      spec.mls_gradient, spec.tracks_F, spec.tracks_J)
+                      spec.mls_gradient, spec.tracks_F, spec.tracks_J, block)
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params,
-    origin, dx, inertia, strides, mode_index, order, slab_start, slabs, colour_start, grid)`` adds into the
-    zeroed ``grid`` (N, 1 + 2d), one row per node: mass, momentum, internal force, slab by slab in the two
+    origin, dx, inertia, slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start,
+    grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
+    :class:`~.sparse.BlockLayout` (``slot_of`` its block-pointer table, ``table_strides`` the table's strides;
+    rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, slab
+    by slab in the two
     colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p`
@@ -71,10 +80,11 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
     (``fastmath={"contract"}``, no other fast-math licence: still IEEE operations, one rounding fewer).
     """
     SOURCES = SOURCE_DIGEST
+    N = BLOCK**DIM  # nodes (rows) per block
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
-            strides, mode_index, order, slab_start, slabs, colour_start, grid):
+            slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         inv_dx = 1.0 / dx
         T = grid.dtype.type
@@ -105,31 +115,41 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                     g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
                     v0, v1 = cast(w0, T, S), cast(w1, T, S)
                     if DIM == 2:
-                        base = b0 * strides[0] + b1 * strides[1]
+                        k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
+                        l0, l1 = b0 % BLOCK, b1 % BLOCK
+                        c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
+                        r1 = local_rows(l1, BLOCK, 1, N, S)
                         if POLY:
                             for j in range(S):
                                 w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
                             fx_arr[0], fx_arr[1] = f0, f1
                             polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                         for i in range(S):
+                            row_i = (k1 if c0[i] else k0) + r0[i]
                             for j in range(S):
                                 w = v0[i] * v1[j]
                                 d = (d0[i], d1[j])
                                 fw = (w * d[0], w * d[1]) if MLS else (g0[i] * v1[j], g1[j] * v0[i])
-                                p2g_node(grid, base + i * strides[0] + j * strides[1], w, d, fw, (i, j), m, mv, mC,
-                                         Q, p, modes, q, mode_index, AFFINE, POLY)
+                                p2g_node(grid, row_i + r1[j], w, d, fw, (i, j), m, mv, mC, Q, p, modes, q, mode_index,
+                                         AFFINE, POLY)
                     else:
                         b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                         d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
-                        base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
+                        k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
+                        l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
+                        c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
+                        r0, r1 = local_rows(l0, BLOCK, BLOCK * BLOCK, 0, S), local_rows(l1, BLOCK, BLOCK, 0, S)
+                        r2 = local_rows(l2, BLOCK, 1, N, S)
                         if POLY:
                             for j in range(S):
                                 w_arr[0, j], w_arr[1, j], w_arr[2, j] = w0[j], w1[j], w2[j]
                             fx_arr[0], fx_arr[1], fx_arr[2] = f0, f1, f2
                             polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                         for i in range(S):
+                            ka, kb = (k10, k11) if c0[i] else (k00, k01)
                             for j in range(S):
                                 w01 = v0[i] * v1[j]
+                                row_ij = (kb if c1[j] else ka) + r0[i] + r1[j]
                                 for l in range(S):
                                     w = w01 * v2[l]
                                     d = (d0[i], d1[j], d2[l])
@@ -137,10 +157,71 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS):
                                         fw = (w * d[0], w * d[1], w * d[2])
                                     else:
                                         fw = (g0[i] * v1[j] * v2[l], g1[j] * v0[i] * v2[l], g2[l] * w01)
-                                    p2g_node(grid, base + i * strides[0] + j * strides[1] + l * strides[2], w, d,
-                                             fw, (i, j, l), m, mv, mC, Q, p, modes, q, mode_index, AFFINE, POLY)
+                                    p2g_node(grid, row_ij + r2[l], w, d, fw, (i, j, l), m, mv, mC, Q, p, modes, q,
+                                             mode_index, AFFINE, POLY)
 
     return p2g
+
+
+@njit(cache=True, inline="always")
+def hops(local_base, block, S):
+    """Per stencil node ``k = 0 .. S-1`` of one axis whose base node lies ``local_base`` nodes into its block:
+    whether node ``k`` lies in the next block along the axis (a tuple of bools)."""
+    if S == 2:
+        return (local_base >= block, local_base + 1 >= block)
+    if S == 3:
+        return (local_base >= block, local_base + 1 >= block, local_base + 2 >= block)
+    return (local_base >= block, local_base + 1 >= block, local_base + 2 >= block, local_base + 3 >= block)
+
+
+@njit(cache=True, inline="always")
+def local_rows(local_base, block, row_stride, next_block, S):
+    """Per stencil node of one axis (a tuple of ``S``): its index within its block times ``row_stride`` (the
+    block's row stride along the axis, :math:`B^{d-1-a}`), plus ``next_block`` for a node in the next block."""
+    if S == 2:
+        return (node_row(local_base, block, row_stride, next_block),
+                node_row(local_base + 1, block, row_stride, next_block))
+    if S == 3:
+        return (node_row(local_base, block, row_stride, next_block),
+                node_row(local_base + 1, block, row_stride, next_block),
+                node_row(local_base + 2, block, row_stride, next_block))
+    return (node_row(local_base, block, row_stride, next_block),
+            node_row(local_base + 1, block, row_stride, next_block),
+            node_row(local_base + 2, block, row_stride, next_block),
+            node_row(local_base + 3, block, row_stride, next_block))
+
+
+@njit(cache=True, inline="always")
+def node_row(local, block, row_stride, next_block):
+    """Row offset of a node ``local`` nodes past the start of its owner block (at most ``2 block - 1``)."""
+    if local >= block:
+        return (local - block) * row_stride + next_block
+    return local * row_stride
+
+
+@njit(cache=True, inline="always")
+def block_rows_2d(b0, b1, slot_of, table_strides, block):
+    r"""First rows of the owner block of a 2D stencil with base node ``(b0, b1)`` and of its upper neighbour
+    along axis 0 (look-ups in the block-pointer table ``slot_of``; see :mod:`.sparse`).
+
+    With per axis :func:`hops` and :func:`local_rows`, node ``(i, j)`` of the stencil is row
+    ``(k1 if hop0[i] else k0) + r0[i] + r1[j]``: the upper neighbour along the last axis needs no look-up, as it
+    is the next slot (:math:`B^d` rows on) in C order of the blocks, so ``r1`` holds that step.
+    """
+    n = block * block
+    t = b0 // block * table_strides[0] + b1 // block * table_strides[1]
+    return slot_of[t] * n, slot_of[t + table_strides[0]] * n
+
+
+@njit(cache=True, inline="always")
+def block_rows_3d(b0, b1, b2, slot_of, table_strides, block):
+    r"""First rows of the owner block of a 3D stencil with base node ``(b0, b1, b2)`` and of its upper neighbours
+    along axes 0 and 1 (``k10`` one block up along axis 0); node ``(i, j, l)`` is row
+    ``k[hop0[i]][hop1[j]] + r0[i] + r1[j] + r2[l]`` (see :func:`block_rows_2d`)."""
+    n = block * block * block
+    s0, s1 = table_strides[0], table_strides[1]
+    t = b0 // block * s0 + b1 // block * s1 + b2 // block * table_strides[2]
+    return slot_of[t] * n, slot_of[t + s1] * n, slot_of[t + s0] * n, slot_of[t + s0 + s1] * n
 
 
 @njit(parallel=True, cache=True)
@@ -237,13 +318,14 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
+def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde,
-    x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays. A gather writes only its
-    own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
+    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index,
+    v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays from the
+    node velocities on the rows of a :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes
+    only its own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
     are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
     :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
@@ -253,10 +335,11 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
+    N = BLOCK**DIM
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, strides, mode_index, v_grid, v_tilde, x_new, v_new,
-            C_new, F_new, J_new, modes_new):
+    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index, v_grid,
+            v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         n_modes = mode_index.shape[0]
         T = x_new.dtype.type
@@ -279,15 +362,19 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                 g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
                 v0, v1 = cast(w0, T, S), cast(w1, T, S)
                 if DIM == 2:
-                    base = b0 * strides[0] + b1 * strides[1]
+                    k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
+                    l0, l1 = b0 % BLOCK, b1 % BLOCK
+                    c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
+                    r1 = local_rows(l1, BLOCK, 1, N, S)
                     if POLY:
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
                         fx_arr[0], fx_arr[1] = f0, f1
                         polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                     for i in range(S):
+                        row_i = (k1 if c0[i] else k0) + r0[i]
                         for j in range(S):
-                            idx = base + i * strides[0] + j * strides[1]
+                            idx = row_i + r1[j]
                             w = v0[i] * v1[j]
                             vi = row(v_grid, idx, DIM)
                             v_pic = axpy(v_pic, w, vi, DIM)
@@ -302,17 +389,23 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J):
                 else:
                     b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                     d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
-                    base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
+                    k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
+                    l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
+                    c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
+                    r0, r1 = local_rows(l0, BLOCK, BLOCK * BLOCK, 0, S), local_rows(l1, BLOCK, BLOCK, 0, S)
+                    r2 = local_rows(l2, BLOCK, 1, N, S)
                     if POLY:
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j], w_arr[2, j] = w0[j], w1[j], w2[j]
                         fx_arr[0], fx_arr[1], fx_arr[2] = f0, f1, f2
                         polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                     for i in range(S):
+                        ka, kb = (k10, k11) if c0[i] else (k00, k01)
                         for j in range(S):
                             w01 = v0[i] * v1[j]
+                            row_ij = (kb if c1[j] else ka) + r0[i] + r1[j]
                             for l in range(S):
-                                idx = base + i * strides[0] + j * strides[1] + l * strides[2]
+                                idx = row_ij + r2[l]
                                 w = w01 * v2[l]
                                 vi = row(v_grid, idx, DIM)
                                 v_pic = axpy(v_pic, w, vi, DIM)
@@ -428,33 +521,61 @@ def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, g
 @njit(parallel=True, cache=True)
 def grid_velocity(mass, momentum, force, dt, gravity, node_shape, strides, wall_width, wall_type, wall_friction,
                   v, v_tilde):
-    r"""Grid update with Eq. 25 walls (see :func:`mpmref.backends.numpy.transfers.grid_update`).
+    r"""Grid update with Eq. 25 walls on the dense grid (node ``i`` at C-order index ``i``); see
+    :func:`node_velocity` for the equations."""
+    for i in prange(mass.shape[0]):
+        if node_velocity(i, mass, momentum, force, dt, gravity, v, v_tilde):
+            for a in range(momentum.shape[1]):
+                project_in_bands(v, i, a, (i // strides[a]) % node_shape[a], node_shape[a], wall_width, wall_type,
+                                 wall_friction)
+
+
+@njit(parallel=True, cache=True)
+def block_grid_velocity(mass, momentum, force, dt, gravity, node_shape, block, blocks, wall_width, wall_type,
+                        wall_friction, v, v_tilde):
+    r"""Grid update with Eq. 25 walls on the sparse grid (row ``r`` of the active blocks ``blocks`` of a
+    :class:`~.sparse.BlockLayout`); the same per-node arithmetic as :func:`grid_velocity`."""
+    d = momentum.shape[1]
+    block_nodes = block**d
+    for r in prange(mass.shape[0]):
+        if node_velocity(r, mass, momentum, force, dt, gravity, v, v_tilde):
+            slot, local = r // block_nodes, r % block_nodes
+            for a in range(d):
+                index = blocks[slot, a] * block + (local // block ** (d - 1 - a)) % block
+                project_in_bands(v, r, a, index, node_shape[a], wall_width, wall_type, wall_friction)
+
+
+@njit(cache=True, inline="always")
+def node_velocity(i, mass, momentum, force, dt, gravity, v, v_tilde):
+    r"""Velocity of node ``i`` before the walls (see :func:`mpmref.backends.numpy.transfers.grid_update`):
 
     .. math:: \tilde v_i = (mv)_i / m_i, \qquad v_i = \tilde v_i + \Delta t\,(f_i / m_i + g)
 
-    then, wall by wall in the order x_min, x_max, y_min, … (the reference's order; a corner node is
-    projected by both of its walls in turn), the talk's Eq. 25 projection at every node of the wall's band
-    (index within ``wall_width`` cells of the wall), with the wall's inward normal. ``wall_type[2a + side]``:
-    0 open, 1 sticky, 2 slip, 3 separate; ``wall_friction`` the Coulomb μ. Nodes without mass get zero
-    velocity.
+    Nodes without mass get zero velocity; returns whether the node has mass.
     """
-    N, d = momentum.shape
-    for i in prange(N):
-        if mass[i] <= 0:
-            for a in range(d):
-                v[i, a] = 0.0
-                v_tilde[i, a] = 0.0
-            continue
-        inv_m = 1.0 / mass[i]
+    d = momentum.shape[1]
+    if mass[i] <= 0:
         for a in range(d):
-            v_tilde[i, a] = momentum[i, a] * inv_m
-            v[i, a] = (momentum[i, a] + dt * force[i, a]) * inv_m + dt * gravity[a]
-        for a in range(d):
-            index = (i // strides[a]) % node_shape[a]
-            if index < wall_width:
-                project_at_wall(v, i, a, 1.0, wall_type[2 * a], wall_friction[2 * a])
-            if index > node_shape[a] - 1 - wall_width:
-                project_at_wall(v, i, a, -1.0, wall_type[2 * a + 1], wall_friction[2 * a + 1])
+            v[i, a] = 0.0
+            v_tilde[i, a] = 0.0
+        return False
+    inv_m = 1.0 / mass[i]
+    for a in range(d):
+        v_tilde[i, a] = momentum[i, a] * inv_m
+        v[i, a] = (momentum[i, a] + dt * force[i, a]) * inv_m + dt * gravity[a]
+    return True
+
+
+@njit(cache=True, inline="always")
+def project_in_bands(v, i, axis, index, n_axis, wall_width, wall_type, wall_friction):
+    """The walls of ``axis`` at node ``i``, whose node index along it is ``index`` (of ``n_axis``): the talk's
+    Eq. 25 projection with the wall's inward normal where the node lies within ``wall_width`` cells of it, the
+    lower wall first (the reference's order; a corner node is projected by each of its walls in turn).
+    ``wall_type[2a + side]``: 0 open, 1 sticky, 2 slip, 3 separate; ``wall_friction`` the Coulomb μ."""
+    if index < wall_width:
+        project_at_wall(v, i, axis, 1.0, wall_type[2 * axis], wall_friction[2 * axis])
+    if index > n_axis - 1 - wall_width:
+        project_at_wall(v, i, axis, -1.0, wall_type[2 * axis + 1], wall_friction[2 * axis + 1])
 
 
 @njit(cache=True)
