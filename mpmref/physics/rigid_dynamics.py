@@ -55,6 +55,8 @@ class RigidBody:
     angular_damping : float     :math:`c` of :math:`\\dot\\omega = -c\\,\\omega` (1/s; :func:`damp_and_weld`)
     welded_to : int             the body this pinned body turns with (same centre, one angular velocity), or -1
 
+    Notes
+    -----
     A 3D body (shape a :class:`~mpmref.physics.trimesh.TriMesh`) has ``center``, ``velocity`` and
     ``angular_velocity`` of shape (3,), ``inertia`` the (3, 3) tensor about the centre in the declared pose,
     and keyframes ``(time, offset (3,), rotation vector (3,))`` (:mod:`mpmref.physics.rigid_dynamics3d`).
@@ -88,6 +90,8 @@ class RigidState:
     impulse : (nb, 2)           linear impulse received from the material since time 0
     angular_impulse : (nb,)     angular impulse about the reference point received since time 0
 
+    Notes
+    -----
     For 3D bodies (:mod:`mpmref.physics.rigid_dynamics3d`) ``position``, ``velocity``, ``impulse``,
     ``angular_velocity`` and ``angular_impulse`` are (nb, 3) and ``angle`` is the orientation, a unit
     quaternion (w, x, y, z) of shape (nb, 4).

@@ -87,7 +87,7 @@ class NumbaBackend:
     reads velocities in ``prepared.layout``): that is how the step pipeline runs. Without ``prepared``, they
     are the dense C-ordered arrays of every node, the stage contract of :mod:`mpmref.backends.base` that the
     conformance harness checks; the sparse kernels run all the same, with a scatter or gather at the edge.
-    CPIC's stages (:mod:`.cpic`) use the dense grid.
+    CPIC's stages (:mod:`mpmref.backends.numba.cpic`) use the dense grid.
     """
 
     name = "numba"
@@ -147,7 +147,7 @@ class NumbaBackend:
 
     def p2g(self, particles, prepared=None, contact=None):
         """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent);
-        with a CPIC ``contact``, only to compatible nodes (:func:`.cpic.p2g`, dense).
+        with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
 
         The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
         node rows of the active blocks live in one (rows, 1 + 2d) array from the backend's
@@ -225,7 +225,7 @@ class NumbaBackend:
                 changes[name] = array
         return particles.with_(**changes)
 
-    # ------------------------------------------------------------------ CPIC stages (:mod:`.cpic`)
+    # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):
         return cpic.contact(self, particles, prepared or self.prepare(particles), rigid, dt)
 
@@ -241,7 +241,7 @@ class NumbaBackend:
 
         Runs one full step (prepare, stress, P2G, grid update, G2P, return map) on a copy of the first
         ``per_material`` particles of each material, with Δt = 0, so that compilation is not counted in
-        a run's timings, and with rigid bodies the CPIC stages too (:func:`.cpic.warm_up`). ``particles``
+        a run's timings, and with rigid bodies the CPIC stages too (:func:`mpmref.backends.numba.cpic.warm_up`). ``particles``
         is not modified.
         """
         from ...steppers.pipeline import substep

@@ -1,12 +1,12 @@
 r"""CPIC kernels of the Numba backend in 3D: the colored distance field of triangle meshes, the particles' tags
 and distance, P2G to compatible nodes, the bodies' impulses and G2P with ghost velocities, compiled. The stages
-that call them (``contact``, ``p2g``, ``impulses``, ``g2p``, ``warm_up``) are those of :mod:`.cpic`, which
-picks this module's kernels in 3D (:func:`.cpic.kernels`).
+that call them (``contact``, ``p2g``, ``impulses``, ``g2p``, ``warm_up``) are those of :mod:`mpmref.backends.numba.cpic`, which
+picks this module's kernels in 3D (:func:`mpmref.backends.numba.cpic.kernels`).
 
 The equations are those of the NumPy reference (:mod:`mpmref.backends.numpy.cpic`, :mod:`mpmref.physics.cdf`,
 :func:`mpmref.physics.rigid_dynamics.friction_projection`, :mod:`mpmref.physics.rigid_dynamics3d`); Hu et al.
 2018, SIGGRAPH, §4–5, as the authors' reference implementation does (docs/cpic.md). The layout is that of the
-2D kernels (:mod:`.cpic`): the field rasterised body by body in the reference's order, the tags over the
+2D kernels (:mod:`mpmref.backends.numba.cpic`): the field rasterised body by body in the reference's order, the tags over the
 particles' blocks (skipping blocks far from every band), a bit mask of the incompatible nodes of each
 particle's transfer stencil (:math:`S^3 \le 64` bits), P2G block-parallel by the :math:`2^3` block colours,
 impulses reduced in a fixed order. What differs from 2D is the geometry (a node's barycentric coordinates
@@ -136,7 +136,7 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
 def tag_kernel(KERNEL, S):
     r"""Sticky tags, least-squares distance and normal of every particle (3D, quadratic stencil), and the mask
     of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``); as the
-    2D :func:`.cpic.tag_kernel`, over the particles' blocks, skipping blocks far from every band."""
+    2D :func:`mpmref.backends.numba.cpic.tag_kernel`, over the particles' blocks, skipping blocks far from every band."""
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
@@ -169,7 +169,7 @@ def tag_kernel(KERNEL, S):
 @njit(cache=True, inline="always")
 def block_in_band(c0, c1, c2, block, shape, d):
     """Whether a node that the quadratic stencils of block ``(c0, c1, c2)``'s particles can reach is in a band
-    (the 3D :func:`.cpic.block_in_band`: per axis ``[c B - 1, c B + B + 2]``)."""
+    (the 3D :func:`mpmref.backends.numba.cpic.block_in_band`: per axis ``[c B - 1, c B + B + 2]``)."""
     for i0 in range(max(c0 * block - 1, 0), min(c0 * block + block + 3, shape[0])):
         for i1 in range(max(c1 * block - 1, 0), min(c1 * block + block + 3, shape[1])):
             for i2 in range(max(c2 * block - 1, 0), min(c2 * block + block + 3, shape[2])):
@@ -204,7 +204,7 @@ def stencil_node(b0, b1, b2, k, shape):
 @njit(cache=True, inline="always")
 def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, near_r, S0, S1, M,
                  rhs):
-    r"""Tags, distance, normal and ``near`` of particle ``p`` (the 3D :func:`.cpic.tag_particle`: sticky tags,
+    r"""Tags, distance, normal and ``near`` of particle ``p`` (the 3D :func:`mpmref.backends.numba.cpic.tag_particle`: sticky tags,
     :math:`S_s = \sum_{i: A_{ir} = 1, T_{ir} = s} w_{ip} d_i`, then :func:`reconstruct_particle`); returns
     whether it is tagged. Hu et al. 2018 §4; docs/cpic.md."""
     n_bodies = tag_A.shape[1]
@@ -316,7 +316,7 @@ def lu_solve(M, rhs):
 def ghost_velocity(v, node_x, r, position, velocity, omega, n, mu):
     r"""The friction projection :math:`\Pi(\mathbf v; \mathbf v_r(\mathbf x_i), \mathbf n, \mu)` against body ``r``
     in 3D, :math:`\mathbf v_r(\mathbf x) = \mathbf v_r + \boldsymbol\omega_r\times(\mathbf x - \mathbf c_r)`
-    (the 3D :func:`.cpic.ghost_velocity`; the talk's Eq. 25, Hu et al. 2018 §5). ``v``, ``node_x``, ``n``:
+    (the 3D :func:`mpmref.backends.numba.cpic.ghost_velocity`; the talk's Eq. 25, Hu et al. 2018 §5). ``v``, ``node_x``, ``n``:
     3-tuples; returns a 3-tuple."""
     rel0, rel1, rel2 = node_x[0] - position[r, 0], node_x[1] - position[r, 1], node_x[2] - position[r, 2]
     vb0 = velocity[r, 0] + (omega[r, 1] * rel2 - omega[r, 2] * rel1)
@@ -339,7 +339,7 @@ def ghost_velocity(v, node_x, r, position, velocity, omega, n, mu):
 
 @njit(cache=True, inline="always")
 def node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, vs, a, position, velocity, omega):
-    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (3D :func:`.cpic.node_ghost`): if ``near``,
+    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (3D :func:`mpmref.backends.numba.cpic.node_ghost`): if ``near``,
     the friction projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` against the node's nearest body, else
     :math:`\mathbf v^*_p` (``vs``)."""
     if not near[p]:
@@ -438,7 +438,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
 @njit(cache=True, inline="always")
 def nearest_body(base, S, strides, node_body, node_d):
     """The nearest body of the transfer-stencil node closest to a body (first in stencil order), or 0: the body
-    that receives a particle's penalty impulse (3D :func:`.cpic.nearest_body`)."""
+    that receives a particle's penalty impulse (3D :func:`mpmref.backends.numba.cpic.nearest_body`)."""
     best_d, best_body = np.inf, 0
     for i in range(S):
         for j in range(S):
@@ -479,7 +479,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
     r"""CPIC G2P kernel (3D): G2P with ghost velocities (plus the pushing force for near particles),
     ``C_p := 0`` for near particles, and the penalty, whose impulse :math:`m_p\Delta\mathbf v` and its moment
     about the nearest body's centre accumulate per block in ``block_impulse[bi, r]`` (6 components) — the 3D
-    :func:`.cpic.g2p_kernel` (see :func:`mpmref.backends.numpy.cpic.g2p`)."""
+    :func:`mpmref.backends.numba.cpic.g2p_kernel` (see :func:`mpmref.backends.numpy.cpic.g2p`)."""
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
     LO, HI = PENALTY_WINDOW
