@@ -97,7 +97,7 @@ class NumbaBackend:
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = scene.transfer
-        self._p2g = transfers.make_p2g(self.cfg, grid.block)
+        self._p2g = transfers.make_p2g(self.cfg, grid.block, scene.material_list)
         self._g2p = transfers.make_g2p(self.cfg, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
@@ -149,7 +149,7 @@ class NumbaBackend:
         """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent);
         with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
 
-        The stress is computed inside, particle by particle (:func:`.materials.stress_of`), not stored. The
+        The stress is computed inside, particle by particle (:func:`.transfers.p2g_kernel`), not stored. The
         node rows of the active blocks live in one (rows, 1 + 2d) array from the backend's
         :class:`~.buffers.BufferPool` (mass, momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense

@@ -258,7 +258,8 @@ KERNELS = {
 
 
 # --------------------------------------------------------------------------- one particle, any material
-#: material class -> (code of :func:`stress_of`, its parameters as a tuple of at most 3 floats)
+#: material class -> (its code in the stress dispatch of the fused P2G kernel
+#: (:func:`~.transfers.p2g_kernel`), its parameters as a tuple of at most 3 floats)
 PARTICLE_STRESS = {
     WeaklyCompressibleFluid: (0, lambda m: (m.K, m.gamma)),
     FixedCorotated: (1, lambda m: (m.mu, m.lam)),
@@ -269,7 +270,7 @@ PARTICLE_STRESS = {
 
 
 def stress_table(materials):
-    """``(codes (k,) int64, params (k, 3) float64)`` of a scene's materials for :func:`stress_of`."""
+    """``(codes (k,) int64, params (k, 3) float64)`` of a scene's materials (:data:`PARTICLE_STRESS`)."""
     codes = np.empty(len(materials), dtype=np.int64)
     params = np.zeros((len(materials), 3), dtype=np.float64)
     for i, material in enumerate(materials):
@@ -279,18 +280,7 @@ def stress_table(materials):
     return codes, params
 
 
-@njit(cache=True, inline="always")
-def stress_of(code, prm, F, J, Jp, p, out, R, U, sigma, Vt):
-    """Kirchhoff stress of particle ``p`` into ``out``: the per-particle body of the material kernels above,
-    chosen by ``code`` (:data:`PARTICLE_STRESS`), with the same operations, so the result is the same bits
-    as the separate stress stage's. ``R``, ``U``, ``sigma``, ``Vt`` are work arrays."""
-    if code == 0:
-        fluid_stress_into(J[p], prm[0], prm[1], out)
-    elif code == 1:
-        corotated_stress_into(F[p], prm[0], prm[1], 1.0, out, R, U, sigma, Vt)
-    elif code == 2:
-        neo_hookean_stress_into(F[p], prm[0], prm[1], out)
-    elif code == 3:
-        corotated_stress_into(F[p], prm[0], prm[1], np.exp(prm[2] * (1.0 - Jp[p])), out, R, U, sigma, Vt)
-    else:
-        sand_stress_into(F[p], prm[0], prm[1], out, R, U, sigma, Vt)
+def stress_mask(materials):
+    """Bit ``c`` set for each material code ``c`` (:data:`PARTICLE_STRESS`) a scene uses: the fused P2G kernel
+    compiles the stress of these materials only (the SVD-based laws are most of its compile time)."""
+    return sum({1 << PARTICLE_STRESS[type(m)][0] for m in materials})

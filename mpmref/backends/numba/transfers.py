@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
-from .materials import stress_of
+from .materials import (corotated_stress_into, fluid_stress_into, neo_hookean_stress_into, sand_stress_into,
+                        stress_mask)
 from .stencil import KERNEL_CODES, kernel_axis, polypic_axis_basis
 
 
@@ -43,11 +44,12 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def make_p2g(spec, block):
-    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (FLIP and
-    the tracked deformation are invisible to P2G, so those variants share one compiled kernel); see
-    :func:`p2g_kernel`."""
-    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block)
+def make_p2g(spec, block, materials):
+    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, with the
+    stress of the scene's ``materials`` fused in (FLIP and the tracked deformation are invisible to P2G, so those
+    variants share one compiled kernel); see :func:`p2g_kernel`."""
+    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block,
+                      stress_mask(materials))
 
 
 def make_g2p(spec, block):
@@ -58,7 +60,7 @@ def make_g2p(spec, block):
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
 
@@ -70,8 +72,10 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
     by slab in the two
     colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
-    computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p`
-    (:func:`.materials.stress_of`, the stress stage's own arithmetic, fused here instead of stored), the
+    computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (the stress
+    stage's own per-particle functions of :mod:`.materials`, so the same bits, fused here instead of stored;
+    ``MATERIALS`` has bit ``c`` set for each material code of
+    :data:`~.materials.PARTICLE_STRESS` the scene uses, and only those laws are compiled), the
     force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
     momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
@@ -81,6 +85,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
     """
     SOURCES = SOURCE_DIGEST
     N = BLOCK**DIM  # nodes (rows) per block
+    FLUID, COROTATED, NEO_HOOKEAN, SNOW, SAND = (bool(MATERIALS >> code & 1) for code in range(5))
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
@@ -100,8 +105,19 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
                 fx_arr = np.empty(DIM if POLY else 0)
                 for k in range(slab_start[slab], slab_start[slab + 1]):
                     p = order[k]
-                    mat = material[p]
-                    stress_of(stress_codes[mat], stress_params[mat], F, J, Jp, p, tau, R, U, sigma, Vt)
+                    code, prm = stress_codes[material[p]], stress_params[material[p]]
+                    # a branch on a closure constant is pruned before compilation: unused laws cost nothing
+                    if FLUID and code == 0:
+                        fluid_stress_into(J[p], prm[0], prm[1], tau)
+                    elif COROTATED and code == 1:
+                        corotated_stress_into(F[p], prm[0], prm[1], 1.0, tau, R, U, sigma, Vt)
+                    elif NEO_HOOKEAN and code == 2:
+                        neo_hookean_stress_into(F[p], prm[0], prm[1], tau)
+                    elif SNOW and code == 3:
+                        corotated_stress_into(F[p], prm[0], prm[1], np.exp(prm[2] * (1.0 - Jp[p])), tau, R, U, sigma,
+                                              Vt)
+                    elif SAND and code == 4:
+                        sand_stress_into(F[p], prm[0], prm[1], tau, R, U, sigma, Vt)
                     m = mass[p]
                     Q = matrix(tau, T(-vol0[p] / inertia if MLS else -vol0[p]), DIM)
                     mv = scaled_row(v, p, m, DIM)
