@@ -109,13 +109,11 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
                     # a branch on a closure constant is pruned before compilation: unused laws cost nothing
                     if FLUID and code == 0:
                         fluid_stress_into(J[p], prm[0], prm[1], tau)
-                    elif COROTATED and code == 1:
-                        corotated_stress_into(F[p], prm[0], prm[1], 1.0, tau, R, U, sigma, Vt)
+                    elif (COROTATED or SNOW) and (code == 1 or code == 3):  # snow: hardened corotated
+                        scale = np.exp(prm[2] * (1.0 - Jp[p])) if code == 3 else 1.0
+                        corotated_stress_into(F[p], prm[0], prm[1], scale, tau, R, U, sigma, Vt)
                     elif NEO_HOOKEAN and code == 2:
                         neo_hookean_stress_into(F[p], prm[0], prm[1], tau)
-                    elif SNOW and code == 3:
-                        corotated_stress_into(F[p], prm[0], prm[1], np.exp(prm[2] * (1.0 - Jp[p])), tau, R, U, sigma,
-                                              Vt)
                     elif SAND and code == 4:
                         sand_stress_into(F[p], prm[0], prm[1], tau, R, U, sigma, Vt)
                     m = mass[p]
