@@ -41,15 +41,22 @@ def with_threads(threads, fn):
         numba.set_num_threads(before)
 
 
+def block_3d(method, material):
+    """A jittered 3D block on a 16^3 grid, moving, for the thread-count test."""
+    return Scene.from_dict({"dim": 3, "grid": {"size": 1.0, "cells": 16}, "method": method, "materials": {"m": material},
+                            "bodies": [{"shape": "box", "material": "m", "lower": [0.3] * 3, "upper": [0.7] * 3,
+                                        "ppc": 8, "sampling": "jittered", "seed": 3, "velocity": [0.5, -0.2, 0.1]}],
+                            "gravity": [0.0, -9.8, 0.0], "time": {"dt": 1e-4, "steps": 10}})
+
+
 @pytest.mark.parametrize("scene", [
     example("mpm88"),
     example("snow88"),
-    Scene.from_dict({"dim": 3, "grid": {"size": 1.0, "cells": 16}, "method": {"scheme": "polypic", "kernel": "cubic"},
-                     "materials": {"m": {"type": "neo_hookean", "E": 1e3, "nu": 0.3, "rho": 1.0}},
-                     "bodies": [{"shape": "box", "material": "m", "lower": [0.3] * 3, "upper": [0.7] * 3, "ppc": 8,
-                                 "sampling": "jittered", "seed": 3, "velocity": [0.5, -0.2, 0.1]}],
-                     "gravity": [0.0, -9.8, 0.0], "time": {"dt": 1e-4, "steps": 10}}),
-], ids=["mpm88", "snow88", "3d-polypic-cubic"])
+    block_3d({"scheme": "mls"}, {"type": "fluid", "K": 400.0, "gamma": 1.0, "rho": 1.0}),
+    # the widest stencil with modes: a fresh Numba cache spends ~17 s compiling it, so it runs with the slow set
+    pytest.param(block_3d({"scheme": "polypic", "kernel": "cubic"},
+                          {"type": "neo_hookean", "E": 1e3, "nu": 0.3, "rho": 1.0}), marks=pytest.mark.slow),
+], ids=["mpm88", "snow88", "3d-mls-fluid", "3d-polypic-cubic"])
 def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene, monkeypatch):
     """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count."""
     monkeypatch.setattr(numba_backend, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
