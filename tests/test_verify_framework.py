@@ -132,3 +132,14 @@ def test_the_warm_up_compiles_the_scenes_of_the_compiled_cases_only():
     assert len(jobs) == len(quick.variants) * len(quick.kernels) + len(speed_accuracy.SCHEMES)
     assert {v.scheme for v in backends.VARIANTS} <= set(schemes)
     assert warmup.start(["momentum", "transfer_energy"], "quick", "numpy") is None
+
+
+def test_the_warm_up_queue_hands_out_every_scene_once_from_either_end():
+    """The background process takes scenes from the front, the main process from the back: each once."""
+    import multiprocessing
+
+    from verification import warmup
+
+    queue = multiprocessing.Array("i", [0, 5])
+    taken = [warmup.claim(queue, from_back=k % 2 == 1) for k in range(7)]
+    assert taken == [0, 4, 1, 3, 2, None, None]

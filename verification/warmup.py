@@ -12,9 +12,15 @@ Numba has no lock between processes: a case that starts while the warm-up is sti
 would compile them a second time, on the other core (measured: the ``backends`` quick preset took 134 s of
 CPU that way against 64 s alone). So ``mpmref verify`` runs the cases that declare compiled scenes after
 the others, and :func:`wait` for the warm-up before the first of them: every kernel compiles once.
+
+The scenes form a queue that two workers take from, one from each end, each scene claimed under a lock:
+the background process from the front from the start, and, once the NumPy cases are done and the core
+they used is free, the main process from the back (:func:`wait`). No scene is compiled twice, and the
+kernels the main process compiles stay in its memory for the cases that follow.
 """
 
 import multiprocessing
+from dataclasses import dataclass
 
 from mpmref.backends import make_backend
 from mpmref.bodies import sample_particles
@@ -32,22 +38,55 @@ def scenes_to_compile(names, preset, backend):
     return out
 
 
-def compile_scenes(names, preset, backend):
-    """Compile (or load) every kernel of :func:`scenes_to_compile` with one Δt = 0 step of each scene."""
-    for name, scene in scenes_to_compile(names, preset, backend):
-        compiled = make_backend(name, scene)
-        compiled.warm_up(sample_particles(scene))
+def compile_scenes(names, preset, backend, queue=None, from_back=False):
+    """Compile (or load) every kernel of :func:`scenes_to_compile` with one Δt = 0 step of each scene; with a
+    ``queue`` (shared ``[front, back)`` bounds, see :func:`start`), only the scenes this worker claims."""
+    scenes = scenes_to_compile(names, preset, backend)
+    queue = queue if queue is not None else multiprocessing.Array("i", [0, len(scenes)])
+    while (index := claim(queue, from_back)) is not None:
+        name, scene = scenes[index]
+        make_backend(name, scene).warm_up(sample_particles(scene))
+
+
+def claim(queue, from_back):
+    """Index of the next scene to compile from the front or the back of ``queue``, or ``None`` when empty."""
+    with queue.get_lock():
+        front, back = queue[0], queue[1]
+        if front >= back:
+            return None
+        if from_back:
+            queue[1] = back - 1
+            return back - 1
+        queue[0] = front + 1
+        return front
+
+
+@dataclass
+class WarmUp:
+    """The background compilation: its process, the shared queue bounds, and what :func:`wait` needs to
+    take the other end of the queue."""
+
+    process: multiprocessing.Process
+    queue: object
+    job: tuple
+
+    def is_alive(self):
+        return self.process.is_alive()
 
 
 def start(names, preset, backend):
-    """Start :func:`compile_scenes` in a daemon process (spawned: no state shared); ``None`` when no case
-    declares a compiled scene. The caller ends it with :func:`stop`."""
-    if not scenes_to_compile(names, preset, backend):
+    """Start :func:`compile_scenes` in a daemon process (spawned: no state shared) on the front of a shared
+    queue of the scenes; ``None`` when no case declares a compiled scene. The caller ends it with
+    :func:`stop`."""
+    scenes = scenes_to_compile(names, preset, backend)
+    if not scenes:
         return None
-    process = multiprocessing.get_context("spawn").Process(target=compile_scenes, args=(names, preset, backend),
-                                                           daemon=True, name="mpmref-warm-up")
+    context = multiprocessing.get_context("spawn")
+    queue = context.Array("i", [0, len(scenes)])
+    job = (names, preset, backend)
+    process = context.Process(target=compile_scenes, args=(*job, queue), daemon=True, name="mpmref-warm-up")
     process.start()
-    return process
+    return WarmUp(process, queue, job)
 
 
 def compiles(name, preset, backend):
@@ -55,17 +94,19 @@ def compiles(name, preset, backend):
     return bool(scenes_to_compile([name], preset, backend))
 
 
-def wait(process, progress):
-    """Wait for the warm-up to finish (a line through ``progress`` when it is still running)."""
-    if process is None or not process.is_alive():
+def wait(warm_up, progress):
+    """Compile the scenes still queued from the back here, beside the background process, then wait for it
+    (a line through ``progress`` when it is still running)."""
+    if warm_up is None or not warm_up.is_alive():
         return
-    progress("waiting for the background compilation to finish (each kernel compiles once)")
-    process.join()
+    progress("compiling the rest of the kernels here and in the background process (each kernel compiles once)")
+    compile_scenes(*warm_up.job, queue=warm_up.queue, from_back=True)
+    warm_up.process.join()
 
 
-def stop(process):
+def stop(warm_up):
     """End the warm-up process if it is still running (every case has run)."""
-    if process is not None and process.is_alive():
-        process.terminate()
-    if process is not None:
-        process.join()
+    if warm_up is not None and warm_up.is_alive():
+        warm_up.process.terminate()
+    if warm_up is not None:
+        warm_up.process.join()
