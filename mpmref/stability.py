@@ -96,6 +96,11 @@ def first_unbounded(v_old, v_new, dt, dx):
     (int, float) or None
         The particle index and :math:`|\Delta v|\,\Delta t/\Delta x`, or ``None`` when every change is bounded.
     """
+    if v_new.size == 0:
+        return None
+    largest = float(np.max(np.abs(v_new - v_old)))  # |Δv| <= sqrt(d) times its largest component
+    if not np.isfinite(largest) or largest * np.sqrt(v_new.shape[1]) * (dt / dx) <= 0.5 * MAX_CELLS_PER_STEP:
+        return None  # the margin of 2 covers the rounding of the dtype's subtraction; non-finite is not ours
     jump = np.sqrt(np.sum((v_new.astype(np.float64) - v_old) ** 2, axis=1)) * (dt / dx)
     bad = jump > MAX_CELLS_PER_STEP
     if not bad.any():

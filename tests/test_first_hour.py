@@ -16,7 +16,7 @@ from mpmref import (AllParticlesLeftError, DomainExitError, InstabilityError, No
 from mpmref.cli import main
 from mpmref.domain import apply_domain_exit
 from mpmref.io.checkpoint import load_checkpoint
-from mpmref.stability import MEASURED_LIMITS, StabilityWarning, stable_cfl
+from mpmref.stability import MEASURED_LIMITS, StabilityWarning, first_unbounded, stable_cfl
 from mpmref.state import Particles
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -75,6 +75,41 @@ def test_a_non_finite_state_is_an_instability_with_the_last_good_state(tmp_path)
     assert isinstance(info.value, InstabilityError) and info.value.step == 1
     state, _ = load_checkpoint(info.value.checkpoint)
     assert state.step == 0 and all(np.isfinite(a).all() for a in state.particles.arrays().values())
+
+
+def test_the_finite_check_looks_past_a_sum_that_overflows(tmp_path):
+    """The finite check sums each array first and looks element by element only when the sum is not finite:
+    huge but finite values (their float32 sum overflows) pass, and one inf among them is still found."""
+    sim = Simulation(flying_block("error"), out_dir=tmp_path)
+    huge = sim.particles.with_(v=np.full_like(sim.particles.v, 3e38, dtype=np.float32))
+    assert not np.isfinite(np.sum(huge.v))
+    sim._check_finite(huge, 1e-3)  # no error: every element is finite
+    v = huge.v.copy()
+    v[7, 1] = np.inf
+    with pytest.raises(NonFiniteError) as info:
+        sim._check_finite(huge.with_(v=v), 1e-3)
+    assert info.value.particle == int(sim.id[7]) and info.value.quantity == "v"
+
+
+def test_velocity_jumps_are_found_past_the_fast_bound():
+    """first_unbounded's quick bound (largest component times sqrt(d), half the limit) only skips states far
+    from the limit: a jump of 1.2 cells is found, one of 0.9 cells is not flagged."""
+    v_old = np.zeros((5, 2), dtype=np.float32)
+    for cells, found in ((1.2, True), (0.9, False)):
+        v_new = v_old.copy()
+        v_new[3] = [cells * 0.6, cells * 0.8]  # |dv| dt / dx = cells with dt = dx = 1
+        result = first_unbounded(v_old, v_new, 1.0, 1.0)
+        assert (result is not None) == found
+        if found:
+            assert result[0] == 3 and result[1] == pytest.approx(cells, rel=1e-6)
+
+
+def test_all_inside_is_found_by_the_bounds_and_the_first_outside_particle_still_counts():
+    lo, hi = np.array([0.0, 0.0]), np.array([1.0, 1.0])
+    inside = particles_at([[0.1, 0.5], [0.9, 0.99]], [[0.0, 0.0], [0.0, 0.0]])
+    assert apply_domain_exit(inside, lo, hi, "error").outside.size == 0
+    edge = particles_at([[0.1, 0.5], [0.9, 1.0]], [[0.0, 0.0], [0.0, 0.0]])  # hi is excluded: [lo, hi)
+    assert list(apply_domain_exit(edge, lo, hi, "error").outside) == [1]
 
 
 # ------------------------------------------------------------------------------------ domain exit
