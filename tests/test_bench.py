@@ -35,15 +35,17 @@ def parse(argv):
 
 # ------------------------------------------------------------------------------------------- scenes
 @pytest.mark.parametrize("dtype", ["float64", "float32"])
-def test_table2_block_has_8_particles_per_cell_at_quarter_cell_offsets(dtype):
+@pytest.mark.parametrize("dim", [2, 3])
+def test_table2_block_has_2_to_the_d_particles_per_cell_at_quarter_cell_offsets(dtype, dim):
+    """8 per cell in 3D (the talk's set-up), 4 in its 2D counterpart: the cell's corners at +-dx/4."""
     cells = 3
-    scene = table2_scene(cells, "mls", dtype)
+    scene = table2_scene(cells, "mls", dtype, dim)
     x = table2_particles(scene).x.astype(np.float64)
     xi = (x - scene.grid.origin) / scene.grid.dx
     cell = np.floor(xi).astype(int)
     offset = xi - cell - 0.5  # from the cell centre, in cells
     occupied, counts = np.unique(cell, axis=0, return_counts=True)
-    assert len(occupied) == cells**3 and np.all(counts == 8)
+    assert len(occupied) == cells**dim and np.all(counts == 2**dim)
     assert occupied.min() == 2 and occupied.max() == 2 + cells - 1  # the block sits inside the padding
     np.testing.assert_allclose(np.abs(offset), 0.25, atol=8 * np.finfo(dtype).eps * xi.max())
     corners = {(tuple(c), tuple(np.sign(o).astype(int))) for c, o in zip(cell, offset)}
@@ -55,6 +57,7 @@ def test_table2_methods_are_classic_mpm_and_mls_mpm():
     assert (mpm.scheme, mpm.force, mpm.kernel) == ("apic", "classic", "quadratic")
     assert (mls.scheme, mls.force, mls.kernel) == ("mls", "mls", "quadratic")
     assert table2_cells(1_000_000) == 50 and table2_cells(8_000_000) == 100
+    assert table2_cells(262_144, dim=2) == 256 and table2_cells(1_000_000, dim=2) == 500
 
 
 def test_throughput_cases_have_the_issue_sizes():
@@ -91,8 +94,9 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
     out, err = capsys.readouterr()
-    for i, section in enumerate(("table2", "throughput", "stages", "scaling", "domain", "cpic"), 1):
-        assert f"[{i}/6] {section}: started" in err and f"[{i}/6] {section}: finished in " in err
+    sections = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic")
+    for i, section in enumerate(sections, 1):
+        assert f"[{i}/7] {section}: started" in err and f"[{i}/7] {section}: finished in " in err
     assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
@@ -117,6 +121,10 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert memory["particle_bytes"] == 64 * (3 + 3 + 9 + 9 + 1 + 1) * 8 + 64 * 4 + 64 * 8  # ... + material + id
     assert memory["grid_bytes"] == 7**3 * 7 * 8 and memory["step_peak_growth_bytes"] >= 0
     assert memory["peak_over_particles"] >= 1.0  # the state itself is resident throughout
+    plane = results["table2_2d"]  # as many particles as the 3D block (64), 4 per cell: 4^2 cells
+    assert plane["setup"]["dim"] == 2 and plane["setup"]["cells_per_side"] == 4 and plane["setup"]["particles"] == 64
+    assert {(t["method"], t["stage"]) for t in plane["timings"]} == stages and "memory" not in plane
+    assert "Table 2 (2D)" in out and "Table 2 (3D)" in out
 
     throughput = results["throughput"]
     assert [c["case"] for c in throughput["cases"]] == ["mpm88", "fluid3d", "large2d"]
@@ -141,6 +149,7 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert record["ratio"] == pytest.approx(record["coupled"]["median_s"] / record["plain"]["median_s"])
     assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
     assert "CPIC: a step with 3 bodies" in out
+    assert "Goals" in out and len(results["goals"]) == 11 and all("met" in g for g in results["goals"])
 
 
 def test_table2_ratios_divide_mpm_by_mls():
@@ -158,7 +167,7 @@ def test_table2_ratios_divide_mpm_by_mls():
 
 def test_options_from_the_command_line():
     assert options_from_args(parse(["--vs", "taichi"])).sections == (
-        "table2", "throughput", "stages", "scaling", "domain", "cpic", "peer")
+        "table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "peer")
     assert options_from_args(parse(["--only", "cpic"])).sections == ("cpic",)
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
@@ -308,3 +317,28 @@ def test_domain_section_puts_the_same_body_in_growing_domains(memory):
         if memory:
             assert r["peak_bytes"] >= r["baseline_bytes"] > 0
     assert "Domain size at a fixed body" in render_domain(section)
+
+
+def test_goals_are_read_off_the_sections_with_their_direction():
+    """Each goal takes its figure from the section that measures it (two threads, float32, Numba) and is met
+    only on the right side of its bound; a goal whose section did not run has no figure and no verdict."""
+    from mpmref.bench.goals import goals_section, render_goals
+
+    ratio = {"backend": "numba", "threads": 2, "dtype": "float32", "p2g": 1.9, "g2p": 1.7}
+    results = {"table2": {"ratios": [ratio], "memory": [{"backend": "numba", "dtype": "float32", "particles": 262144,
+                                                          "peak_over_state": 1.4}]},
+               "peer": {"results": [{"case": "mpm88", "threads": 2, "backend": "numba", "ratio": 2.4}]},
+               "domain": {"results": [{"backend": "numba", "dtype": "float32", "threads": 2, "cells": c, "step_s": s,
+                                       "peak_bytes": 1.8e8} for c, s in ((32, 1.0), (256, 1.6))]}}
+    by_name = {g["name"]: g for g in goals_section(results)}
+    assert by_name["mpm88 2 threads float32: mpmref / Taichi CPU"]["met"] is False  # 2.4 < 2.5
+    assert by_name["fluid3d 2 threads float32: mpmref / Taichi CPU"]["met"] is None
+    assert by_name["Table 2 3D P2G: classic MPM / MLS-MPM"]["met"] is True
+    assert by_name["Table 2 3D G2P: classic MPM / MLS-MPM"]["met"] is False
+    assert by_name["Table 2 2D P2G: classic MPM / MLS-MPM"]["figure"] is None
+    assert by_name["peak memory / particle state"]["met"] is True  # 1.4 <= 1.5
+    domain = by_name["256^3 domain / 32^3 domain, same body: step time"]
+    assert domain["figure"] == pytest.approx(1.6) and domain["met"] is False
+    assert by_name["256^3 domain: peak memory (MB)"]["met"] is True  # 180 MB
+    table = render_goals(goals_section(results))
+    assert "Goals" in table and table.count("\n") == len(by_name) + 1

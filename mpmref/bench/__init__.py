@@ -10,6 +10,7 @@ Sections of the JSON document (each ``null`` when not run):
 * ``table2``: ``setup``; ``timings`` (backend, threads, dtype, method ``mpm``/``mls``, stage
   ``prepare``/``p2g``/``g2p``, ``first_call_s``, ``times_s``, ``median_s``); ``ratios`` (MPM over
   MLS-MPM for ``p2g`` and ``g2p``); ``memory`` (:mod:`mpmref.bench.memory`).
+* ``table2_2d``: the same in 2D (4 particles per cell, as many particles as ``table2``), without ``memory``.
 * ``throughput``: ``cases`` (case, dim, cells, particles, dt, steps) and ``results`` (case, backend,
   threads, dtype, timing, ``particle_steps_per_s``, ``vs_numpy``).
 * ``async``: ``results`` (case, backend, threads, particles, levels, ``async`` and ``sync`` timings with
@@ -25,6 +26,8 @@ Sections of the JSON document (each ``null`` when not run):
 * ``cpic``: ``case`` (cells, particles, bodies, segments, dt, steps), ``goal`` and ``results`` (backend,
   threads, dtype, particles, ``coupled`` and ``plain`` timings of whole steps with and without the rigid
   bodies, ``ratio``, ``coupled_stages_s``; :mod:`mpmref.bench.cpic`).
+* ``goals``: one record per performance goal (:mod:`mpmref.bench.goals`): ``name``, ``figure`` (``null``
+  when this run did not measure it), ``bound``, ``at_most``, ``where``, ``met``.
 * ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``
   (case, particles, threads, backend, ``mpmref`` and ``taichi`` timings, ``ratio``,
   ``mean_position_difference``, ``bound``, ``free_flight``, ``agree``; :mod:`mpmref.bench.peer`).
@@ -45,6 +48,7 @@ from ..io.atomic import write_text_atomic
 from .asynchronous import run_async
 from .cpic import run_cpic
 from .domain import run_domain
+from .goals import goals_section, render_goals
 from .peer import run_peer
 from .report import RENDERERS
 from .scenes import peer_cases, table2_cells, throughput_cases
@@ -57,8 +61,8 @@ SCHEMA = "mpmref-bench/1"
 DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
                "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
                "compilation is reported apart. See docs/performance.md.")
-SECTIONS = ("table2", "throughput", "stages", "scaling", "domain", "peer", "async", "cpic")
-DEFAULT_SECTIONS = ("table2", "throughput", "stages", "scaling", "domain", "cpic")
+SECTIONS = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "peer", "async", "cpic")
+DEFAULT_SECTIONS = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic")
 DEFAULT_PARTICLES = 1_000_000
 QUICK_PARTICLES = 4096
 FULL_CELLS = 100
@@ -103,6 +107,11 @@ class BenchOptions:
     def table2_cells(self):
         return FULL_CELLS if self.full else table2_cells(self.size)
 
+    @property
+    def table2_2d_cells(self):
+        """Cells per side of the 2D block with as many particles as the 3D one."""
+        return table2_cells(8 * self.table2_cells**3, dim=2)
+
 
 def _to_stderr(message):
     print(message, file=sys.stderr, flush=True)
@@ -125,11 +134,17 @@ def run_bench(options, log=print, progress=_to_stderr):
         results[name] = SECTION_RUNNERS[name](options, progress)
         progress(f"{tag}: finished in {time.perf_counter() - start:.1f} s")
         log(RENDERERS[name](results[name]) + "\n")
+    results["goals"] = goals_section(results)
+    log(render_goals(results["goals"]) + "\n")
     return results
 
 
 def _table2(o, log):
     return run_table2(o.table2_cells, o.backends, o.threads, o.dtypes, o.repeats, o.memory, log)
+
+
+def _table2_2d(o, log):
+    return run_table2(o.table2_2d_cells, o.backends, o.threads, o.dtypes, o.repeats, False, log, dim=2)
 
 
 def _throughput(o, log):
@@ -163,8 +178,8 @@ def _domain(o, log):
     return run_domain(o.backends, o.threads, o.dtypes, o.repeats, o.steps, o.quick, o.memory, log)
 
 
-SECTION_RUNNERS = {"table2": _table2, "throughput": _throughput, "stages": _stages, "scaling": _scaling,
-                   "domain": _domain, "peer": _peer, "async": _async, "cpic": _cpic}
+SECTION_RUNNERS = {"table2": _table2, "table2_2d": _table2_2d, "throughput": _throughput, "stages": _stages,
+                   "scaling": _scaling, "domain": _domain, "peer": _peer, "async": _async, "cpic": _cpic}
 
 
 def environment():

@@ -32,8 +32,9 @@ def render_table2(section):
     """The talk's Table 2 once per backend, thread count and dtype: rows P2G and G2P, columns MPM,
     MLS-MPM and their ratio; then the peak-memory probe."""
     setup = section["setup"]
-    lines = [f"Table 2: P2G and G2P, {setup['cells_per_side']}^3 cells, {setup['particles']:,} particles "
-             f"(8 per cell at cell centre +-dx/4), quadratic B-spline, {setup['material']}; median of repeats"]
+    lines = [f"Table 2 ({setup['dim']}D): P2G and G2P, {setup['cells_per_side']}^{setup['dim']} cells, "
+             f"{setup['particles']:,} particles ({setup['particles_per_cell']} per cell at cell centre +-dx/4), "
+             f"quadratic B-spline, {setup['material']}; median of repeats"]
     by = {(t["backend"], t["threads"], t["dtype"], t["method"], t["stage"]): t for t in section["timings"]}
     for ratio in section["ratios"]:
         key = (ratio["backend"], ratio["threads"], ratio["dtype"])
@@ -104,7 +105,7 @@ def render_peer(section):
     return "\n".join(lines)
 
 
-RENDERERS = {"table2": render_table2, "throughput": render_throughput, "stages": render_stages,
+RENDERERS = {"table2": render_table2, "table2_2d": render_table2, "throughput": render_throughput, "stages": render_stages,
              "scaling": render_scaling, "domain": render_domain, "peer": render_peer, "async": render_async,
              "cpic": render_cpic}
 

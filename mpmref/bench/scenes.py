@@ -2,7 +2,8 @@
 
 * :func:`table2_scene`: the set-up of the talk's Table 2 (MPM versus MLS-MPM): a cube of
   ``n**3`` cells filled with 8 particles per cell at the cell centre ``± dx/4`` on every axis (regular
-  sampling with ``ppc = 8``), quadratic B-spline, a fixed-corotated elastic solid.
+  sampling with ``ppc = 8``), quadratic B-spline, a fixed-corotated elastic solid; or its 2D
+  counterpart, a square of ``n**2`` cells at 4 particles per cell.
 * :func:`mpm88_scene`: the ``examples/mpm88.toml`` fluid with a chosen particle count and grid.
 * :func:`fluid3d_scene`: the 3D counterpart: a block of the same fluid falling in a box.
 """
@@ -26,23 +27,25 @@ THROUGHPUT_SIZES = {"mpm88": (32768, 128), "fluid3d": (64,), "large2d": (262144,
 QUICK_SIZES = {"mpm88": (512, 128), "fluid3d": (16,), "large2d": (2048, 64)}
 
 
-def table2_cells(particles):
-    """Cells per side of the Table-2 cube closest to ``particles`` particles (8 per cell), at least 2."""
-    return max(2, int(round((particles / 8.0) ** (1.0 / 3.0))))
+def table2_cells(particles, dim=3):
+    """Cells per side of the Table-2 block closest to ``particles`` particles (:math:`2^d` per cell), at least 2."""
+    return max(2, int(round((particles / 2.0**dim) ** (1.0 / dim))))
 
 
-def table2_scene(cells, method="mls", dtype="float64"):
-    """The Table-2 block: ``cells**3`` cells at 8 particles per cell (``± dx/4``), fixed-corotated.
+def table2_scene(cells, method="mls", dtype="float64", dim=3):
+    """The Table-2 block: ``cells**dim`` cells at :math:`2^d` particles per cell (``± dx/4`` on every axis),
+    fixed-corotated (the talk's table is 3D; ``dim = 2`` is its 2D counterpart).
 
     The grid has :data:`TABLE2_PAD` empty cells on each side of the block; ``method`` is a key of
     :data:`TABLE2_METHODS`.
     """
     total = cells + 2 * TABLE2_PAD
-    lower, upper = [TABLE2_PAD / total] * 3, [(TABLE2_PAD + cells) / total] * 3
-    return (SceneBuilder(dim=3, name=f"table2_{method}", dtype=dtype).grid(size=1.0, cells=total)
+    lower, upper = [TABLE2_PAD / total] * dim, [(TABLE2_PAD + cells) / total] * dim
+    name = f"table2_{method}" + ("_2d" if dim == 2 else "")
+    return (SceneBuilder(dim=dim, name=name, dtype=dtype).grid(size=1.0, cells=total)
             .method(**TABLE2_METHODS[method])
             .material("jelly", TABLE2_MATERIAL, E=1.0e4, nu=0.3, rho=1.0)
-            .box("jelly", lower=lower, upper=upper, ppc=8, sampling="regular").time(dt=1.0e-4).build())
+            .box("jelly", lower=lower, upper=upper, ppc=2**dim, sampling="regular").time(dt=1.0e-4).build())
 
 
 def table2_particles(scene, seed=2018):

@@ -16,33 +16,34 @@ from .timing import measure, set_threads, thread_counts
 STAGES = ("prepare", "stress", "p2g", "g2p")
 
 
-def run_table2(cells, backends, threads, dtypes, repeats, memory=True, log=print):
+def run_table2(cells, backends, threads, dtypes, repeats, memory=True, log=print, dim=3):
     """Time every stage for each dtype, method (``mpm``, ``mls``), backend and thread count.
 
-    Returns the ``table2`` section of the benchmark JSON: ``setup``, ``timings`` (one record per
-    dtype, method, backend, threads and stage), ``ratios`` (MPM over MLS-MPM for P2G and G2P) and,
-    if ``memory``, the peak-memory probe of each backend and dtype at the largest thread count.
+    Returns the ``table2`` section of the benchmark JSON (``table2_2d`` with ``dim = 2``): ``setup``,
+    ``timings`` (one record per dtype, method, backend, threads and stage), ``ratios`` (MPM over MLS-MPM
+    for P2G and G2P) and, if ``memory`` (3D only), the peak-memory probe of each backend and dtype at the
+    largest thread count.
     """
     timings = []
     for dtype in dtypes:
-        particles = table2_particles(table2_scene(cells, "mls", dtype))
+        particles = table2_particles(table2_scene(cells, "mls", dtype, dim))
         for method in TABLE2_METHODS:
-            scene = table2_scene(cells, method, dtype)
+            scene = table2_scene(cells, method, dtype, dim)
             for backend in backends:
-                log(f"table2: {backend} {dtype} {method} ({particles.n} particles)")
+                log(f"table2: {dim}D {backend} {dtype} {method} ({particles.n} particles)")
                 timings += time_stages(backend, scene, particles, threads, repeats, method)
-    section = {"setup": table2_setup(cells), "timings": timings, "ratios": table2_ratios(timings)}
-    if memory:
+    section = {"setup": table2_setup(cells, dim), "timings": timings, "ratios": table2_ratios(timings)}
+    if memory and dim == 3:
         section["memory"] = [memory_probe(b, cells, dtype, max(thread_counts(b, threads)))
                              for b in backends for dtype in dtypes]
     return section
 
 
-def table2_setup(cells):
+def table2_setup(cells, dim=3):
     """What the Table-2 figures were measured on."""
-    return {"cells_per_side": cells, "particles": 8 * cells**3, "particles_per_cell": 8,
+    return {"dim": dim, "cells_per_side": cells, "particles": 2**dim * cells**dim, "particles_per_cell": 2**dim,
             "offsets": "cell centre +- dx/4 on every axis", "kernel": "quadratic", "material": TABLE2_MATERIAL,
-            "grid_nodes": (cells + 2 * TABLE2_PAD + 1) ** 3,
+            "grid_nodes": (cells + 2 * TABLE2_PAD + 1) ** dim,
             "methods": {"mpm": "scheme apic, force classic (grad w)", "mls": "scheme mls (MLS-MPM)"}}
 
 

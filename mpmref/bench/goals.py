@@ -1,0 +1,114 @@
+"""The performance goals, read off a finished ``mpmref bench`` run: one line per goal with its figure, its
+bound and whether the run meets it (``None`` where the section that measures it was not run).
+
+The goals (docs/performance.md, "Goals"): float32 Numba at two threads against Taichi's CPU backend on the
+mpm88 and fluid3d scenes (``peer``, with ``--vs taichi``); classic MPM over MLS-MPM in P2G and G2P on the
+Table-2 block, 2D and 3D; two threads over one on the 262 144-particle 2D case; peak memory over the
+particle state (the Table-2 memory probe, at the Table-2 size); a 16³-cell body in a 256³ domain against a
+32³ one, time and memory; a CPIC step over a plain one. The single-file hand-written programs the goals
+also name are not part of mpmref: run them beside this command and compare by hand.
+"""
+
+from dataclasses import asdict, dataclass
+
+#: two threads, float32, the Numba backend: the setting the goals are stated for
+THREADS, DTYPE, BACKEND = 2, "float32", "numba"
+#: the domain goal: the largest domain (cells per side) against the smallest, and the memory bound (bytes)
+DOMAIN_BIG, DOMAIN_SMALL, DOMAIN_MEMORY = 256, 32, 200e6
+
+
+@dataclass(frozen=True)
+class Goal:
+    """One goal's outcome. ``figure`` is ``None`` when the run did not measure it; ``at_most`` tells the
+    direction of the bound."""
+
+    name: str
+    figure: float
+    bound: float
+    at_most: bool = False
+    where: str = ""
+
+    @property
+    def met(self):
+        if self.figure is None:
+            return None
+        return self.figure <= self.bound if self.at_most else self.figure >= self.bound
+
+
+def _first(records, **match):
+    return next((r for r in records if all(r.get(k) == v for k, v in match.items())), None)
+
+
+def _peer_ratio(results, case):
+    peer = results.get("peer") or {}
+    r = _first(peer.get("results", []), case=case, threads=THREADS, backend=BACKEND)
+    return None if r is None else r["ratio"]
+
+
+def _table2_ratio(results, section, stage):
+    ratios = (results.get(section) or {}).get("ratios", [])
+    r = _first(ratios, backend=BACKEND, threads=THREADS, dtype=DTYPE) or _first(ratios, backend=BACKEND, dtype=DTYPE)
+    return (None, "") if r is None else (r[stage], f"{r['threads']} thread(s)")
+
+
+def _speedup(results):
+    r = _first((results.get("scaling") or {}).get("threads", []), backend=BACKEND, threads=THREADS, dtype=DTYPE)
+    return (None, "") if r is None else (r["speedup_over_1"], f"{r['particles']:,} particles")
+
+
+def _memory(results):
+    r = _first((results.get("table2") or {}).get("memory") or [], backend=BACKEND, dtype=DTYPE)
+    return (None, "") if r is None else (r["peak_over_state"], f"{r['particles']:,} particles")
+
+
+def _domain(results):
+    records = (results.get("domain") or {}).get("results", [])
+    big = _first(records, backend=BACKEND, dtype=DTYPE, threads=THREADS, cells=DOMAIN_BIG)
+    small = _first(records, backend=BACKEND, dtype=DTYPE, threads=THREADS, cells=DOMAIN_SMALL)
+    if big is None or small is None:
+        return None, None
+    return big["step_s"] / small["step_s"], big.get("peak_bytes")
+
+
+def _cpic(results):
+    r = _first((results.get("cpic") or {}).get("results", []), backend=BACKEND)
+    return (None, "") if r is None else (r["ratio"], f"{r['threads']} thread(s), float64")
+
+
+def goals(results):
+    """Every goal of a bench result dict (:func:`mpmref.bench.run_bench`), as :class:`Goal` records."""
+    out = [Goal(f"{case} {THREADS} threads {DTYPE}: mpmref / Taichi CPU", _peer_ratio(results, case), bound)
+           for case, bound in (("mpm88", 2.5), ("fluid3d", 2.0))]
+    for section, dim in (("table2_2d", 2), ("table2", 3)):
+        for stage in ("p2g", "g2p"):
+            figure, where = _table2_ratio(results, section, stage)
+            out.append(Goal(f"Table 2 {dim}D {stage.upper()}: classic MPM / MLS-MPM", figure, 1.8, where=where))
+    for name, (figure, where), bound, at_most in (("2 threads over 1, 2D", _speedup(results), 1.8, False),
+                                                  ("peak memory / particle state", _memory(results), 1.5, True)):
+        out.append(Goal(name, figure, bound, at_most, where))
+    ratio, peak = _domain(results)
+    out.append(Goal(f"{DOMAIN_BIG}^3 domain / {DOMAIN_SMALL}^3 domain, same body: step time", ratio, 1.5,
+                    at_most=True))
+    out.append(Goal(f"{DOMAIN_BIG}^3 domain: peak memory (MB)", None if peak is None else peak / 1e6,
+                    DOMAIN_MEMORY / 1e6, at_most=True))
+    figure, where = _cpic(results)
+    out.append(Goal("CPIC step / step without bodies", figure, 1.5, True, where))
+    return out
+
+
+def goals_section(results):
+    """The ``goals`` section of the JSON document: one dict per goal with ``met``."""
+    return [{**asdict(g), "met": g.met} for g in goals(results)]
+
+
+def render_goals(section):
+    """The goals as a table: figure, bound, met (``-``: not measured by this run)."""
+    lines = [f"Goals ({BACKEND}, {DTYPE}, {THREADS} threads unless said; '-': not measured by this run)",
+             f"{'goal':58}{'figure':>10}{'bound':>10}  met"]
+    for g in section:
+        figure = "-" if g["figure"] is None else f"{g['figure']:.3g}"
+        sign = "<=" if g["at_most"] else ">="
+        met = "-" if g["met"] is None else ("yes" if g["met"] else "no")
+        where = f"  ({g['where']})" if g["where"] else ""
+        lines.append(f"{g['name']:58}{figure:>10}{sign:>4}{g['bound']:>6.3g}  {met}{where}")
+    return "\n".join(lines)
