@@ -149,7 +149,7 @@ class NumbaBackend:
         """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent);
         with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
 
-        The stress is computed inside, particle by particle (:func:`.transfers.p2g_kernel`), not stored. The
+        The stress is computed inside, particle by particle (:func:`mpmref.backends.numba.transfers.p2g_kernel`), not stored. The
         node rows of the active blocks live in one (rows, 1 + 2d) array from the backend's
         :class:`~.buffers.BufferPool` (mass, momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense

@@ -259,7 +259,7 @@ KERNELS = {
 
 # --------------------------------------------------------------------------- one particle, any material
 #: material class -> (its code in the stress dispatch of the fused P2G kernel
-#: (:func:`~.transfers.p2g_kernel`), its parameters as a tuple of at most 3 floats)
+#: (:func:`mpmref.backends.numba.transfers.p2g_kernel`), its parameters as a tuple of at most 3 floats)
 PARTICLE_STRESS = {
     WeaklyCompressibleFluid: (0, lambda m: (m.K, m.gamma)),
     FixedCorotated: (1, lambda m: (m.mu, m.lam)),

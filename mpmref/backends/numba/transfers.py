@@ -73,9 +73,9 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
     colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (the stress
-    stage's own per-particle functions of :mod:`.materials`, so the same bits, fused here instead of stored;
+    stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused here instead of stored;
     ``MATERIALS`` has bit ``c`` set for each material code of
-    :data:`~.materials.PARTICLE_STRESS` the scene uses, and only those laws are compiled), the
+    :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are compiled), the
     force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
     momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
