@@ -46,6 +46,8 @@ TOP_KEYS = {"dim", "dtype", "grid", "method", "materials", "bodies", "colliders"
 COUPLINGS = ("none", "cpic")
 #: schemes CPIC is defined for (docs/cpic.md are written for PIC, APIC and MLS-MPM)
 CPIC_SCHEMES = ("pic", "apic", "mls")
+#: how a CPIC particle near several bodies gets its distance and normal (docs/cpic.md, "Per-body fit")
+CPIC_FITS = ("single", "per_body")
 RIGID_COMMON_KEYS = {"vertices", "segments", "closed", "motion", "type", "friction"}
 #: the same in 3D: a triangle mesh inline (vertices, triangles) or from a file read by meshio (mesh)
 RIGID_COMMON_KEYS_3D = {"vertices", "triangles", "mesh", "closed", "motion", "type", "friction"}
@@ -169,6 +171,7 @@ class MethodSpec:
     penalty: float = 0.0
     momentum_exact: bool = False
     ghost_force: bool = True
+    cpic_fit: str = "single"
 
     def __post_init__(self):
         if not self.velocity_gradient:
@@ -387,7 +390,7 @@ def _cell_size_field(g):
 
 def _parse_method(m):
     _section(m, "method", {"scheme", "force", "kernel", "flip_alpha", "velocity_gradient", "coupling",
-                           "pushing_force", "penalty", "momentum_exact", "ghost_force"})
+                           "pushing_force", "penalty", "momentum_exact", "ghost_force", "cpic_fit"})
     scheme = _choice(m, "scheme", "method", SCHEMES, default="mls")
     force = _choice(m, "force", "method", FORCES, default="mls")
     gradient = _choice(m, "velocity_gradient", "method", FORCES, default=force)
@@ -405,7 +408,7 @@ def _parse_coupling(m, scheme):
     """The CPIC options of ``[method]`` (docs/cpic.md): coupling, pushing force, penalty, exact variant."""
     coupling = _choice(m, "coupling", "method", COUPLINGS, default="none")
     if coupling == "none":
-        for key in ("pushing_force", "penalty", "momentum_exact", "ghost_force"):
+        for key in ("pushing_force", "penalty", "momentum_exact", "ghost_force", "cpic_fit"):
             if key in m:
                 _fail(f"method.{key}", m[key], "only with method.coupling = 'cpic'")
         return {}
@@ -427,7 +430,8 @@ def _parse_coupling(m, scheme):
         _fail("method.pushing_force", push, "0 with method.momentum_exact = true (the pushing force injects momentum "
               "that no body receives)")
     return {"coupling": coupling, "pushing_force": push, "momentum_exact": exact, "ghost_force": ghost_force,
-            "penalty": _number(m, "penalty", "method", default=0.0, lo=0.0)}
+            "penalty": _number(m, "penalty", "method", default=0.0, lo=0.0),
+            "cpic_fit": _choice(m, "cpic_fit", "method", CPIC_FITS, default="single")}
 
 
 def _check_combination(spec):
@@ -544,6 +548,8 @@ def _parse_rigid_bodies(bodies, dim, grid, method, time, base_dir=None):
         _fail("time.stepping", time.stepping, "'sync' in a scene with [[rigid_bodies]] (CPIC runs in the synchronous "
               "step)")
     if dim == 3:
+        if method.cpic_fit != "single":
+            _fail("method.cpic_fit", method.cpic_fit, "'single' in 3D (the per-body fit is built in 2D only)")
         return [_parse_rigid_body3d(b, i, grid, base_dir) for i, b in enumerate(bodies)]
     return _welds([_parse_rigid_body(b, i, grid) for i, b in enumerate(bodies)], bodies, grid)
 

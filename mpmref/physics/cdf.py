@@ -63,6 +63,9 @@ class ColoredDistanceField:
     shape : tuple                       nodes per axis (C order numbering)
     origin : (d,) float array           position of node 0
     dx : float                          grid spacing
+    d_body : (n_nodes, n_bodies) float array or None
+                                        unsigned distance :math:`d_{ir}` to each body (``inf`` outside its band;
+                                        d_i is the least over r), for the per-body fit (None where not built)
     """
 
     d: np.ndarray
@@ -72,6 +75,7 @@ class ColoredDistanceField:
     shape: tuple
     origin: np.ndarray
     dx: float
+    d_body: np.ndarray = None
 
     def node_positions(self):
         """Positions of all nodes, shape (n_nodes, d), in node order."""
@@ -145,6 +149,7 @@ def build_cdf(bodies, shape, origin, dx):
     origin = np.asarray(origin, dtype=np.float64)
     n_nodes, n_bodies = int(np.prod(shape)), len(bodies)
     d = np.full(n_nodes, np.inf)
+    d_body = np.full((n_nodes, n_bodies), np.inf)
     nearest = np.full(n_nodes, -1, dtype=np.int64)
     A = np.zeros((n_nodes, n_bodies), dtype=bool)
     T = np.zeros((n_nodes, n_bodies), dtype=bool)
@@ -163,6 +168,7 @@ def build_cdf(bodies, shape, origin, dx):
         dist = np.abs(h)
         d_r = np.full(n_nodes, np.inf)
         np.minimum.at(d_r, flat, dist)
+        d_body[:, r] = d_r
         A[flat, r] = True
         # T from the element nearest to the node (the pairs at the body's minimum distance)
         at_min = dist == d_r[flat]
@@ -170,7 +176,7 @@ def build_cdf(bodies, shape, origin, dx):
         closer = d_r < d
         d[closer] = d_r[closer]
         nearest[closer] = r
-    return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=shape, origin=origin, dx=float(dx))
+    return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=shape, origin=origin, dx=float(dx), d_body=d_body)
 
 
 def _particle_stencil(cdf, x):
@@ -307,6 +313,17 @@ def reconstruct(cdf, x, A_p, T_p):
         z1 = np.concatenate([stencil.node_offset_vector(offset) / cdf.dx, np.ones((n, 1))], axis=1)
         M += w[:, None, None] * z1[:, :, None] * z1[:, None, :]
         rhs += (w * y)[:, None] * z1
+    return _solve_fit(M, rhs, cdf.dx)
+
+
+def _solve_fit(M, rhs, dx):
+    r"""Solve the fits :math:`M (\mathbf n, c) = \mathbf b` (M (n, d+1, d+1), ``rhs`` (n, d+1)) of :func:`reconstruct`.
+
+    Accepted (``near``) where :math:`|\det M|` exceeds :data:`DET_THRESHOLD_2D` (2D) or :data:`DET_THRESHOLD_3D`
+    (3D); then :math:`\phi = c\,\Delta x` and :math:`\mathbf n/|\mathbf n|` (0 if :math:`|\mathbf n|^2 \le 10^{-4}`).
+    Returns ``(phi (n,), normal (n, d), near (n,))``, zero where not accepted.
+    """
+    n, dim = len(M), M.shape[1] - 1
     det = np.linalg.det(M)
     near = np.abs(det) > (DET_THRESHOLD_2D if dim == 2 else DET_THRESHOLD_3D)
     phi = np.zeros(n)
@@ -314,8 +331,62 @@ def reconstruct(cdf, x, A_p, T_p):
     if near.any():
         sol = np.linalg.solve(M[near], rhs[near][:, :, None])[:, :, 0]
         nvec, c = sol[:, :dim], sol[:, dim]
-        phi[near] = c * cdf.dx
+        phi[near] = c * dx
         norm2 = np.einsum("ij,ij->i", nvec, nvec)
         unit = np.where((norm2 > NORMAL_THRESHOLD)[:, None], nvec / np.sqrt(np.maximum(norm2, 1e-300))[:, None], 0.0)
         normal[near] = unit
+    return phi, normal, near
+
+
+def reconstruct_per_body(cdf, x, A_p, T_p):
+    r"""Per-body least-squares distance :math:`\phi_{pr}`, normal :math:`\mathbf n_{pr}` and ``near`` flag of each
+    particle tagged by two or more bodies (the per-body fit, ``method.cpic_fit = "per_body"``; docs/cpic.md).
+
+    For such a particle and each body :math:`r` it is tagged by, the fit of :func:`reconstruct` is made with only
+    the stencil nodes in body :math:`r`'s band (:math:`A_{ir} = 1`) and body :math:`r`'s own distance
+    :math:`d_{ir}` (``cdf.d_body``):
+
+    .. math::
+
+        y_{ir} = \begin{cases} +d_{ir}/\Delta x & T_{ir} = T_{pr} \\ -d_{ir}/\Delta x & T_{ir} \ne T_{pr},
+        \end{cases} \qquad \min_{\mathbf n, c} \sum_{i:\ A_{ir} = 1} w_{ip}(\mathbf n\cdot\mathbf z_i + c - y_{ir})^2,
+
+    with the same acceptance threshold on :math:`|\det M|` and the same normalisation. A particle in the wedge
+    where two bodies meet thus gets each body's own signed distance and normal, where the single fit mixes both.
+    Particles tagged by fewer than two bodies get nothing here (all zero, ``near`` false): they keep the single
+    fit. This is mpmref's extension, not the paper's: Hu et al. 2018 §4 reconstruct one :math:`(\phi_p,
+    \mathbf n_p)` per particle.
+
+    Parameters
+    ----------
+    cdf : ColoredDistanceField              with ``d_body``
+    x : (n, d) float array                  particle positions
+    A_p, T_p : (n, n_bodies) bool arrays    the particles' tags (from :func:`update_tags`)
+
+    Returns
+    -------
+    phi : (n, n_bodies) float array         :math:`\phi_{pr}`
+    normal : (n, n_bodies, d) float array   :math:`\mathbf n_{pr}`
+    near : (n, n_bodies) bool array         the fit of body r is accepted (only for particles tagged by >= 2 bodies)
+    """
+    A_p, T_p = np.asarray(A_p, dtype=bool), np.asarray(T_p, dtype=bool)
+    stencil = _particle_stencil(cdf, x)
+    (n, dim), n_bodies = stencil.base.shape, A_p.shape[1]
+    M = np.zeros((n_bodies, n, dim + 1, dim + 1))
+    rhs = np.zeros((n_bodies, n, dim + 1))
+    several = A_p.sum(axis=1) >= 2
+    for offset in stencil.offsets:
+        flat, inside = _stencil_nodes(cdf.shape, stencil.base, offset)
+        z1 = np.concatenate([stencil.node_offset_vector(offset) / cdf.dx, np.ones((n, 1))], axis=1)
+        for r in range(n_bodies):
+            use = several & A_p[:, r] & inside & cdf.A[flat, r]
+            d = np.where(use, cdf.d_body[flat, r], 0.0) / cdf.dx
+            y = np.where(cdf.T[flat, r] == T_p[:, r], d, -d)
+            w = np.where(use, stencil.node_weight(offset), 0.0)
+            M[r] += w[:, None, None] * z1[:, :, None] * z1[:, None, :]
+            rhs[r] += (w * y)[:, None] * z1
+    fits = [_solve_fit(M[r], rhs[r], cdf.dx) for r in range(n_bodies)]
+    phi = np.stack([f[0] for f in fits], axis=1).reshape(n, n_bodies)
+    normal = np.stack([f[1] for f in fits], axis=1).reshape(n, n_bodies, dim)
+    near = np.stack([f[2] for f in fits], axis=1).reshape(n, n_bodies) & several[:, None]
     return phi, normal, near

@@ -60,6 +60,10 @@ class Contact:
     dt : float                  the step
     ghost_force : bool          ghost velocities include the particle's own internal force (``method.ghost_force``)
     dim : int                   2, or 3 for the 3D stages (:mod:`.cpic3d`; vectors then have 3 components)
+    fits : tuple                2D: ``(per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, what
+                                :func:`ghost_frame` needs for the per-body fit (``method.cpic_fit``; empty
+                                ``fit_*`` arrays with the single fit)
+    fit_phi : (n, nb) or (0, nb) the per-body distances :math:`\phi_{pr}` (:func:`per_body_fits`)
     """
 
     cdf: ColoredDistanceField
@@ -72,6 +76,8 @@ class Contact:
     dt: float
     ghost_force: bool
     dim: int = 2
+    fits: tuple = None
+    fit_phi: np.ndarray = None
 
     @property
     def compatible(self):
@@ -112,14 +118,16 @@ def build_cdf(bodies, rigid, shape, origin, dx):
     nearest = np.full(n_nodes, -1, dtype=np.int64)
     A = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
     T = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    rasterise(x, seg, start, seg_a, seg_b, origin, float(dx), shape, d, nearest, A, T)
+    d_body = np.full((n_nodes, len(bodies)), np.inf)
+    rasterise(x, seg, start, seg_a, seg_b, origin, float(dx), shape, d, nearest, A, T, d_body)
     return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=(int(shape[0]), int(shape[1])), origin=origin,
-                               dx=float(dx))
+                               dx=float(dx), d_body=d_body)
 
 
 @njit(cache=True)
-def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
-    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` (:func:`mpmref.physics.cdf.build_cdf`).
+def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T, d_body):
+    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` and the per-body distance ``d_body``
+    (:func:`mpmref.physics.cdf.build_cdf`).
 
     For every sample :math:`s` of body :math:`r` and node :math:`i` of its 3 × 3 quadratic stencil, with
     the node's edge parameter :math:`\sigma` and signed offset :math:`h` in the frame of the sample's
@@ -166,6 +174,8 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T):
                 count += 1
                 d_r[flat] = min(d_r[flat], abs(h))
                 A[flat, r] = True
+        for c in range(count):
+            d_body[pair_node[c], r] = d_r[pair_node[c]]
         settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T)
 
 
@@ -193,16 +203,17 @@ def tag_kernel(KERNEL, S):
     mask of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
 
     The returned ``tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
-    incompatible, order, block_start, blocks, block, blocks_per_axis)`` fills the arrays from ``A_new`` to
-    ``incompatible``, which must be zero on entry: only particles near a body are written
-    (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the particles' blocks (``prepare``'s
+    incompatible, order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal,
+    fit_near)`` fills the arrays from ``A_new`` to ``incompatible``, and with ``per_body`` the per-body fits
+    ``fit_*`` (n, nb) of particles tagged by several bodies (:func:`per_body_fits`), which must be zero on entry:
+    only particles near a body are written (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the particles' blocks (``prepare``'s
     sort, :mod:`.blocks`) and skips a block at once when no node its particles' stencils reach is in a band.
     """
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
     def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
-             order, block_start, blocks, block, blocks_per_axis):
+             order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal, fit_near):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         n_bodies = tag_A.shape[1]
         for bi in prange(blocks.shape[0]):
@@ -219,6 +230,9 @@ def tag_kernel(KERNEL, S):
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                     b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                     incompatible[p] = incompatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
+                    if per_body:
+                        per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_new, T_new, fit_phi, fit_normal,
+                                      fit_near, M, rhs)
 
     return tags
 
@@ -356,32 +370,83 @@ def reconstruct_particle(p, b0, f0, w0, b1, f1, w1, dx, shape, d, A, T, A_p, T_p
         use, y = fit_target(p, flat, dx, d, A, T, A_p, T_p)
         if not use:
             continue
-        w = w0[k // 3] * w1[k % 3]
-        z0, z1 = ((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx  # (x_i - x_p) / dx, as the reference forms it
-        wz0, wz1, wy = w * z0, w * z1, w * y
-        M[0, 0] += wz0 * z0
-        M[0, 1] += wz0 * z1
-        M[0, 2] += wz0
-        M[1, 0] += wz1 * z0
-        M[1, 1] += wz1 * z1
-        M[1, 2] += wz1
-        M[2, 0] += w * z0
-        M[2, 1] += w * z1
-        M[2, 2] += w
-        rhs[0] += wy * z0
-        rhs[1] += wy * z1
-        rhs[2] += wy
+        add_fit_sample(M, rhs, w0[k // 3] * w1[k % 3], k, f0, f1, dx, y)
+    accepted, c, n0, n1 = solve_fit(M, rhs)
+    if not accepted:
+        return
+    phi[p] = c * dx
+    normal[p, 0], normal[p, 1] = n0, n1
+    near[p] = True
+
+
+@njit(cache=True, inline="always")
+def add_fit_sample(M, rhs, w, k, f0, f1, dx, y):
+    r"""Add node ``k`` of the 3 × 3 stencil (weight ``w``, target ``y``) to the normal equations
+    :math:`M \mathrel{+}= w (\mathbf z, 1)(\mathbf z, 1)^T`, :math:`\mathbf b \mathrel{+}= w y (\mathbf z, 1)`,
+    :math:`\mathbf z = (\mathbf x_i - \mathbf x_p)/\Delta x` (:func:`mpmref.physics.cdf.reconstruct`)."""
+    z0, z1 = ((k // 3) - f0) * dx / dx, ((k % 3) - f1) * dx / dx  # (x_i - x_p) / dx, as the reference forms it
+    wz0, wz1, wy = w * z0, w * z1, w * y
+    M[0, 0] += wz0 * z0
+    M[0, 1] += wz0 * z1
+    M[0, 2] += wz0
+    M[1, 0] += wz1 * z0
+    M[1, 1] += wz1 * z1
+    M[1, 2] += wz1
+    M[2, 0] += w * z0
+    M[2, 1] += w * z1
+    M[2, 2] += w
+    rhs[0] += wy * z0
+    rhs[1] += wy * z1
+    rhs[2] += wy
+
+
+@njit(cache=True, inline="always")
+def solve_fit(M, rhs):
+    r"""Solve the fit's normal equations (overwriting ``M``, ``rhs``): ``(accepted, c, n0, n1)``, accepted iff
+    :math:`|\det M| > 3\cdot 10^{-3}`, the normal :math:`\mathbf n/|\mathbf n|` (0 if :math:`|\mathbf n|^2 \le
+    10^{-4}`) (:func:`mpmref.physics.cdf.reconstruct`)."""
     det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]) - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
            + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
     if not abs(det) > DET_THRESHOLD_2D:
-        return
+        return False, 0.0, 0.0, 0.0
     n0, n1, c = solve3(M, rhs)
-    phi[p] = c * dx
     norm2 = n0 * n0 + n1 * n1
     if norm2 > NORMAL_THRESHOLD:
         length = np.sqrt(norm2)
-        normal[p, 0], normal[p, 1] = n0 / length, n1 / length
-    near[p] = True
+        return True, c, n0 / length, n1 / length
+    return True, c, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_normal, fit_near, M, rhs):
+    r"""The per-body fits of particle ``p`` if two or more bodies tag it (:func:`mpmref.physics.cdf.reconstruct_per_body`):
+    for each body :math:`r` tagging it, the fit over the stencil nodes with :math:`A_{ir} = 1` of the targets
+    :math:`y_{ir} = \pm d_{ir}/\Delta x` (``+`` iff :math:`T_{ir} = T_{pr}`) gives :math:`\phi_{pr}`,
+    :math:`\mathbf n_{pr}` and ``fit_near[p, r]`` (``M``, ``rhs``: scratch)."""
+    n_bodies = A_p.shape[1]
+    tagged = 0
+    for r in range(n_bodies):
+        tagged += A_p[p, r]
+    if tagged < 2:
+        return
+    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
+    for r in range(n_bodies):
+        if not A_p[p, r]:
+            continue
+        M[:] = 0.0
+        rhs[:] = 0.0
+        for k in range(9):
+            flat = stencil_node(b0, b1, k, shape)
+            if flat < 0 or not A[flat, r]:
+                continue
+            y = d_body[flat, r] / dx
+            add_fit_sample(M, rhs, w0[k // 3] * w1[k % 3], k, f0, f1, dx, -y if T[flat, r] != T_p[p, r] else y)
+        accepted, c, n0, n1 = solve_fit(M, rhs)
+        if accepted:
+            fit_phi[p, r] = c * dx
+            fit_normal[p, r, 0], fit_normal[p, r, 1] = n0, n1
+            fit_near[p, r] = True
 
 
 @njit(cache=True, inline="always")
@@ -442,17 +507,40 @@ def ghost_velocity(v0, v1, node_x0, node_x1, r, position, velocity, omega, n0, n
 
 
 @njit(cache=True, inline="always")
-def node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, v0, v1, a0, a1, position, velocity,
-               omega):
-    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (see
-    :func:`mpmref.backends.numpy.cpic.ghost_velocities`): if the particle is ``near``, the friction
-    projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` (``(v0 + a0, v1 + a1)``, the load with the particle's
-    own internal force) against the node's nearest body; otherwise :math:`\mathbf v^*_p` = ``(v0, v1)``."""
-    if not near[p]:
-        return v0, v1
+def ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits):
+    r"""What the ghost velocity of incompatible node ``idx`` for particle ``p`` projects against
+    (:func:`mpmref.backends.numpy.cpic.ghost_frames`): ``(project, r, n0, n1, mu)``.
+
+    Single fit: the node's nearest body :math:`r`, the particle's normal :math:`\mathbf n_p`, the friction of its
+    side, ``project`` = ``near[p]``. With the per-body fit (``fits = (per_body, A, T, d_body, tag_A, fit_normal,
+    fit_near)``, ``per_body`` true): the crossed body :math:`c` — :math:`A_{ic} = A_{pc} = 1`,
+    :math:`T_{ic} \ne T_{pc}`, the least :math:`d_{ic}`, the lowest id on a tie — with its own normal
+    :math:`\mathbf n_{pc}`, if its per-body fit is accepted."""
+    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
+    if per_body:
+        c, best = -1, np.inf
+        for r in range(tag_A.shape[1]):
+            if A[idx, r] and tag_A[p, r] and T[idx, r] != tag_T[p, r] and d_body[idx, r] < best:
+                c, best = r, d_body[idx, r]
+        if c >= 0 and fit_near[p, c]:
+            mu = friction[c, 1] if tag_T[p, c] else friction[c, 0]
+            return True, c, fit_normal[p, c, 0], fit_normal[p, c, 1], mu
     r = max(node_body[idx], 0)
     mu = friction[r, 1] if tag_T[p, r] else friction[r, 0]
-    return ghost_velocity(v0 + a0, v1 + a1, nx0, nx1, r, position, velocity, omega, normal[p, 0], normal[p, 1], mu)
+    return near[p], r, normal[p, 0], normal[p, 1], mu
+
+
+@njit(cache=True, inline="always")
+def node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, fits, v0, v1, a0, a1, position, velocity,
+               omega):
+    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (see
+    :func:`mpmref.backends.numpy.cpic.ghost_velocities`): if :func:`ghost_frame` projects, the friction
+    projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` (``(v0 + a0, v1 + a1)``, the load with the particle's
+    own internal force) against its body and normal; otherwise :math:`\mathbf v^*_p` = ``(v0, v1)``."""
+    project, r, n0, n1, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
+    if not project:
+        return v0, v1
+    return ghost_velocity(v0 + a0, v1 + a1, nx0, nx1, r, position, velocity, omega, n0, n1, mu)
 
 
 @njit(cache=True, inline="always")
@@ -494,7 +582,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
             incompatible, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force,
-            dt, grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
+            dt, grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
@@ -534,7 +622,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                                 nx1 = origin[1] + (b1 + j) * dx
                                 vs0, vs1 = v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1]
                                 a0, a1 = force_velocity(ghost_force, dt, f_0, f_1, w, m)
-                                gh0, gh1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
+                                gh0, gh1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, fits,
                                                       vs0, vs1, a0, a1, position, velocity, omega)
                                 wm = w * m
                                 rejected_momentum[idx, 0] += wm * (vs0 - gh0)
@@ -556,6 +644,27 @@ def nearest_body(base, S, strides, node_body, node_d):
             if node_body[idx] >= 0 and node_d[idx] < best_d:
                 best_d, best_body = node_d[idx], node_body[idx]
     return best_body
+
+
+@njit(cache=True, inline="always")
+def several_tags(p, fits):
+    """Whether the per-body fit is on and two or more bodies tag particle ``p`` (it then has a fit per body)."""
+    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
+    if not per_body:
+        return False
+    tagged = 0
+    for r in range(tag_A.shape[1]):
+        tagged += tag_A[p, r]
+    return tagged >= 2
+
+
+@njit(cache=True, inline="always")
+def add_impulse(block_impulse, bi, r, j0, j1, x0, x1, position):
+    r"""Add the impulse :math:`\mathbf J = (j_0, j_1)` at :math:`\mathbf x` on body ``r`` to block ``bi``'s sums:
+    :math:`\mathbf J` and :math:`(\mathbf x - \mathbf c_r)\times\mathbf J`."""
+    block_impulse[bi, r, 0] += j0
+    block_impulse[bi, r, 1] += j1
+    block_impulse[bi, r, 2] += (x0 - position[r, 0]) * j1 - (x1 - position[r, 1]) * j0
 
 
 # ------------------------------------------------------------------------------------------- impulses
@@ -605,7 +714,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
     @njit(parallel=True, cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, origin, dx, inertia, dt, strides, order, block_start,
             blocks, v_grid, incompatible, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity,
-            omega, push, penalty, x_new, v_new, C_new, F_new, J_new, block_impulse):
+            omega, push, penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         for bi in prange(blocks.shape[0]):
             block = blocks[bi]
@@ -615,9 +724,6 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                 b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                 base = b0 * strides[0] + b1 * strides[1]
                 inc = incompatible[p]
-                push0, push1 = 0.0, 0.0
-                if near[p]:
-                    push0, push1 = normal[p, 0] * (dt * dx * push), normal[p, 1] * (dt * dx * push)
                 vp0, vp1 = 0.0, 0.0
                 B00, B01, B10, B11 = 0.0, 0.0, 0.0, 0.0
                 G00, G01, G10, G11 = 0.0, 0.0, 0.0, 0.0
@@ -632,18 +738,20 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                         else:
                             nx0 = origin[0] + (b0 + i) * dx
                             nx1 = origin[1] + (b1 + j) * dx
+                            project, r, n0, n1, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
                             a0, a1 = 0.0, 0.0
-                            if near[p] and ghost_force:
+                            if project and ghost_force:
                                 g0, g1 = gradient_weight(MLS_FORCE, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx,
                                                          inertia)
                                 s00, s01 = vol0[p] * tau[p, 0, 0], vol0[p] * tau[p, 0, 1]
                                 s10, s11 = vol0[p] * tau[p, 1, 0], vol0[p] * tau[p, 1, 1]
                                 a0, a1 = force_velocity(True, dt, s00 * g0 + s01 * g1, s10 * g0 + s11 * g1, w, mass[p])
-                            vi0, vi1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction,
-                                                  v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], a0, a1, position,
-                                                  velocity, omega)
-                            vi0 += push0
-                            vi1 += push1
+                            vi0, vi1 = v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1]
+                            if project:
+                                vi0, vi1 = ghost_velocity(vi0 + a0, vi1 + a1, nx0, nx1, r, position, velocity, omega,
+                                                          n0, n1, mu)
+                                vi0 += n0 * (dt * dx * push)
+                                vi1 += n1 * (dt * dx * push)
                         vp0 += w * vi0
                         vp1 += w * vi1
                         if NEED_B:
@@ -662,13 +770,19 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                 x_new[p, 0] = x[p, 0] + dt * vp0
                 x_new[p, 1] = x[p, 1] + dt * vp1
                 dv0, dv1 = 0.0, 0.0
-                if near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
+                if several_tags(p, fits):
+                    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
+                    for r in range(tag_A.shape[1]):
+                        if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:
+                            j0, j1 = penalty * fit_phi[p, r] * fit_normal[p, r, 0], penalty * fit_phi[p, r] * fit_normal[p, r, 1]
+                            dv0 += j0
+                            dv1 += j1
+                            add_impulse(block_impulse, bi, r, mass[p] * j0, mass[p] * j1, x_new[p, 0], x_new[p, 1],
+                                        position)
+                elif near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
                     dv0, dv1 = penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1]
-                    j0, j1 = mass[p] * dv0, mass[p] * dv1
                     r = nearest_body(base, S, strides, node_body, node_d)
-                    block_impulse[bi, r, 0] += j0
-                    block_impulse[bi, r, 1] += j1
-                    block_impulse[bi, r, 2] += (x_new[p, 0] - position[r, 0]) * j1 - (x_new[p, 1] - position[r, 1]) * j0
+                    add_impulse(block_impulse, bi, r, mass[p] * dv0, mass[p] * dv1, x_new[p, 0], x_new[p, 1], position)
                 v_new[p, 0] = vp0 - dv0
                 v_new[p, 1] = vp1 - dv1
                 if AFFINE:
@@ -710,14 +824,22 @@ def contact(backend, particles, blocks, rigid, dt):
     A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
     phi, normal, near = np.zeros(n), np.zeros((n, d)), np.zeros(n, dtype=np.bool_)
     incompatible = np.zeros(n, dtype=np.int64)
-    k.tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(
-        x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
-        np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
-        incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block, backend.blocks_per_axis)
+    args = (x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
+            np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
+            incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block,
+            backend.blocks_per_axis)
+    fits = fit_phi = None
+    if d == 2:
+        per_body = scene.method.cpic_fit == "per_body"
+        m = n if per_body else 0
+        fit_phi, fit_normal, fit_near = np.zeros((m, nb)), np.zeros((m, nb, 2)), np.zeros((m, nb), dtype=np.bool_)
+        args += (per_body, cdf.d_body, fit_phi, fit_normal, fit_near)
+        fits = (per_body, cdf.A, cdf.T, cdf.d_body, A, fit_normal, fit_near)
+    k.tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(*args)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
-                dt=float(dt), ghost_force=bool(scene.method.ghost_force), dim=d)
+                dt=float(dt), ghost_force=bool(scene.method.ghost_force), dim=d, fits=fits, fit_phi=fit_phi)
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
@@ -736,7 +858,7 @@ def p2g(backend, particles, blocks, contact):
            blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
            cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
            rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
-           gs.rejected_momentum, gs.rejected_force)
+           gs.rejected_momentum, gs.rejected_force, *(() if d == 3 else (contact.fits,)))
     return gs
 
 
@@ -775,7 +897,7 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
            blocks.block_start, blocks.block_colours[0], v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
            particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
            rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
-           J_new, block_impulse)
+           J_new, block_impulse, *(() if d == 3 else (contact.fits, contact.fit_phi)))
     total = sum_in_order(block_impulse)
     J, L = total[:, :d], (total[:, d] if d == 2 else total[:, d:])
     changes = {"x": x_new, "v": v_new}

@@ -65,7 +65,7 @@ class NumpyBackend:
     def cpic_contact(self, particles, prepared, rigid, dt):
         return cpic.contact(particles, prepared, self.scene.rigid_bodies, rigid, self.scene.grid, dt, self.gravity,
                             self.stress(particles), transfers.GRADIENT_WEIGHTS[self.scene.transfer.force],
-                            self.scene.method.ghost_force)
+                            self.scene.method.ghost_force, self.scene.method.cpic_fit == "per_body")
 
     def cpic_impulses(self, grid_state, contact, rigid, dt):
         return cpic.impulses(grid_state, contact, rigid, dt)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...physics.cdf import build_cdf, compatible, reconstruct, update_tags
+from ...physics.cdf import build_cdf, compatible, reconstruct, reconstruct_per_body, update_tags
 from ...physics.rigid_dynamics import body_impulses, current_shapes, friction_projection, point_velocity
 from .transfers import g2p as plain_g2p
 from .transfers import node_index
@@ -46,6 +46,13 @@ class Contact:
     force_velocity : (K, n, 2)      :math:`\\Delta t\\, \\mathbf f_{ip} / (m_p w_{ip})`, the velocity the particle's own internal
                                     force gives that node (zero unless ``method.ghost_force``)
     tau : (n, 2, 2)                 the particles' Kirchhoff stress (computed once for the step)
+    ghost_body : (K, n) int         the body whose friction projection gives the ghost velocity there: the node's
+                                    nearest body, or with the per-body fit the crossed body (:func:`ghost_frames`)
+    ghost_normal : (K, n, 2)        the normal of that projection (:math:`\\mathbf n_p`, or :math:`\\mathbf n_{pr}`)
+    ghost_mu : (K, n)               the friction of that projection
+    ghost_near : (K, n) bool        whether the node projects (else the ghost velocity is :math:`\\mathbf v^*_p`)
+    fit : tuple or None             the per-body fit ``(phi (n, nb), normal (n, nb, 2), near (n, nb))``
+                                    (:func:`mpmref.physics.cdf.reconstruct_per_body`), None with the single fit
     ghost : (K, n, 2)               ghost velocities :math:`\\tilde{\\mathbf v}_i` with the bodies' velocities of P2G
     """
 
@@ -58,6 +65,11 @@ class Contact:
     v_star: np.ndarray
     force_velocity: np.ndarray
     tau: np.ndarray
+    ghost_body: np.ndarray = None
+    ghost_normal: np.ndarray = None
+    ghost_mu: np.ndarray = None
+    ghost_near: np.ndarray = None
+    fit: tuple = None
     ghost: np.ndarray = None
 
 
@@ -67,7 +79,8 @@ def ghost_velocities(contact, rigid, particles):
     .. math:: \tilde{\mathbf v}_i = \begin{cases} \Pi(\mathbf v_p^* + \mathbf a_{ip};\ \mathbf v_r(\mathbf x_i),
               \mathbf n_p, \mu_{r,T_{pr}}) & p \text{ near} \\ \mathbf v_p^* & \text{otherwise,} \end{cases}
 
-    with :math:`r` the node's nearest body, :math:`\mathbf v_p^* = \mathbf v_p + \mathbf g \Delta t` (the
+    with :math:`r` the node's nearest body (with the per-body fit, :func:`ghost_frames`: the crossed body and
+    its own normal :math:`\mathbf n_{pr}` where that body's fit is accepted), :math:`\mathbf v_p^* = \mathbf v_p + \mathbf g \Delta t` (the
     reference adds gravity to the particle before P2G), and :math:`\mathbf a_{ip} = \Delta t\, \mathbf f_{ip}/
     (m_p w_{ip})` the velocity the particle's own internal force :math:`\mathbf f_{ip} = -V_p^0 \tau_p g_{ip}`
     would give the node (``method.ghost_force``, the default; the reference code uses
@@ -77,11 +90,38 @@ def ghost_velocities(contact, rigid, particles):
     G2P gives the particle :math:`\tilde{\mathbf v}_i`; with the same :math:`\tilde{\mathbf v}_i` on both
     sides the momentum balances exactly (docs/cpic.md). Returns (K, n, 2).
     """
-    body = np.maximum(contact.body, 0)
-    v_body = point_velocity(rigid, body, contact.node_x)
+    v_body = point_velocity(rigid, contact.ghost_body, contact.node_x)
     v_load = contact.v_star + contact.force_velocity
-    projected = friction_projection(v_load, v_body, np.broadcast_to(particles.normal, v_body.shape), contact.mu)
-    return np.where(particles.near[None, :, None], projected, contact.v_star)
+    projected = friction_projection(v_load, v_body, contact.ghost_normal, contact.ghost_mu)
+    return np.where(contact.ghost_near[:, :, None], projected, contact.v_star)
+
+
+def ghost_frames(contact, particles, friction, fit):
+    r"""The body, normal, friction and ``near`` flag of each (stencil node, particle)'s ghost velocity.
+
+    Single fit (``fit`` None, the paper's): the node's nearest body :math:`r`, the particle's normal
+    :math:`\mathbf n_p`, the friction :math:`\mu_{r, T_{pr}}` of its side and its ``near`` flag.
+
+    Per-body fit (docs/cpic.md, "Per-body fit"): at a node incompatible with a particle tagged by several bodies,
+    the *crossed* body :math:`c` — of the bodies :math:`r` with :math:`A_{ir} = A_{pr} = 1` and
+    :math:`T_{ir} \ne T_{pr}`, the one with the least :math:`d_{ir}` (the lowest id on a tie) — with its own
+    normal :math:`\mathbf n_{pc}` and friction :math:`\mu_{c, T_{pc}}`, if its per-body fit is accepted; the
+    single fit's choice otherwise. Returns ``(body (K, n), normal (K, n, d), mu (K, n), near (K, n))``.
+    """
+    K, n = contact.body.shape
+    body = np.maximum(contact.body, 0)
+    normal = np.broadcast_to(particles.normal, (K,) + particles.normal.shape)
+    near = np.broadcast_to(particles.near, (K, n))
+    if fit is None:
+        return body, normal, contact.mu, near
+    cdf, rows = contact.cdf, np.arange(n)
+    A, T = particles.tag_A, particles.tag_T
+    crossing = cdf.A[contact.node] & A[None] & (cdf.T[contact.node] != T[None])  # (K, n, nb)
+    crossed = np.argmin(np.where(crossing, cdf.d_body[contact.node], np.inf), axis=2)
+    own = crossing.any(axis=2) & fit[2][rows, crossed]
+    mu_crossed = friction[crossed, T[rows, crossed].astype(int)]
+    return (np.where(own, crossed, body), np.where(own[..., None], fit[1][rows, crossed], normal),
+            np.where(own, mu_crossed, contact.mu), near | own)
 
 
 def force_velocity(stencil, offset, gradient_weight, particles, tau, dt):
@@ -92,7 +132,7 @@ def force_velocity(stencil, offset, gradient_weight, particles, tau, dt):
     return np.where((w > 0.0)[:, None], f / np.where(w > 0.0, w * particles.mass, 1.0)[:, None], 0.0)
 
 
-def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient_weight, ghost_force):
+def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient_weight, ghost_force, per_body=False):
     r"""Build the step's :class:`Contact` and return ``(particles with updated tags, contact)``.
 
     The field is rebuilt from the bodies' current pose (:func:`mpmref.physics.cdf.build_cdf`, docs/cpic.md); the
@@ -101,7 +141,9 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient
     :func:`~mpmref.physics.cdf.reconstruct`, docs/cpic.md); node :math:`i` and particle :math:`p` are compatible
     iff they agree on the side of every body both are near (:func:`~mpmref.physics.cdf.compatible`, B4).
     ``tau`` is the particles' Kirchhoff stress, ``gradient_weight`` the force discretisation's
-    :math:`g_{ip}`, ``ghost_force`` whether ghost velocities include :math:`\mathbf a_{ip}` (:func:`ghost_velocities`).
+    :math:`g_{ip}`, ``ghost_force`` whether ghost velocities include :math:`\mathbf a_{ip}` (:func:`ghost_velocities`),
+    ``per_body`` whether particles near several bodies also get a fit per body
+    (:func:`~mpmref.physics.cdf.reconstruct_per_body`, ``method.cpic_fit``).
     """
     stencil = prepared[0]
     x = particles.x.astype(np.float64)
@@ -126,6 +168,8 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient
     c = Contact(cdf=cdf, compatible=np.array(compat), node=np.array(nodes), body=np.array(body),
                 node_x=np.array(node_x),
                 mu=np.array(mu), v_star=particles.v + dt * gravity, force_velocity=np.array(a), tau=tau)
+    c.fit = reconstruct_per_body(cdf, x, A, T) if per_body else None
+    c.ghost_body, c.ghost_normal, c.ghost_mu, c.ghost_near = ghost_frames(c, particles, friction, c.fit)
     c.ghost = ghost_velocities(c, rigid, particles)
     return particles, c
 
@@ -159,23 +203,54 @@ def g2p(particles, v_grid, grid, kernel, spec, dt, prepared, contact, rigid, pus
     :math:`C_p`, :math:`F_p`, :math:`\mathbf x_p`). Afterwards, for near particles, :math:`C_p := 0`, and
     if :math:`-0.3\Delta x < \phi_p < -0.05\Delta x` the penalty :math:`\Delta\mathbf v = k \phi_p \mathbf n_p`
     is taken from the particle (:math:`\mathbf v_p \mathrel{-}= \Delta\mathbf v`) and given to its nearest
-    body as the impulse :math:`m_p\Delta\mathbf v` at :math:`\mathbf x_p` (docs/cpic.md).
+    body as the impulse :math:`m_p\Delta\mathbf v` at :math:`\mathbf x_p` (docs/cpic.md). With the per-body fit, a
+    particle tagged by several bodies gets the penalty of each body instead (:func:`per_body_penalty`), and the
+    pushing force along the normal of the ghost's body (:func:`ghost_frames`).
 
     Returns ``(new particles, (J (nb, 2), L (nb,)))``: the penalty's impulses on the bodies.
     """
     ghost = ghost_velocities(contact, rigid, particles)
-    ghost = ghost + np.where(particles.near[:, None], particles.normal * (dt * grid.dx * pushing_force), 0.0)
+    ghost = ghost + np.where(contact.ghost_near[:, :, None], contact.ghost_normal * (dt * grid.dx * pushing_force), 0.0)
     new = plain_g2p(particles, v_grid, None, grid, kernel, spec, dt, prepared, ghost=(contact.compatible, ghost))
     if new.C is not None:
         new = new.with_(C=np.where(particles.near[:, None, None], 0.0, new.C))
-    lo, hi = PENALTY_WINDOW
-    pushed = particles.near & (particles.phi > lo * grid.dx) & (particles.phi < hi * grid.dx) & (penalty > 0.0)
+    several = _several(contact, particles)
+    pushed = ~several & in_penalty_window(particles.near, particles.phi, grid.dx, penalty)
     dv = np.where(pushed[:, None], penalty * particles.phi[:, None] * particles.normal, 0.0)
+    body = _nearest_tagged_body(contact, particles)[pushed]
+    at, impulse = new.x[pushed], particles.mass[pushed, None] * dv[pushed]
+    if contact.fit is not None:
+        dv_r, pushed_r = per_body_penalty(contact.fit, several, grid.dx, penalty)
+        dv = dv + dv_r.sum(axis=1)
+        p, r = np.nonzero(pushed_r)
+        body, at = np.concatenate([body, r]), np.concatenate([at, new.x[p]])
+        impulse = np.concatenate([impulse, particles.mass[p, None] * dv_r[p, r]])
     new = new.with_(v=(new.v - dv).astype(new.v.dtype))
-    body = _nearest_tagged_body(contact, particles)
-    J, L = body_impulses(len(rigid.angle), body[pushed], new.x[pushed],
-                         particles.mass[pushed, None] * dv[pushed], rigid.position)
+    J, L = body_impulses(len(rigid.angle), body, at, impulse, rigid.position)
     return new, (J, L)
+
+
+def in_penalty_window(near, phi, dx, penalty):
+    """Where the penalty acts: ``near`` and :math:`-0.3\\Delta x < \\phi < -0.05\\Delta x`, with a penalty ``k > 0``."""
+    lo, hi = PENALTY_WINDOW
+    return near & (phi > lo * dx) & (phi < hi * dx) & (penalty > 0.0)
+
+
+def per_body_penalty(fit, several, dx, penalty):
+    r"""The penalty per body of particles tagged by several bodies (per-body fit, docs/cpic.md).
+
+    For each body :math:`r` whose fit is accepted and :math:`-0.3\Delta x < \phi_{pr} < -0.05\Delta x`:
+    :math:`\Delta\mathbf v_{pr} = k\phi_{pr}\mathbf n_{pr}`, taken from the particle and given to body :math:`r`
+    as :math:`m_p\Delta\mathbf v_{pr}`. Returns ``(dv (n, nb, d), pushed (n, nb))``.
+    """
+    phi, normal, near = fit
+    pushed = several[:, None] & in_penalty_window(near, phi, dx, penalty)
+    return np.where(pushed[..., None], penalty * phi[..., None] * normal, 0.0), pushed
+
+
+def _several(contact, particles):
+    """Per particle, whether the per-body fit is on and it is tagged by two or more bodies."""
+    return (contact.fit is not None) & (np.count_nonzero(particles.tag_A, axis=1) >= 2)
 
 
 def _nearest_tagged_body(contact, particles):
