@@ -18,7 +18,7 @@ CPIC_CASES = make_cases(dims=(2,), stages=CPIC_STAGES)
 #: the default run checks every stage on three methods (one per kernel, affine and not, both forces); the
 #: slow run checks all of them (a fresh Numba cache compiles two kernels per method)
 QUICK_VARIANTS = {"bodies", "mls-mls-quadratic", "pic-classic-linear", "apic-classic-cubic", "pic-mls-quadratic",
-                  "pic-mls-quadratic-exact", "mls-mls-quadratic-no-ghost-force"}
+                  "pic-mls-quadratic-exact", "mls-mls-quadratic-no-ghost-force", "mls-mls-quadratic-per-body"}
 QUICK_CASES = [c for c in CPIC_CASES if c.variant in QUICK_VARIANTS]
 
 

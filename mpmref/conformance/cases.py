@@ -306,7 +306,8 @@ def _cpic_case(stage, label, method, dim=2):
 def _cpic_cases(stage, dim, dtype):
     """The CPIC cases of ``stage`` (2D and 3D, float64; none in float32): the field once; the tags on each kernel
     (the compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
-    variants of the step: momentum-exact, and ghost velocities without the particle's internal force."""
+    variants of the step: momentum-exact, and ghost velocities without the particle's internal force; in 2D the tags,
+    P2G, G2P and the step with the per-body fit (``method.cpic_fit = "per_body"``)."""
     if dtype != "float64":
         return []
     methods = cpic_methods()
@@ -316,14 +317,23 @@ def _cpic_cases(stage, dim, dtype):
         first = {}
         for m in methods:
             first.setdefault(m["kernel"], m)
-        return [_cpic_case(stage, method_label(m), m, dim) for m in first.values()]
+        cases = [_cpic_case(stage, method_label(m), m, dim) for m in first.values()]
+        return cases + _per_body_cases(stage, dim)
     cases = [_cpic_case(stage, method_label(m), m, dim) for m in methods]
     if stage == "cpic_step":
         exact = {"scheme": "pic", "force": "mls", "kernel": "quadratic", "momentum_exact": True}
         plain_ghosts = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "ghost_force": False}
         cases += [_cpic_case(stage, "pic-mls-quadratic-exact", exact, dim),
                   _cpic_case(stage, "mls-mls-quadratic-no-ghost-force", plain_ghosts, dim)]
-    return cases
+    return cases + _per_body_cases(stage, dim)
+
+
+def _per_body_cases(stage, dim):
+    """The per-body fit's case of ``stage`` (2D only; many particles of the cases are tagged by two or three bodies)."""
+    if dim != 2:
+        return []
+    per_body = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "cpic_fit": "per_body"}
+    return [_cpic_case(stage, "mls-mls-quadratic-per-body", per_body, dim)]
 
 
 def _material_cases(stage, dim, dtype, set_names):

@@ -10,7 +10,8 @@ them is the backend's own, each conformance stage runs a backend from flat input
   (N, nb) affinity and side bits;
 * ``cpic_tags``: particles with their previous tags ``tag_A``, ``tag_T`` (n, nb) and the bodies -> new tags,
   ``phi``, ``normal``, ``near`` and ``compatible`` (K, n): node ``base + offset_k`` of the transfer stencil is
-  compatible with the particle (offsets in C order over the stencil);
+  compatible with the particle (offsets in C order over the stencil); with the per-body fit also ``fit_phi``,
+  ``fit_normal``, ``fit_near`` (n, nb): each body's fit of the particles tagged by several bodies;
 * ``cpic_p2g``: the same inputs and ``dt`` -> ``grid_mass``, ``grid_momentum``, ``grid_force``, the rejected
   momentum and force of incompatible nodes ``grid_rejected_momentum``, ``grid_rejected_force`` (N, 2), and the
   impulses they give the bodies ``impulse_J`` (nb, 2), ``impulse_L`` (nb,);
@@ -143,7 +144,9 @@ def field_stage(backend, flat):
 
 def tags_stage(backend, flat):
     particles, _, contact = _contact(backend, flat)
-    return {**{k: getattr(particles, k) for k in TAG_FIELDS}, "compatible": contact.compatible}
+    fit = contact.per_body_fit
+    per_body = {} if fit is None else {"fit_phi": fit[0], "fit_normal": fit[1], "fit_near": fit[2]}
+    return {**{k: getattr(particles, k) for k in TAG_FIELDS}, "compatible": contact.compatible, **per_body}
 
 
 def p2g_stage(backend, flat):

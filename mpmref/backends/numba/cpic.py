@@ -80,6 +80,11 @@ class Contact:
     fit_phi: np.ndarray = None
 
     @property
+    def per_body_fit(self):
+        """The per-body fit ``(phi, normal, near)``, each ``(n, nb, ...)``, or None with the single fit."""
+        return (self.fit_phi, self.fits[5], self.fits[6]) if self.fits is not None and self.fits[0] else None
+
+    @property
     def compatible(self):
         """``(K, n)`` bool: node ``k`` of particle ``p``'s stencil is compatible (the reference's layout)."""
         k = np.arange(self.support**self.dim, dtype=np.int64)

@@ -72,6 +72,11 @@ class Contact:
     fit: tuple = None
     ghost: np.ndarray = None
 
+    @property
+    def per_body_fit(self):
+        """The per-body fit ``(phi, normal, near)``, each ``(n, nb, ...)``, or None with the single fit."""
+        return self.fit
+
 
 def ghost_velocities(contact, rigid, particles):
     r"""Velocity an incompatible node :math:`i` shows particle :math:`p` (docs/cpic.md), without the pushing force.
