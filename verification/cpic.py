@@ -536,7 +536,8 @@ def _cut3d_checks(cut):
 
 def wheel_checks(w):
     """The sand wheel's checks: a steady-signed, nonzero angular velocity, and no sand deeper inside the ring than
-    the penalty window's far edge (the sand inside the ring by any margin is an open finding, :func:`_wheel_findings`)."""
+    the penalty window's far edge (the sand inside the ring by any margin is an open finding,
+    :func:`_wheel_findings`)."""
     return [Check(f"sand wheel: min of sign(omega_end) omega over the last half ({w['t_end'] / 2:g} s ..) (rad/s)",
                   w["late_min"], ">=", w["floor"],
                   "the sand turns the wheel one way: omega keeps the sign it ends with over the last half of the run "

@@ -211,7 +211,8 @@ def tag_kernel(KERNEL, S):
     incompatible, order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal,
     fit_near)`` fills the arrays from ``A_new`` to ``incompatible``, and with ``per_body`` the per-body fits
     ``fit_*`` (n, nb) of particles tagged by several bodies (:func:`per_body_fits`), which must be zero on entry:
-    only particles near a body are written (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the particles' blocks (``prepare``'s
+    only particles near a body are written (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the
+    particles' blocks (``prepare``'s
     sort, :mod:`.blocks`) and skips a block at once when no node its particles' stencils reach is in a band.
     """
     SOURCES = SOURCE_DIGEST
@@ -424,7 +425,8 @@ def solve_fit(M, rhs):
 
 @njit(cache=True, inline="always")
 def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_normal, fit_near, M, rhs):
-    r"""The per-body fits of particle ``p`` if two or more bodies tag it (:func:`mpmref.physics.cdf.reconstruct_per_body`):
+    r"""The per-body fits of particle ``p`` if two or more bodies tag it
+    (:func:`mpmref.physics.cdf.reconstruct_per_body`):
     for each body :math:`r` tagging it, the fit over the stencil nodes with :math:`A_{ir} = 1` of the targets
     :math:`y_{ir} = \pm d_{ir}/\Delta x` (``+`` iff :math:`T_{ir} = T_{pr}`) gives :math:`\phi_{pr}`,
     :math:`\mathbf n_{pr}` and ``fit_near[p, r]`` (``M``, ``rhs``: scratch)."""
@@ -779,11 +781,12 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                     per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
                     for r in range(tag_A.shape[1]):
                         if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:
-                            j0, j1 = penalty * fit_phi[p, r] * fit_normal[p, r, 0], penalty * fit_phi[p, r] * fit_normal[p, r, 1]
-                            dv0 += j0
-                            dv1 += j1
-                            add_impulse(block_impulse, bi, r, mass[p] * j0, mass[p] * j1, x_new[p, 0], x_new[p, 1],
-                                        position)
+                            kphi = penalty * fit_phi[p, r]
+                            dvr0, dvr1 = kphi * fit_normal[p, r, 0], kphi * fit_normal[p, r, 1]
+                            dv0 += dvr0
+                            dv1 += dvr1
+                            add_impulse(block_impulse, bi, r, mass[p] * dvr0, mass[p] * dvr1, x_new[p, 0],
+                                        x_new[p, 1], position)
                 elif near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
                     dv0, dv1 = penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1]
                     r = nearest_body(base, S, strides, node_body, node_d)

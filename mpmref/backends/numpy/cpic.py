@@ -85,7 +85,8 @@ def ghost_velocities(contact, rigid, particles):
               \mathbf n_p, \mu_{r,T_{pr}}) & p \text{ near} \\ \mathbf v_p^* & \text{otherwise,} \end{cases}
 
     with :math:`r` the node's nearest body (with the per-body fit, :func:`ghost_frames`: the crossed body and
-    its own normal :math:`\mathbf n_{pr}` where that body's fit is accepted), :math:`\mathbf v_p^* = \mathbf v_p + \mathbf g \Delta t` (the
+    its own normal :math:`\mathbf n_{pr}` where that body's fit is accepted),
+    :math:`\mathbf v_p^* = \mathbf v_p + \mathbf g \Delta t` (the
     reference adds gravity to the particle before P2G), and :math:`\mathbf a_{ip} = \Delta t\, \mathbf f_{ip}/
     (m_p w_{ip})` the velocity the particle's own internal force :math:`\mathbf f_{ip} = -V_p^0 \tau_p g_{ip}`
     would give the node (``method.ghost_force``, the default; the reference code uses
