@@ -75,6 +75,7 @@ def test_sand_wheel_turns_one_way_and_no_sand_passes_through_the_ring(result):
     assert "sand wheel (open" in " ".join(f.name for f in case.findings(result))
 
 
+@pytest.mark.slow  # a 4 s wheel run: the default suite is near its time budget
 def test_the_wheel_depth_check_fails_with_the_single_fit():
     """With the paper's single fit, sand passes through the ring at a blade corner (0.98 dx deep in the quick
     preset, docs/cpic.md): the same check fails, so it is what the per-body fit changes that makes it hold."""
