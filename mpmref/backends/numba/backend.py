@@ -163,9 +163,10 @@ class NumbaBackend:
         thread-count independent);
         with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
 
-        The stress is computed inside, particle by particle (:func:`mpmref.backends.numba.transfers.p2g_kernel`), not stored. The
-        node rows of the active blocks live in one (rows, 1 + 2d) array from the backend's
-        :class:`~.buffers.BufferPool` (mass, momentum and force of a node share a cache line); the returned
+        The stress is computed inside, particle by particle
+        (:func:`mpmref.backends.numba.transfers.p2g_kernel`), not stored. The node rows of the active
+        blocks live in one (rows, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
+        momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
         copies (see the class doc).
         """

@@ -9,11 +9,12 @@ values of its constants, which is why they are plain ints, bools and a string an
 functions (a dispatcher pickles differently in every process, which would defeat the cache).
 
 P2G runs in parallel over the colour classes of :mod:`.blocks`, slabs or single blocks (no atomics, bitwise
-the same for any thread count); G2P gathers, so it runs in parallel over the particles in their storage order. Both address
-the nodes on the sparse grid of :mod:`.sparse`: per particle, the first rows of its owner block and of that
-block's upper neighbours (:func:`block_rows_2d`, :func:`block_rows_3d`: :math:`2^{d-1}` look-ups in the block-pointer
-table), and per axis which of them each stencil node falls in and its offset inside; per node only a sum and
-a choice between two registers remain, as cheap as the strides of a dense grid.
+the same for any thread count); G2P gathers, so it runs in parallel over the particles in their storage
+order. Both address the nodes on the sparse grid of :mod:`.sparse`: per particle, the first rows of its
+owner block and of that block's upper neighbours (:func:`block_rows_2d`, :func:`block_rows_3d`:
+:math:`2^{d-1}` look-ups in the block-pointer table), and per axis which of them each stencil node falls in
+and its offset inside; per node only a sum and a choice between two registers remain, as cheap as the
+strides of a dense grid.
 """
 
 import hashlib
@@ -73,10 +74,10 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
     the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (the stress
-    stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused here instead of stored;
-    ``MATERIALS`` has bit ``c`` set for each material code of
-    :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are compiled), the
-    force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
+    stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused
+    here instead of stored; ``MATERIALS`` has bit ``c`` set for each material code of
+    :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are
+    compiled), the force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
     momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
     :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)` for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic
