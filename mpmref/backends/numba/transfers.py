@@ -77,8 +77,8 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
     stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused
     here instead of stored; ``MATERIALS`` has bit ``c`` set for each material code of
     :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are
-    compiled), the force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
-    momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
+    compiled), the force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p`
+    (classic), the affine momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
     :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)` for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic
     MPM (:func:`p2g_node`). Products are contracted to fused multiply-adds where the CPU has them
