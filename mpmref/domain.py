@@ -50,8 +50,8 @@ def apply_domain_exit(particles, lo, hi, policy):
     -------
     DomainExit
     """
-    if particles.n == 0 or (np.all(particles.x.min(axis=0) >= lo) and np.all(particles.x.max(axis=0) < hi)):
-        return DomainExit(particles, np.empty(0, dtype=np.int64))  # every particle inside: two reductions
+    if (particles.x >= lo).all() and (particles.x < hi).all():  # every particle inside (or none left)
+        return DomainExit(particles, np.empty(0, dtype=np.int64))
     below, above = particles.x < lo, particles.x >= hi
     left = np.any(below | above, axis=1)
     index = np.nonzero(left)[0]

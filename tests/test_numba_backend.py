@@ -49,14 +49,35 @@ def block_3d(method, material):
                             "gravity": [0.0, -9.8, 0.0], "time": {"dt": 1e-4, "steps": 10}})
 
 
+def wide_layer():
+    """The mpm88 fluid as a layer across a 256-cell domain: 60 slabs hold particles, so P2G goes by slabs."""
+    data = tomllib.loads((EXAMPLES / "mpm88.toml").read_text())
+    data["grid"]["cells"] = 256
+    data["bodies"] = [{"shape": "box", "material": next(iter(data["materials"])), "lower": [0.03, 0.1],
+                       "upper": [0.97, 0.16], "ppc": 4, "sampling": "jittered", "seed": 5, "velocity": [0.3, -1.0]}]
+    return Scene.from_dict(data)
+
+
+@pytest.mark.parametrize("scene, by_slabs", [(example("mpm88"), False), (wide_layer(), True)], ids=["mpm88", "layer"])
+def test_p2g_goes_by_slabs_only_when_each_colour_has_enough(scene, by_slabs):
+    """Few slabs (a compact body) are grouped by single blocks in 2^d colours, many by slabs in two; either
+    way every particle is in exactly one group (the bitwise test below runs both kinds)."""
+    blocks = make_backend("numba", scene).prepare(sample_particles(scene))
+    start, groups, colours = blocks.p2g_groups
+    assert (len(colours) == 3) == by_slabs and (len(colours) == 5) != by_slabs  # 2 colours, or 2^2
+    members = np.concatenate([blocks.order[start[g]:start[g + 1]] for g in groups])
+    assert np.array_equal(np.sort(members), np.arange(len(blocks.order)))
+
+
 @pytest.mark.parametrize("scene", [
     example("mpm88"),
     example("snow88"),
+    wide_layer(),
     block_3d({"scheme": "mls"}, {"type": "fluid", "K": 400.0, "gamma": 1.0, "rho": 1.0}),
     # the widest stencil with modes: a fresh Numba cache spends ~17 s compiling it, so it runs with the slow set
     pytest.param(block_3d({"scheme": "polypic", "kernel": "cubic"},
                           {"type": "neo_hookean", "E": 1e3, "nu": 0.3, "rho": 1.0}), marks=pytest.mark.slow),
-], ids=["mpm88", "snow88", "3d-mls-fluid", "3d-polypic-cubic"])
+], ids=["mpm88", "snow88", "layer-by-slabs", "3d-mls-fluid", "3d-polypic-cubic"])
 def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene, monkeypatch):
     """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count."""
     monkeypatch.setattr(numba_backend, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread

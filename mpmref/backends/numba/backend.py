@@ -56,14 +56,27 @@ def _stress_adapter(kernel):
 KERNELS = {cls: (_stress_adapter(stress), return_map) for cls, (stress, return_map) in materials.KERNELS.items()}
 
 
+#: P2G hands out slabs when each of their two colours has at least this many, else single blocks in
+#: :math:`2^d` colours: a compact body spans few slabs, too few to keep two threads busy (fluid3d: 5 slabs,
+#: P2G at 2 threads 4.46 ms by slabs, 3.75 ms by blocks), while many slabs cost fewer passes (262 144
+#: particles in 2D, 52 slabs: 10.3 against 10.9 ms). A count of the geometry, never of the threads, so
+#: the choice, and the bits, are the same for any thread count.
+MIN_SLABS_PER_COLOUR = 16
+
+
 class Blocks:
-    """Particles sorted into the grid's blocks, the two colours of slabs of P2G, the sparse grid's
-    :class:`~.sparse.BlockLayout` of these particles, and (computed when a CPIC stage asks) the :math:`2^d`
-    colour classes of blocks (see :mod:`.blocks`)."""
+    """Particles sorted into the grid's blocks, the groups P2G hands to the threads colour by colour
+    (``p2g_groups``: slabs, or single blocks when slabs are too few, see :data:`MIN_SLABS_PER_COLOUR`), the
+    sparse grid's :class:`~.sparse.BlockLayout` of these particles, and the :math:`2^d` colour classes of
+    blocks (see :mod:`.blocks`)."""
 
     def __init__(self, order, block_start, blocks_per_axis, layout):
         self.order, self.block_start, self.blocks_per_axis = order, block_start, blocks_per_axis
-        self.slab_start, self.slabs, self.colour_start = slab_colours(block_start, blocks_per_axis)
+        slab_start, slabs, colour_start = slab_colours(block_start, blocks_per_axis)
+        enough = min(np.diff(colour_start)) >= MIN_SLABS_PER_COLOUR
+        #: ``(group_start, groups, colour_start)``: ``order[group_start[g]:group_start[g + 1]]`` are group ``g``'s
+        #: particles; ``groups[colour_start[c]:colour_start[c + 1]]`` the groups of colour ``c``
+        self.p2g_groups = (slab_start, slabs, colour_start) if enough else (block_start, *self.block_colours)
         self.layout = layout
 
     @cached_property
@@ -130,7 +143,7 @@ class NumbaBackend:
         return self.scene.grid.node_positions()
 
     def prepare(self, particles):
-        """Sort the particles into the grid's blocks and the slabs' two colours (what P2G needs), and the
+        """Sort the particles into the grid's blocks and P2G's colour classes of slabs or blocks, and the
         sparse grid's active blocks (:meth:`.sparse.BlockLayout.from_sort`)."""
         order, block_start = sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
                                               self.blocks_per_axis)
@@ -146,12 +159,14 @@ class NumbaBackend:
         return self.materials.return_map(particles)
 
     def p2g(self, particles, prepared=None, contact=None):
-        """Node mass, momentum and internal force (slab-parallel by colour; bitwise thread-count independent);
+        """Node mass, momentum and internal force (parallel by colour over slabs or blocks; bitwise
+        thread-count independent);
         with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
 
-        The stress is computed inside, particle by particle (:func:`mpmref.backends.numba.transfers.p2g_kernel`), not stored. The
-        node rows of the active blocks live in one (rows, 1 + 2d) array from the backend's
-        :class:`~.buffers.BufferPool` (mass, momentum and force of a node share a cache line); the returned
+        The stress is computed inside, particle by particle
+        (:func:`mpmref.backends.numba.transfers.p2g_kernel`), not stored. The node rows of the active
+        blocks live in one (rows, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
+        momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
         copies (see the class doc).
         """
@@ -162,14 +177,14 @@ class NumbaBackend:
         n, d = particles.x.shape
         grid, = self.buffers.take("grid", (layout.n_rows, 1 + 2 * d))
         transfers.zero_rows(grid)
-        chunk = numba.set_parallel_chunksize(1)  # slabs hold unequal numbers of particles: one at a time
+        chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
         try:
             self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
                       self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
                       self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                       self._or_empty(particles.Jp, 0), particles.material, self.stress_codes, self.stress_params,
                       self.origin, self.dx, self.inertia, layout.slot_of, layout.table_strides,
-                      self.mode_index, blocks.order, blocks.slab_start, blocks.slabs, blocks.colour_start, grid)
+                      self.mode_index, blocks.order, *blocks.p2g_groups, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
         state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout)

@@ -9,7 +9,8 @@ whose ``b_0`` differ by at least 2 never write the same node when ``B >= S - 1``
 parity of ``b_0`` therefore gives two colour classes whose slabs can scatter concurrently without atomics,
 in two parallel passes whatever the dimension (the talk's Part IV motivates blocked transfers for
 locality; the parity colouring is this toolkit's way of running them in parallel without atomics or
-private grids).
+private grids). Where a body spans too few slabs to share among the threads, single blocks coloured by
+the parities of all their coordinates (:func:`colour_classes`, :math:`2^d` colours) take their place.
 
 Inside a block particles keep their original order (a stable counting sort). Each node therefore
 receives its contributions in a fixed order — colour by colour, then particle by particle within the

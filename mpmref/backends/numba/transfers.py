@@ -8,12 +8,13 @@ cached on disk like any other ``cache=True`` function: Numba keys a closure's ca
 values of its constants, which is why they are plain ints, bools and a string and never other compiled
 functions (a dispatcher pickles differently in every process, which would defeat the cache).
 
-P2G runs slab-parallel over the two colour classes of :mod:`.blocks` (no atomics, bitwise the same for any
-thread count); G2P gathers, so it runs in parallel over the particles in their storage order. Both address
-the nodes on the sparse grid of :mod:`.sparse`: per particle, the first rows of its owner block and of that
-block's upper neighbours (:func:`block_rows_2d`, :func:`block_rows_3d`: :math:`2^{d-1}` look-ups in the block-pointer
-table), and per axis which of them each stencil node falls in and its offset inside; per node only a sum and
-a choice between two registers remain, as cheap as the strides of a dense grid.
+P2G runs in parallel over the colour classes of :mod:`.blocks`, slabs or single blocks (no atomics, bitwise
+the same for any thread count); G2P gathers, so it runs in parallel over the particles in their storage
+order. Both address the nodes on the sparse grid of :mod:`.sparse`: per particle, the first rows of its
+owner block and of that block's upper neighbours (:func:`block_rows_2d`, :func:`block_rows_3d`:
+:math:`2^{d-1}` look-ups in the block-pointer table), and per axis which of them each stencil node falls in
+and its offset inside; per node only a sum and a choice between two registers remain, as cheap as the
+strides of a dense grid.
 """
 
 import hashlib
@@ -65,19 +66,19 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params,
-    origin, dx, inertia, slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start,
+    origin, dx, inertia, slot_of, table_strides, mode_index, order, group_start, groups, colour_start,
     grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
     :class:`~.sparse.BlockLayout` (``slot_of`` its block-pointer table, ``table_strides`` the table's strides;
-    rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, slab
-    by slab in the two
-    colours of :mod:`.blocks` (run it with a parallel chunk size of 1: slabs hold unequal numbers of
+    rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, group
+    by group (slabs or blocks, ``order[group_start[g]:group_start[g + 1]]`` the particles of group ``g``) in
+    the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (the stress
-    stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused here instead of stored;
-    ``MATERIALS`` has bit ``c`` set for each material code of
-    :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are compiled), the
-    force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine
-    momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
+    stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused
+    here instead of stored; ``MATERIALS`` has bit ``c`` set for each material code of
+    :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are
+    compiled), the force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p`
+    (classic), the affine momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
     :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)` for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic
     MPM (:func:`p2g_node`). Products are contracted to fused multiply-adds where the CPU has them
@@ -89,21 +90,21 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
-            slot_of, table_strides, mode_index, order, slab_start, slabs, colour_start, grid):
+            slot_of, table_strides, mode_index, order, group_start, groups, colour_start, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         inv_dx = 1.0 / dx
         T = grid.dtype.type
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
             for si in prange(colour_start[colour + 1] - first):
-                slab = slabs[first + si]
-                work = np.empty((5, DIM, DIM), grid.dtype)  # one allocation per slab: tau, R, U, Vt, sigma
+                group = groups[first + si]
+                work = np.empty((5, DIM, DIM), grid.dtype)  # one allocation per group: tau, R, U, Vt, sigma
                 tau, R, U, Vt, sigma = work[0], work[1], work[2], work[3], work[4, 0]
                 q = np.empty((DIM if POLY else 0, S, S))
                 qnorm = np.empty((DIM if POLY else 0, S))
                 w_arr = np.empty((DIM if POLY else 0, S))
                 fx_arr = np.empty(DIM if POLY else 0)
-                for k in range(slab_start[slab], slab_start[slab + 1]):
+                for k in range(group_start[group], group_start[group + 1]):
                     p = order[k]
                     code, prm = stress_codes[material[p]], stress_params[material[p]]
                     # a branch on a closure constant is pruned before compilation: unused laws cost nothing
