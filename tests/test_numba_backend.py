@@ -180,3 +180,22 @@ def test_buffer_pool_lets_go_of_shapes_no_longer_asked_for():
     assert pool.nbytes() == 4 * ((48 * 2 + 48) + (49 * 2 + 49) + 7 * 5)
     reused = pool.take("particles", (49, 2), (49,))
     assert pool.holds(reused[0]) and pool.holds(reused[1])
+
+
+@pytest.mark.parametrize("blocks_per_axis", [(5, 7), (4, 3, 6)])
+def test_colour_classes_hold_each_occupied_block_once_by_the_parities_of_its_coordinates(blocks_per_axis):
+    """Against the definition, block by block: colour sum_a (b_a mod 2) 2^a, occupied blocks only, in
+    increasing block number within a colour (the scan skips empty slabs, never an occupied block)."""
+    from mpmref.backends.numba.blocks import colour_classes
+
+    shape = np.array(blocks_per_axis, dtype=np.int64)
+    n_blocks = int(np.prod(shape))
+    rng = np.random.default_rng(4)
+    counts = rng.integers(1, 3, n_blocks) * (rng.random(n_blocks) < 0.4)
+    counts[: n_blocks // shape[0]] = 0  # an empty first slab
+    block_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    blocks, start = colour_classes(block_start, shape)
+    d = len(shape)
+    colour = [sum((i % 2) << a for a, i in enumerate(np.unravel_index(b, shape))) for b in range(n_blocks)]
+    expected = [[b for b in range(n_blocks) if counts[b] and colour[b] == c] for c in range(2**d)]
+    assert [list(blocks[start[c]:start[c + 1]]) for c in range(2**d)] == expected

@@ -81,29 +81,38 @@ def slab_colours(block_start, blocks_per_axis):
 
 
 @njit(cache=True)
+def occupied_blocks(block_start, blocks_per_axis):
+    """The blocks that hold particles, in increasing block number. Only the slabs that hold particles are
+    scanned, so the work follows the body, not the domain."""
+    per_slab = (block_start.shape[0] - 1) // blocks_per_axis[0]
+    out = np.empty(min(block_start[-1], block_start.shape[0] - 1), dtype=np.int64)  # at most one per particle
+    count = 0
+    for slab in range(blocks_per_axis[0]):
+        if block_start[(slab + 1) * per_slab] == block_start[slab * per_slab]:
+            continue
+        for b in range(slab * per_slab, (slab + 1) * per_slab):
+            if block_start[b + 1] > block_start[b]:
+                out[count] = b
+                count += 1
+    return out[:count]
+
+
+@njit(cache=True)
 def colour_classes(block_start, blocks_per_axis):
     """Non-empty blocks grouped by the colour ``sum_a (b_a mod 2) 2^a`` of all their coordinates (:math:`2^d`
     colours; blocks of one colour never share a node when ``B >= S - 1``): ``(colour_blocks, colour_start)``,
-    ``colour_blocks[colour_start[c]:colour_start[c+1]]`` having colour ``c``. The CPIC kernels
-    (:mod:`mpmref.backends.numba.cpic`) run block by block in these classes; the plain P2G uses the two slab colours."""
+    ``colour_blocks[colour_start[c]:colour_start[c+1]]`` having colour ``c``, in increasing block number. The
+    CPIC kernels (:mod:`mpmref.backends.numba.cpic`), and P2G where slabs are few, run block by block in these
+    classes."""
     d = blocks_per_axis.shape[0]
-    n_colours = 2**d
-    n_blocks = block_start.shape[0] - 1
-    colour = np.empty(n_blocks, dtype=np.int64)
-    per_colour = np.zeros(n_colours + 1, dtype=np.int64)
-    for b in range(n_blocks):
-        rest, c = b, 0
+    blocks = occupied_blocks(block_start, blocks_per_axis)
+    colour = np.empty(blocks.shape[0], dtype=np.int64)
+    for i in range(blocks.shape[0]):
+        rest, c = blocks[i], 0
         for a in range(d - 1, -1, -1):
             c += (rest % blocks_per_axis[a]) % 2 * 2**a
             rest //= blocks_per_axis[a]
-        colour[b] = c
-        if block_start[b + 1] > block_start[b]:
-            per_colour[c + 1] += 1
-    colour_start = np.cumsum(per_colour)
-    fill = colour_start[:-1].copy()
-    colour_blocks = np.empty(colour_start[-1], dtype=np.int64)
-    for b in range(n_blocks):
-        if block_start[b + 1] > block_start[b]:
-            colour_blocks[fill[colour[b]]] = b
-            fill[colour[b]] += 1
-    return colour_blocks, colour_start
+        colour[i] = c
+    colour_start = np.zeros(2**d + 1, dtype=np.int64)
+    colour_start[1:] = np.cumsum(np.bincount(colour, minlength=2**d))
+    return blocks[np.argsort(colour, kind="mergesort")], colour_start  # stable: block order within a colour
