@@ -6,6 +6,7 @@ the volume ratio, ``Jp`` for plastic materials.
 """
 
 from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -143,11 +144,14 @@ class Grid:
     def n_nodes(self):
         return int(np.prod(self.node_shape))
 
-    @property
+    @cached_property
     def strides(self):
-        """Linear-index strides of the C-ordered node array."""
+        """Linear-index strides of the C-ordered node array (computed once: every transfer of the NumPy
+        reference indexes nodes with it; read-only)."""
         shape = self.node_shape
-        return np.array([int(np.prod(shape[a + 1:])) for a in range(len(shape))], dtype=np.int64)
+        strides = np.array([int(np.prod(shape[a + 1:])) for a in range(len(shape))], dtype=np.int64)
+        strides.setflags(write=False)
+        return strides
 
     def node_indices(self):
         """Integer multi-index of every node, shape (n_nodes, d), C order."""

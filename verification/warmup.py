@@ -29,12 +29,19 @@ from . import registry
 
 
 def scenes_to_compile(names, preset, backend):
-    """``[(backend name, scene)]`` that the cases ``names`` will run on a compiled backend."""
-    out = []
+    """``[(backend name, scene)]`` that the cases ``names`` will run on a compiled backend, without the scenes
+    whose kernels the scenes before them already compile (``compiled_kernels()`` of the backend: such a scene
+    would only load them from the cache, or, taken by the other worker at the same time, compile them twice)."""
+    out, covered = [], set()
     for name in names:
         module = registry.load(name)
-        if hasattr(module, "compiled_scenes"):
-            out += module.compiled_scenes(registry.preset_params(module, preset), backend)
+        for backend_name, scene in getattr(module, "compiled_scenes", lambda *_: [])(
+                registry.preset_params(module, preset), backend):
+            compiled = make_backend(backend_name, scene)
+            kernels = compiled.compiled_kernels() if hasattr(compiled, "compiled_kernels") else {id(scene)}
+            if not kernels <= covered:
+                covered |= kernels
+                out.append((backend_name, scene))
     return out
 
 

@@ -6,7 +6,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from ...physics.materials import material_groups
+from ...physics.materials import WeaklyCompressibleFluid, material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
@@ -110,7 +110,7 @@ class NumbaBackend:
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = scene.transfer
-        self._p2g = transfers.make_p2g(self.cfg, grid.block, scene.material_list)
+        self._p2g = transfers.make_p2g(self.cfg, grid.block)
         self._g2p = transfers.make_g2p(self.cfg, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
@@ -127,7 +127,8 @@ class NumbaBackend:
         self.wall_friction = np.array([w.friction for w in walls], dtype=np.float64)
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.materials = MaterialTable(scene.material_list, KERNELS)
-        self.stress_codes, self.stress_params = materials.stress_table(scene.material_list)
+        self.fluid_params = materials.fluid_parameters(scene.material_list)
+        self.fluids_only = all(isinstance(m, WeaklyCompressibleFluid) for m in scene.material_list)
         self.buffers = BufferPool(self.dtype)
 
     running = staticmethod(threads_for)
@@ -163,8 +164,9 @@ class NumbaBackend:
         thread-count independent);
         with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
 
-        The stress is computed inside, particle by particle
-        (:func:`mpmref.backends.numba.transfers.p2g_kernel`), not stored. The node rows of the active
+        The stress comes from the stress stage (:meth:`stress`), run here first, except in a scene of fluids
+        only: a fluid's stress is a function of :math:`J` alone, and P2G computes it per particle instead of
+        storing it (:func:`mpmref.backends.numba.transfers.p2g_kernel`). The node rows of the active
         blocks live in one (rows, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
         momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
@@ -175,15 +177,15 @@ class NumbaBackend:
             return cpic.p2g(self, particles, blocks, contact)
         layout = blocks.layout
         n, d = particles.x.shape
+        stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
         grid, = self.buffers.take("grid", (layout.n_rows, 1 + 2 * d))
         transfers.zero_rows(grid)
         chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
         try:
             self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
-                      self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0,
-                      self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                      self._or_empty(particles.Jp, 0), particles.material, self.stress_codes, self.stress_params,
-                      self.origin, self.dx, self.inertia, layout.slot_of, layout.table_strides,
+                      self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, stress,
+                      self._or_empty(particles.J, 0), particles.material, self.fluid_params, self.origin,
+                      self.dx, self.inertia, layout.slot_of, layout.table_strides,
                       self.mode_index, blocks.order, *blocks.p2g_groups, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
@@ -251,6 +253,15 @@ class NumbaBackend:
         return cpic.g2p(self, particles, v_grid, dt, prepared or self.prepare(particles), contact, rigid)
 
     # ------------------------------------------------------------------ warm-up
+    def compiled_kernels(self):
+        """What :meth:`warm_up` compiles for this scene, as a set: the transfer kernels (one per configuration,
+        shared by every scene that has it), and per dtype the step's other stages, each material law's
+        stress and return map, and the CPIC kernels where there are rigid bodies. A scene whose set lies
+        inside what earlier warm-ups compiled finds all of it in the cache."""
+        dtype = np.dtype(self.dtype).str
+        laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
+        return {self._p2g, self._g2p, dtype} | laws | ({(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set())
+
     def warm_up(self, particles, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.
 

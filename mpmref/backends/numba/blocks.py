@@ -115,4 +115,9 @@ def colour_classes(block_start, blocks_per_axis):
         colour[i] = c
     colour_start = np.zeros(2**d + 1, dtype=np.int64)
     colour_start[1:] = np.cumsum(np.bincount(colour, minlength=2**d))
-    return blocks[np.argsort(colour, kind="mergesort")], colour_start  # stable: block order within a colour
+    placed = colour_start[:-1].copy()  # a counting sort: stable, block order kept within a colour
+    colour_blocks = np.empty_like(blocks)
+    for i in range(blocks.shape[0]):
+        colour_blocks[placed[colour[i]]] = blocks[i]
+        placed[colour[i]] += 1
+    return colour_blocks, colour_start

@@ -257,30 +257,12 @@ KERNELS = {
 }
 
 
-# --------------------------------------------------------------------------- one particle, any material
-#: material class -> (its code in the stress dispatch of the fused P2G kernel
-#: (:func:`mpmref.backends.numba.transfers.p2g_kernel`), its parameters as a tuple of at most 3 floats)
-PARTICLE_STRESS = {
-    WeaklyCompressibleFluid: (0, lambda m: (m.K, m.gamma)),
-    FixedCorotated: (1, lambda m: (m.mu, m.lam)),
-    NeoHookean: (2, lambda m: (m.mu, m.lam)),
-    SnowPlasticity: (3, lambda m: (m.mu, m.lam, m.hardening)),
-    DruckerPragerSand: (4, lambda m: (m.mu, m.lam)),
-}
-
-
-def stress_table(materials):
-    """``(codes (k,) int64, params (k, 3) float64)`` of a scene's materials (:data:`PARTICLE_STRESS`)."""
-    codes = np.empty(len(materials), dtype=np.int64)
-    params = np.zeros((len(materials), 3), dtype=np.float64)
+# --------------------------------------------------------------------------- fluid stress inside P2G
+def fluid_parameters(materials):
+    r"""``(k, 2)`` float64: :math:`(K, \gamma)` of each of a scene's materials that is a weakly compressible
+    fluid (zeros for the others), for P2G's own fluid stress (:func:`mpmref.backends.numba.transfers.p2g_kernel`)."""
+    params = np.zeros((len(materials), 2), dtype=np.float64)
     for i, material in enumerate(materials):
-        codes[i], get = PARTICLE_STRESS[type(material)][0], PARTICLE_STRESS[type(material)][1]
-        values = get(material)
-        params[i, :len(values)] = values
-    return codes, params
-
-
-def stress_mask(materials):
-    """Bit ``c`` set for each material code ``c`` (:data:`PARTICLE_STRESS`) a scene uses: the fused P2G kernel
-    compiles the stress of these materials only (the SVD-based laws are most of its compile time)."""
-    return sum({1 << PARTICLE_STRESS[type(m)][0] for m in materials})
+        if isinstance(material, WeaklyCompressibleFluid):
+            params[i] = material.K, material.gamma
+    return params

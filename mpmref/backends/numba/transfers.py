@@ -24,8 +24,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
-from .materials import (corotated_stress_into, fluid_stress_into, neo_hookean_stress_into, sand_stress_into,
-                        stress_mask)
+from .materials import fluid_stress_into
 from .stencil import KERNEL_CODES, kernel_axis, polypic_axis_basis
 
 
@@ -45,39 +44,41 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def make_p2g(spec, block, materials):
-    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, with the
-    stress of the scene's ``materials`` fused in (FLIP and the tracked deformation are invisible to P2G, so those
-    variants share one compiled kernel); see :func:`p2g_kernel`."""
-    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block,
-                      stress_mask(materials))
+def make_p2g(spec, block):
+    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (FLIP, the
+    tracked deformation and the materials are invisible to P2G, so those variants share one compiled kernel);
+    see :func:`p2g_kernel`."""
+    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block)
 
 
 def make_g2p(spec, block):
-    """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks; see
+    """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (the tracked
+    deformation, F or J, is a run-time choice, so those variants share one compiled kernel); see
     :func:`g2p_kernel`."""
     return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
-                      spec.mls_gradient, spec.tracks_F, spec.tracks_J, block)
+                      spec.mls_gradient, block)
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
-    :func:`mpmref.backends.numpy.transfers.p2g` for the equations), the stress computed inside.
+    :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
-    The returned function ``p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params,
-    origin, dx, inertia, slot_of, table_strides, mode_index, order, group_start, groups, colour_start,
-    grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
+    The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, origin, dx,
+    inertia, slot_of, table_strides, mode_index, order, group_start, groups, colour_start, grid)`` adds into
+    the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
     :class:`~.sparse.BlockLayout` (``slot_of`` its block-pointer table, ``table_strides`` the table's strides;
     rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, group
     by group (slabs or blocks, ``order[group_start[g]:group_start[g + 1]]`` the particles of group ``g``) in
     the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
-    computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (the stress
-    stage's own per-particle functions of :mod:`mpmref.backends.numba.materials`, so the same bits, fused
-    here instead of stored; ``MATERIALS`` has bit ``c`` set for each material code of
-    :data:`~mpmref.backends.numba.materials.PARTICLE_STRESS` the scene uses, and only those laws are
-    compiled), the force matrix :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p`
+    computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (read from
+    ``stress``, the stress stage's (n, d, d) output; where ``stress`` is empty, every material is a weakly
+    compressible fluid, whose stress, a function of :math:`J_p` alone, is computed here with the stress
+    stage's own :func:`~mpmref.backends.numba.materials.fluid_stress_into` and the parameters
+    ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the solids' laws stay out
+    of this kernel, which is why one compiled P2G serves every material), the force matrix
+    :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p`
     (classic), the affine momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
     :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)` for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic
@@ -86,11 +87,10 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
     """
     SOURCES = SOURCE_DIGEST
     N = BLOCK**DIM  # nodes (rows) per block
-    FLUID, COROTATED, NEO_HOOKEAN, SNOW, SAND = (bool(MATERIALS >> code & 1) for code in range(5))
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def p2g(x, v, C, modes, mass, vol0, F, J, Jp, material, stress_codes, stress_params, origin, dx, inertia,
-            slot_of, table_strides, mode_index, order, group_start, groups, colour_start, grid):
+    def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, origin, dx, inertia, slot_of,
+            table_strides, mode_index, order, group_start, groups, colour_start, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         inv_dx = 1.0 / dx
         T = grid.dtype.type
@@ -98,25 +98,19 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, MATERIALS):
             first = colour_start[colour]
             for si in prange(colour_start[colour + 1] - first):
                 group = groups[first + si]
-                work = np.empty((5, DIM, DIM), grid.dtype)  # one allocation per group: tau, R, U, Vt, sigma
-                tau, R, U, Vt, sigma = work[0], work[1], work[2], work[3], work[4, 0]
+                fluid_tau = np.empty((DIM, DIM), grid.dtype)  # one allocation per group
                 q = np.empty((DIM if POLY else 0, S, S))
                 qnorm = np.empty((DIM if POLY else 0, S))
                 w_arr = np.empty((DIM if POLY else 0, S))
                 fx_arr = np.empty(DIM if POLY else 0)
                 for k in range(group_start[group], group_start[group + 1]):
                     p = order[k]
-                    code, prm = stress_codes[material[p]], stress_params[material[p]]
-                    # a branch on a closure constant is pruned before compilation: unused laws cost nothing
-                    if FLUID and code == 0:
-                        fluid_stress_into(J[p], prm[0], prm[1], tau)
-                    elif (COROTATED or SNOW) and (code == 1 or code == 3):  # snow: hardened corotated
-                        scale = np.exp(prm[2] * (1.0 - Jp[p])) if code == 3 else 1.0
-                        corotated_stress_into(F[p], prm[0], prm[1], scale, tau, R, U, sigma, Vt)
-                    elif NEO_HOOKEAN and code == 2:
-                        neo_hookean_stress_into(F[p], prm[0], prm[1], tau)
-                    elif SAND and code == 4:
-                        sand_stress_into(F[p], prm[0], prm[1], tau, R, U, sigma, Vt)
+                    if stress.shape[0] > 0:
+                        tau = stress[p]
+                    else:  # fluids only
+                        prm = fluid_params[material[p]]
+                        fluid_stress_into(J[p], prm[0], prm[1], fluid_tau)
+                        tau = fluid_tau
                     m = mass[p]
                     Q = matrix(tau, T(-vol0[p] / inertia if MLS else -vol0[p]), DIM)
                     mv = scaled_row(v, p, m, DIM)
@@ -333,7 +327,7 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J, BLOCK):
+def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
@@ -346,7 +340,8 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J, BLOC
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
     (:func:`gather_modes`).
     ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
-    from the force.
+    from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
+    test per particle, so one compiled kernel serves both (it halves the G2P kernels to compile).
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
@@ -435,7 +430,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J, BLOC
                                     gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
                 finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
                                 mode_index, x_new, v_new, C_new, F_new, J_new, modes_new,
-                                AFFINE, POLY, FLIP, MLS, TRACKS_F, TRACKS_J)
+                                AFFINE, POLY, FLIP, MLS, F_new.shape[0] > 0, J_new.shape[0] > 0)
 
     return g2p
 
