@@ -120,18 +120,39 @@ def test_results_json_holds_every_check_of_the_real_cases(report_dir):
         assert f"| {c['case']} | {c['name'].replace('|', chr(92) + '|')} | {c['figure']:.6g} | " in index
 
 
-def test_the_warm_up_compiles_the_scenes_of_the_compiled_cases_only():
-    """verify compiles ahead only what later cases run on Numba: every scheme of the backends case and every
-    series of speed_accuracy; a NumPy-only selection starts no process."""
-    from verification import backends, speed_accuracy, warmup
+def test_the_warm_up_compiles_every_kernel_of_the_compiled_cases_once():
+    """verify compiles ahead only what later cases run on Numba: each queued scene compiles kernels that
+    the scenes before it do not, the positions each case needs cover every kernel of its scenes, and a
+    NumPy-only selection starts no process."""
+    from mpmref.backends import make_backend
+    from verification import backends, warmup
 
-    jobs = warmup.scenes_to_compile(["momentum", "backends", "speed_accuracy"], "quick", "numpy")
-    assert {name for name, _ in jobs} == {"numba"}
-    schemes = [scene.method.scheme for _, scene in jobs]
-    quick = backends.Params.quick()
-    assert len(jobs) == len(quick.variants) * len(quick.kernels) + len(speed_accuracy.SCHEMES)
-    assert {v.scheme for v in backends.VARIANTS} <= set(schemes)
+    cases = ["momentum", "backends", "speed_accuracy", "sync_vs_async"]
+    queue, needs = warmup.plan(cases, "quick", "numpy")
+    assert {name for name, _ in queue} == {"numba"} and set(needs) == set(cases[1:])
+    kernels = [make_backend(name, scene).compiled_kernels() for name, scene in queue]
+    for k in range(1, len(kernels)):
+        assert not kernels[k] <= set().union(*kernels[:k])
+    for case in needs:
+        covered = set().union(*(kernels[k] for k in needs[case]))
+        assert all(make_backend(name, scene).compiled_kernels() <= covered
+                   for name, scene in warmup.declared_scenes(case, "quick", "numpy"))
+    assert {v.scheme for v in backends.VARIANTS} <= {scene.method.scheme for _, scene in queue}
     assert warmup.start(["momentum", "transfer_energy"], "quick", "numpy") is None
+
+
+def test_a_case_starts_early_only_when_its_kernels_are_compiled_and_it_times_nothing():
+    """can_start: sync_vs_async once the scenes it needs are done; speed_accuracy (timed) never early."""
+    from types import SimpleNamespace
+
+    from verification import warmup
+
+    _, needs = warmup.plan(["sync_vs_async", "speed_accuracy"], "quick", "numpy")
+    for flag in (0, 1):
+        fake = SimpleNamespace(needs=needs, done=[flag] * (1 + max(max(v) for v in needs.values())))
+        assert warmup.can_start(fake, "sync_vs_async") == bool(flag)
+        assert not warmup.can_start(fake, "speed_accuracy")
+    assert not warmup.can_start(None, "sync_vs_async")
 
 
 def test_the_warm_up_queue_hands_out_every_scene_once_from_either_end():

@@ -77,25 +77,35 @@ def cmd_verify(args):
 
 def _run_cases(args, names, executor, compiling):
     """Run and report each case, with a progress line when it starts and when it ends; the records come
-    back in the order of ``names``. The cases that run a compiled backend go last, after the background
-    compilation (:mod:`.warmup`) has finished, so that no kernel is compiled twice."""
+    back in the order of ``names``. The NumPy-only cases run first; a case that runs a compiled backend
+    runs between them as soon as the background compilation (:mod:`.warmup`) has compiled every kernel it
+    needs (:func:`.warmup.can_start`), or else after the whole compilation, so that no kernel is compiled
+    twice."""
     later = [n for n in names if warmup.compiles(n, args.preset, args.backend)]
-    order = [n for n in names if n not in later] + later
+    first = [n for n in names if n not in later]
     records = {}
-    for i, name in enumerate(order, 1):
-        if name in later:
+    for i in range(1, len(names) + 1):
+        early = next((n for n in later if warmup.can_start(compiling, n)), None)
+        if early is None and not first:
             warmup.wait(compiling, lambda line: _progress(args, line))
-        tag = f"[{i}/{len(order)}] {name}"
-        _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
-        case_dir = args.out / name
-        outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
-        record = case_record(outcome, case_dir)
-        write_case_report(record, case_dir)
-        records[name] = record
-        _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
-                        f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
-                        f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
+        name = early or (first or later).pop(0)
+        if name == early:
+            later.remove(name)
+        records[name] = _run_case(args, name, f"[{i}/{len(names)}] {name}", executor)
     return [records[n] for n in names]
+
+
+def _run_case(args, name, tag, executor):
+    """Run one case and write its report folder; the case's record."""
+    _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
+    case_dir = args.out / name
+    outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
+    record = case_record(outcome, case_dir)
+    write_case_report(record, case_dir)
+    _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
+                    f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
+                    f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
+    return record
 
 
 def _progress(args, line):

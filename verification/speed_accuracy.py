@@ -42,6 +42,10 @@ from .convergence import LevelRun, Series, run_level
 from .executor import Executor
 from .report import pyplot, save_figure, write_series
 
+#: the case times its runs: ``mpmref verify`` starts it only after the background compilation has ended
+#: (:mod:`verification.warmup`), so that no compilation shares the machine with the timed runs
+RUNS_ALONE = True
+
 #: (scheme, force) pairs the convergence case names
 SCHEMES = (("pic", "classic"), ("apic", "classic"), ("mls", "mls"))
 #: relative difference below which two errors are the same accuracy (far above backend round-off)

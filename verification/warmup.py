@@ -10,13 +10,18 @@ needs it is compiled there as before.
 
 Numba has no lock between processes: a case that starts while the warm-up is still compiling its kernels
 would compile them a second time, on the other core (measured: the ``backends`` quick preset took 134 s of
-CPU that way against 64 s alone). So ``mpmref verify`` runs the cases that declare compiled scenes after
-the others, and :func:`wait` for the warm-up before the first of them: every kernel compiles once.
+CPU that way against 64 s alone). So a case that declares compiled scenes starts only once every scene it
+needs is compiled (:func:`can_start`: then, between two NumPy cases, while the warm-up goes on with the
+others) or after :func:`wait` for the whole warm-up; every kernel compiles once. A case that times its
+runs (``RUNS_ALONE = True`` in its module) always waits for the whole warm-up: compilation on the other
+core would slow what it measures.
 
-The scenes form a queue that two workers take from, one from each end, each scene claimed under a lock:
-the background process from the front from the start, and, once the NumPy cases are done and the core
-they used is free, the main process from the back (:func:`wait`). No scene is compiled twice, and the
-kernels the main process compiles stay in its memory for the cases that follow.
+The queue (:func:`plan`) holds one scene per set of kernels not yet compiled by the scenes before it
+(``compiled_kernels()`` of the backend), the scenes of cases that may start early first, fewest first.
+Two workers take from it, one from each end, each scene claimed under a lock: the background process
+from the front from the start, and, once the NumPy cases are done and the core they used is free, the
+main process from the back (:func:`wait`). No scene is compiled twice, and the kernels the main process
+compiles stay in its memory for the cases that follow.
 """
 
 import multiprocessing
@@ -28,31 +33,59 @@ from mpmref.bodies import sample_particles
 from . import registry
 
 
-def scenes_to_compile(names, preset, backend):
-    """``[(backend name, scene)]`` that the cases ``names`` will run on a compiled backend, without the scenes
-    whose kernels the scenes before them already compile (``compiled_kernels()`` of the backend: such a scene
-    would only load them from the cache, or, taken by the other worker at the same time, compile them twice)."""
-    out, covered = [], set()
-    for name in names:
-        module = registry.load(name)
-        for backend_name, scene in getattr(module, "compiled_scenes", lambda *_: [])(
-                registry.preset_params(module, preset), backend):
+def declared_scenes(name, preset, backend):
+    """``[(backend name, scene)]`` that case ``name`` runs on a compiled backend (its ``compiled_scenes``)."""
+    module = registry.load(name)
+    declared = getattr(module, "compiled_scenes", None)
+    return declared(registry.preset_params(module, preset), backend) if declared else []
+
+
+def runs_alone(name):
+    """Whether case ``name`` times its runs and so starts only after the whole warm-up (``RUNS_ALONE``)."""
+    return getattr(registry.load(name), "RUNS_ALONE", False)
+
+
+def plan(names, preset, backend):
+    """The compile queue ``[(backend name, scene)]`` of the cases ``names``, and per case the queue positions
+    that compile its kernels (``{name: set}``).
+
+    Cases that may start early come first, the one needing the fewest scenes first (it is ready soonest);
+    a scene enters the queue only if it compiles something the scenes before it do not (the kernels a
+    backend's ``compiled_kernels()`` names; a backend without it always enters).
+    """
+    declared = {name: declared_scenes(name, preset, backend) for name in names}
+    queue, first = [], {}  # first: kernel -> position of the first scene that compiles it
+    needs = {}
+    for name in sorted((n for n in names if declared[n]), key=lambda n: (runs_alone(n), len(declared[n]))):
+        needs[name] = set()
+        for backend_name, scene in declared[name]:
             compiled = make_backend(backend_name, scene)
             kernels = compiled.compiled_kernels() if hasattr(compiled, "compiled_kernels") else {id(scene)}
-            if not kernels <= covered:
-                covered |= kernels
-                out.append((backend_name, scene))
-    return out
+            if not kernels <= first.keys():
+                for kernel in kernels - first.keys():
+                    first[kernel] = len(queue)
+                queue.append((backend_name, scene))
+            needs[name] |= {first[kernel] for kernel in kernels}
+    return queue, needs
 
 
-def compile_scenes(names, preset, backend, queue=None, from_back=False):
+def scenes_to_compile(names, preset, backend):
+    """The compile queue of :func:`plan`: ``[(backend name, scene)]`` that the cases ``names`` run on a
+    compiled backend, one for each set of kernels that the scenes before it do not compile."""
+    return plan(names, preset, backend)[0]
+
+
+def compile_scenes(names, preset, backend, queue=None, from_back=False, done=None):
     """Compile (or load) every kernel of :func:`scenes_to_compile` with one Δt = 0 step of each scene; with a
-    ``queue`` (shared ``[front, back)`` bounds, see :func:`start`), only the scenes this worker claims."""
+    ``queue`` (shared ``[front, back)`` bounds, see :func:`start`), only the scenes this worker claims, each
+    marked in the shared flags ``done`` once compiled."""
     scenes = scenes_to_compile(names, preset, backend)
     queue = queue if queue is not None else multiprocessing.Array("i", [0, len(scenes)])
     while (index := claim(queue, from_back)) is not None:
         name, scene = scenes[index]
         make_backend(name, scene).warm_up(sample_particles(scene))
+        if done is not None:
+            done[index] = 1
 
 
 def claim(queue, from_back):
@@ -70,12 +103,14 @@ def claim(queue, from_back):
 
 @dataclass
 class WarmUp:
-    """The background compilation: its process, the shared queue bounds, and what :func:`wait` needs to
-    take the other end of the queue."""
+    """The background compilation: its process, the shared queue bounds and per-scene ``done`` flags, what
+    :func:`wait` needs to take the other end of the queue, and the queue positions each case needs."""
 
     process: multiprocessing.Process
     queue: object
+    done: object
     job: tuple
+    needs: dict
 
     def is_alive(self):
         return self.process.is_alive()
@@ -85,20 +120,30 @@ def start(names, preset, backend):
     """Start :func:`compile_scenes` in a daemon process (spawned: no state shared) on the front of a shared
     queue of the scenes; ``None`` when no case declares a compiled scene. The caller ends it with
     :func:`stop`."""
-    scenes = scenes_to_compile(names, preset, backend)
+    scenes, needs = plan(names, preset, backend)
     if not scenes:
         return None
     context = multiprocessing.get_context("spawn")
     queue = context.Array("i", [0, len(scenes)])
+    done = context.Array("b", len(scenes))
     job = (names, preset, backend)
-    process = context.Process(target=compile_scenes, args=(*job, queue), daemon=True, name="mpmref-warm-up")
+    process = context.Process(target=compile_scenes, args=(*job, queue, False, done), daemon=True,
+                              name="mpmref-warm-up")
     process.start()
-    return WarmUp(process, queue, job)
+    return WarmUp(process, queue, done, job, needs)
 
 
 def compiles(name, preset, backend):
     """Whether case ``name`` runs scenes on a compiled backend (it declares them in ``compiled_scenes``)."""
-    return bool(scenes_to_compile([name], preset, backend))
+    return bool(declared_scenes(name, preset, backend))
+
+
+def can_start(warm_up, name):
+    """Whether case ``name`` may start while the warm-up goes on: it does not run alone and every scene it
+    needs is compiled."""
+    if warm_up is None or runs_alone(name):
+        return False
+    return all(warm_up.done[index] for index in warm_up.needs.get(name, ()))
 
 
 def wait(warm_up, progress):
@@ -107,7 +152,7 @@ def wait(warm_up, progress):
     if warm_up is None or not warm_up.is_alive():
         return
     progress("compiling the rest of the kernels here and in the background process (each kernel compiles once)")
-    compile_scenes(*warm_up.job, queue=warm_up.queue, from_back=True)
+    compile_scenes(*warm_up.job, queue=warm_up.queue, from_back=True, done=warm_up.done)
     warm_up.process.join()
 
 

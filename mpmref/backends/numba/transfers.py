@@ -1,12 +1,15 @@
 r"""P2G, grid update and G2P of the Numba backend: the equations of
 :mod:`mpmref.backends.numpy.transfers`, one particle at a time with the stencil inside.
 
-Each kernel is built for one scene configuration (a :class:`~mpmref.physics.scheme.TransferSpec`): dimension, kernel, scheme
-features (affine matrix, PolyPIC modes, FLIP), force discretisation and the tracked deformation (F or J).
-These are closure constants, so Numba compiles only the branches the scene uses, and each configuration is
-cached on disk like any other ``cache=True`` function: Numba keys a closure's cache entry on the pickled
+Each kernel is built for one transfer configuration (of a :class:`~mpmref.physics.scheme.TransferSpec`):
+dimension, kernel, block size, scheme features (affine matrix, PolyPIC modes, FLIP in G2P) and force
+discretisation. These are closure constants, so Numba compiles only the branches the scene uses, and each
+configuration is cached on disk like any other ``cache=True`` function: Numba keys a closure's cache entry on the pickled
 values of its constants, which is why they are plain ints, bools and a string and never other compiled
-functions (a dispatcher pickles differently in every process, which would defeat the cache).
+functions (a dispatcher pickles differently in every process, which would defeat the cache). Two choices
+are made at run time instead, so that one compiled kernel serves more scenes (each kernel takes seconds
+to compile): the material laws (P2G reads the solids' stress from the stress stage) and whether G2P
+updates F or J (measured cost in docs/performance.md, "Compile time against run time").
 
 P2G runs in parallel over the colour classes of :mod:`.blocks`, slabs or single blocks (no atomics, bitwise
 the same for any thread count); G2P gathers, so it runs in parallel over the particles in their storage
