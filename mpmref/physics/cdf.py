@@ -83,11 +83,12 @@ class ColoredDistanceField:
         return self.origin + idx * self.dx
 
 
-def _stencil_nodes(shape, base, offset):
-    """Flat node index of ``base + offset`` per point and a mask of those inside the grid."""
-    node = base + np.asarray(offset)
-    inside = np.all((node >= 0) & (node < np.asarray(shape)), axis=1)
-    flat = np.zeros(len(node), dtype=np.int64)
+def _stencil_nodes(shape, base, offsets):
+    """Flat node index of ``base + offset`` for every offset (K, d) and point (n, d), shape (K, n), and a mask
+    of those inside the grid (0 where outside)."""
+    node = base[None, :, :] + offsets[:, None, :]
+    inside = np.all((node >= 0) & (node < np.asarray(shape)), axis=-1)
+    flat = np.zeros(inside.shape, dtype=np.int64)
     if inside.any():
         flat[inside] = np.ravel_multi_index(tuple(node[inside].T), shape)
     return flat, inside
@@ -157,14 +158,10 @@ def build_cdf(bodies, shape, origin, dx):
     for r, body in enumerate(bodies):
         xs, element = _element_samples(body, dx)
         stencil = compute_stencil(kernel, xs, origin, dx)
-        flats, hs = [], []
-        for offset in stencil.offsets:
-            flat, inside = _stencil_nodes(shape, stencil.base, offset)
-            xi = origin + (stencil.base[inside] + offset) * dx
-            keep, h = _project_on_element(body, element[inside], xi)
-            flats.append(flat[inside][keep])
-            hs.append(h[keep])
-        flat, h = np.concatenate(flats), np.concatenate(hs)
+        flat, inside = _stencil_nodes(shape, stencil.base, stencil.offsets)  # (K, samples): offset by offset
+        xi = origin + (stencil.base[None, :, :] + stencil.offsets[:, None, :])[inside] * dx
+        keep, h = _project_on_element(body, np.broadcast_to(element, inside.shape)[inside], xi)
+        flat, h = flat[inside][keep], h[keep]
         dist = np.abs(h)
         d_r = np.full(n_nodes, np.inf)
         np.minimum.at(d_r, flat, dist)
@@ -213,17 +210,12 @@ def update_tags(cdf, x, A_p, T_p):
     A_p, T_p : (n, n_bodies) bool arrays    the new tags
     """
     stencil = _particle_stencil(cdf, x)
-    n, n_bodies = len(stencil.base), cdf.A.shape[1]
-    near = np.zeros((n, n_bodies), dtype=bool)
-    S = np.zeros((2, n, n_bodies))
-    for offset in stencil.offsets:
-        flat, inside = _stencil_nodes(cdf.shape, stencil.base, offset)
-        A_i = cdf.A[flat] & inside[:, None]
-        near |= A_i
-        wd = stencil.node_weight(offset)[:, None] * np.where(A_i, cdf.d[flat][:, None], 0.0)  # w_ip d_i, A_ir = 1
-        T_i = cdf.T[flat]
-        S[0] += np.where(T_i, 0.0, wd)
-        S[1] += np.where(T_i, wd, 0.0)
+    flat, inside = _stencil_nodes(cdf.shape, stencil.base, stencil.offsets)  # every array: (K nodes, n, bodies)
+    A_i = cdf.A[flat] & inside[:, :, None]
+    near = A_i.any(axis=0)
+    wd = stencil.node_weights()[:, :, None] * np.where(A_i, cdf.d[flat][:, :, None], 0.0)  # w_ip d_i, A_ir = 1
+    T_i = cdf.T[flat]
+    S = np.sum(np.where(T_i, 0.0, wd), axis=0, initial=0.0), np.sum(np.where(T_i, wd, 0.0), axis=0, initial=0.0)
     A_new = np.asarray(A_p, dtype=bool) & near
     T_new = np.asarray(T_p, dtype=bool) & A_new
     fresh = near & ~A_new & (S[0] + S[1] > TAG_THRESHOLD)
@@ -297,23 +289,25 @@ def reconstruct(cdf, x, A_p, T_p):
     """
     A_p, T_p = np.asarray(A_p, dtype=bool), np.asarray(T_p, dtype=bool)
     stencil = _particle_stencil(cdf, x)
-    n, dim = stencil.base.shape
-    M = np.zeros((n, dim + 1, dim + 1))
-    rhs = np.zeros((n, dim + 1))
-    tagged = A_p.any(axis=1)
-    for offset in stencil.offsets:
-        flat, inside = _stencil_nodes(cdf.shape, stencil.base, offset)
-        A_i, T_i = cdf.A[flat], cdf.T[flat]
-        has_body = inside & A_i.any(axis=1)
-        differing = np.count_nonzero(A_i & A_p & (T_i != T_p), axis=1)
-        d = np.where(has_body, cdf.d[flat], 0.0) / cdf.dx
-        y = np.where(differing == 0, d, -d)
-        use = tagged & has_body & (differing <= 1)
-        w = np.where(use, stencil.node_weight(offset), 0.0)
-        z1 = np.concatenate([stencil.node_offset_vector(offset) / cdf.dx, np.ones((n, 1))], axis=1)
-        M += w[:, None, None] * z1[:, :, None] * z1[:, None, :]
-        rhs += (w * y)[:, None] * z1
+    flat, inside = _stencil_nodes(cdf.shape, stencil.base, stencil.offsets)  # every array: (K nodes, n, ...)
+    A_i, T_i = cdf.A[flat], cdf.T[flat]
+    has_body = inside & A_i.any(axis=2)
+    differing = np.count_nonzero(A_i & A_p & (T_i != T_p), axis=2)
+    d = np.where(has_body, cdf.d[flat], 0.0) / cdf.dx
+    y = np.where(differing == 0, d, -d)
+    use = A_p.any(axis=1) & has_body & (differing <= 1)
+    w = np.where(use, stencil.node_weights(), 0.0)
+    z1 = _fit_basis(stencil, cdf.dx)
+    M = np.sum(w[:, :, None, None] * z1[:, :, :, None] * z1[:, :, None, :], axis=0, initial=0.0)
+    rhs = np.sum((w * y)[:, :, None] * z1, axis=0, initial=0.0)
     return _solve_fit(M, rhs, cdf.dx)
+
+
+def _fit_basis(stencil, dx):
+    r"""The fit's basis :math:`(\mathbf z_i, 1)`, :math:`\mathbf z_i = (\mathbf x_i - \mathbf x_p)/\Delta x`, for
+    every stencil node and particle: shape (K, n, d + 1)."""
+    z = stencil.node_offset_vectors() / dx
+    return np.concatenate([z, np.ones(z.shape[:2] + (1,))], axis=2)
 
 
 def _solve_fit(M, rhs, dx):
@@ -375,16 +369,15 @@ def reconstruct_per_body(cdf, x, A_p, T_p):
     M = np.zeros((n_bodies, n, dim + 1, dim + 1))
     rhs = np.zeros((n_bodies, n, dim + 1))
     several = A_p.sum(axis=1) >= 2
-    for offset in stencil.offsets:
-        flat, inside = _stencil_nodes(cdf.shape, stencil.base, offset)
-        z1 = np.concatenate([stencil.node_offset_vector(offset) / cdf.dx, np.ones((n, 1))], axis=1)
-        for r in range(n_bodies):
-            use = several & A_p[:, r] & inside & cdf.A[flat, r]
-            d = np.where(use, cdf.d_body[flat, r], 0.0) / cdf.dx
-            y = np.where(cdf.T[flat, r] == T_p[:, r], d, -d)
-            w = np.where(use, stencil.node_weight(offset), 0.0)
-            M[r] += w[:, None, None] * z1[:, :, None] * z1[:, None, :]
-            rhs[r] += (w * y)[:, None] * z1
+    flat, inside = _stencil_nodes(cdf.shape, stencil.base, stencil.offsets)  # (K nodes, n)
+    z1, weights = _fit_basis(stencil, cdf.dx), stencil.node_weights()
+    for r in range(n_bodies):
+        use = several & A_p[:, r] & inside & cdf.A[flat, r]
+        d = np.where(use, cdf.d_body[flat, r], 0.0) / cdf.dx
+        y = np.where(cdf.T[flat, r] == T_p[:, r], d, -d)
+        w = np.where(use, weights, 0.0)
+        M[r] = np.sum(w[:, :, None, None] * z1[:, :, :, None] * z1[:, :, None, :], axis=0, initial=0.0)
+        rhs[r] = np.sum((w * y)[:, :, None] * z1, axis=0, initial=0.0)
     fits = [_solve_fit(M[r], rhs[r], cdf.dx) for r in range(n_bodies)]
     phi = np.stack([f[0] for f in fits], axis=1).reshape(n, n_bodies)
     normal = np.stack([f[1] for f in fits], axis=1).reshape(n, n_bodies, dim)

@@ -178,6 +178,19 @@ class Stencil:
         r"""Vector :math:`x_i - x_p` (physical units) to the node ``base + offset``, shape (n, d)."""
         return (np.asarray(offset, dtype=self.fx.dtype) - self.fx) * self.dx
 
+    def node_weights(self):
+        r""":meth:`node_weight` to every node of the stencil at once, shape (K, n) for the K :attr:`offsets`
+        (the same products in the same order, so the same bits)."""
+        offsets = self.offsets
+        out = self.w[:, 0, offsets[:, 0]].T.copy()
+        for a in range(1, offsets.shape[1]):
+            out *= self.w[:, a, offsets[:, a]].T
+        return out
+
+    def node_offset_vectors(self):
+        r""":meth:`node_offset_vector` to every node of the stencil at once, shape (K, n, d)."""
+        return (self.offsets[:, None, :].astype(self.fx.dtype) - self.fx) * self.dx
+
 
 def compute_stencil(kernel, x, origin, dx):
     """Evaluate ``kernel`` for particle positions ``x`` (n, d) on the grid (origin, dx).

@@ -107,14 +107,16 @@ def colour_classes(block_start, blocks_per_axis):
     d = blocks_per_axis.shape[0]
     blocks = occupied_blocks(block_start, blocks_per_axis)
     colour = np.empty(blocks.shape[0], dtype=np.int64)
+    colour_start = np.zeros((1 << d) + 1, dtype=np.int64)
     for i in range(blocks.shape[0]):
         rest, c = blocks[i], 0
         for a in range(d - 1, -1, -1):
-            c += (rest % blocks_per_axis[a]) % 2 * 2**a
+            c += (rest % blocks_per_axis[a]) % 2 << a
             rest //= blocks_per_axis[a]
         colour[i] = c
-    colour_start = np.zeros(2**d + 1, dtype=np.int64)
-    colour_start[1:] = np.cumsum(np.bincount(colour, minlength=2**d))
+        colour_start[c + 1] += 1
+    for c in range(1 << d):
+        colour_start[c + 1] += colour_start[c]
     placed = colour_start[:-1].copy()  # a counting sort: stable, block order kept within a colour
     colour_blocks = np.empty_like(blocks)
     for i in range(blocks.shape[0]):
