@@ -110,7 +110,8 @@ class NumbaBackend:
         grid = scene.grid
         self.dtype = scene.dtype
         self.cfg = scene.transfer
-        self._p2g = transfers.make_p2g(self.cfg, grid.block)
+        self.fluids_only = all(isinstance(m, WeaklyCompressibleFluid) for m in scene.material_list)
+        self._p2g = transfers.make_p2g(self.cfg, grid.block, self.fluids_only)
         self._g2p = transfers.make_g2p(self.cfg, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
@@ -128,7 +129,6 @@ class NumbaBackend:
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.materials = MaterialTable(scene.material_list, KERNELS)
         self.fluid_params = materials.fluid_parameters(scene.material_list)
-        self.fluids_only = all(isinstance(m, WeaklyCompressibleFluid) for m in scene.material_list)
         self.buffers = BufferPool(self.dtype)
 
     running = staticmethod(threads_for)

@@ -47,11 +47,12 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def make_p2g(spec, block):
-    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (FLIP, the
-    tracked deformation and the materials are invisible to P2G, so those variants share one compiled kernel);
-    see :func:`p2g_kernel`."""
-    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block)
+def make_p2g(spec, block, fluids_only):
+    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, for a scene
+    of ``fluids_only`` or one with solids (FLIP, the tracked deformation and which solids are invisible to
+    P2G, so those variants share one compiled kernel); see :func:`p2g_kernel`."""
+    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block,
+                      fluids_only)
 
 
 def make_g2p(spec, block):
@@ -63,7 +64,7 @@ def make_g2p(spec, block):
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
@@ -76,11 +77,12 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
     the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first
     computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (read from
-    ``stress``, the stress stage's (n, d, d) output; where ``stress`` is empty, every material is a weakly
-    compressible fluid, whose stress, a function of :math:`J_p` alone, is computed here with the stress
-    stage's own :func:`~mpmref.backends.numba.materials.fluid_stress_into` and the parameters
-    ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the solids' laws stay out
-    of this kernel, which is why one compiled P2G serves every material), the force matrix
+    ``stress``, the stress stage's (n, d, d) output; with ``FLUIDS_ONLY``, every material of the scene is a
+    weakly compressible fluid, ``stress`` is empty, and the stress, a function of :math:`J_p` alone, is
+    computed here with the stress stage's own :func:`~mpmref.backends.numba.materials.fluid_stress_into`
+    and the parameters ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the
+    solids' laws stay out of this kernel, which is why one compiled P2G serves every scene with solids),
+    the force matrix
     :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p`
     (classic), the affine momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
     :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
@@ -108,12 +110,12 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK):
                 fx_arr = np.empty(DIM if POLY else 0)
                 for k in range(group_start[group], group_start[group + 1]):
                     p = order[k]
-                    if stress.shape[0] > 0:
-                        tau = stress[p]
-                    else:  # fluids only
+                    if FLUIDS_ONLY:  # a closure constant: the other branch is not compiled
                         prm = fluid_params[material[p]]
                         fluid_stress_into(J[p], prm[0], prm[1], fluid_tau)
                         tau = fluid_tau
+                    else:
+                        tau = stress[p]
                     m = mass[p]
                     Q = matrix(tau, T(-vol0[p] / inertia if MLS else -vol0[p]), DIM)
                     mv = scaled_row(v, p, m, DIM)
