@@ -260,7 +260,8 @@ class NumbaBackend:
         inside what earlier warm-ups compiled finds all of it in the cache."""
         dtype = np.dtype(self.dtype).str
         laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
-        return {self._p2g, self._g2p, dtype} | laws | ({(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set())
+        cpic_kernels = {(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set()
+        return {self._p2g, self._g2p, dtype} | laws | cpic_kernels
 
     def warm_up(self, particles, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.
