@@ -4,11 +4,11 @@ r"""P2G, grid update and G2P of the Numba backend: the equations of
 Each kernel is built for one transfer configuration (of a :class:`~mpmref.physics.scheme.TransferSpec`):
 dimension, kernel, block size, scheme features (affine matrix, PolyPIC modes, FLIP in G2P) and force
 discretisation. These are closure constants, so Numba compiles only the branches the scene uses, and each
-configuration is cached on disk like any other ``cache=True`` function: Numba keys a closure's cache entry on the pickled
-values of its constants, which is why they are plain ints, bools and a string and never other compiled
-functions (a dispatcher pickles differently in every process, which would defeat the cache). Two choices
-are made at run time instead, so that one compiled kernel serves more scenes (each kernel takes seconds
-to compile): the material laws (P2G reads the solids' stress from the stress stage) and whether G2P
+configuration is cached on disk like any other ``cache=True`` function: Numba keys a closure's cache entry on
+the pickled values of its constants, which is why they are plain ints, bools and a string and never other
+compiled functions (a dispatcher pickles differently in every process, which would defeat the cache). Two
+choices are made at run time instead, so that one compiled kernel serves more scenes (each kernel takes
+seconds to compile): the material laws (P2G reads the solids' stress from the stress stage) and whether G2P
 updates F or J (measured cost in docs/performance.md, "Compile time against run time").
 
 P2G runs in parallel over the colour classes of :mod:`.blocks`, slabs or single blocks (no atomics, bitwise
@@ -75,20 +75,19 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
     rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, group
     by group (slabs or blocks, ``order[group_start[g]:group_start[g + 1]]`` the particles of group ``g``) in
     the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
-    particles, so they are handed to the threads one at a time). Per particle it first
-    computes what every node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (read from
-    ``stress``, the stress stage's (n, d, d) output; with ``FLUIDS_ONLY``, every material of the scene is a
-    weakly compressible fluid, ``stress`` is empty, and the stress, a function of :math:`J_p` alone, is
-    computed here with the stress stage's own :func:`~mpmref.backends.numba.materials.fluid_stress_into`
-    and the parameters ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the
-    solids' laws stay out of this kernel, which is why one compiled P2G serves every scene with solids),
-    the force matrix
-    :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p`
-    (classic), the affine momentum :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets
-    :math:`x_i - x_p` and (classic) weight derivatives. Per node it then forms only products:
-    :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)` for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic
-    MPM (:func:`p2g_node`). Products are contracted to fused multiply-adds where the CPU has them
-    (``fastmath={"contract"}``, no other fast-math licence: still IEEE operations, one rounding fewer).
+    particles, so they are handed to the threads one at a time). Per particle it first computes what every
+    node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (read from ``stress``, the stress
+    stage's (n, d, d) output; with ``FLUIDS_ONLY``, every material of the scene is a weakly compressible
+    fluid, ``stress`` is empty, and the stress, a function of :math:`J_p` alone, is computed here with the
+    stress stage's own :func:`~mpmref.backends.numba.materials.fluid_stress_into` and the parameters
+    ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the solids' laws stay out of
+    this kernel, which is why one compiled P2G serves every scene with solids), the force matrix
+    :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine momentum
+    :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets :math:`x_i - x_p` and (classic)
+    weight derivatives. Per node it then forms only products: :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)`
+    for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic MPM (:func:`p2g_node`). Products are contracted to
+    fused multiply-adds where the CPU has them (``fastmath={"contract"}``, no other fast-math licence: still
+    IEEE operations, one rounding fewer).
     """
     SOURCES = SOURCE_DIGEST
     N = BLOCK**DIM  # nodes (rows) per block
@@ -346,7 +345,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
     (:func:`gather_modes`).
     ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
     from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
-    test per particle, so one compiled kernel serves both (it halves the G2P kernels to compile).
+    test per particle, so one compiled kernel serves scenes that track F, J or both.
     """
     NEED_B = AFFINE or MLS
     SOURCES = SOURCE_DIGEST
