@@ -19,6 +19,7 @@ P2G → G2P cycle with :math:`\Delta t = 0` is a fixed point after the first cyc
 
 from functools import lru_cache
 from itertools import product
+from math import comb, factorial
 
 import numpy as np
 
@@ -46,8 +47,9 @@ def axis_basis(w, fx, dx):
     :math:`\delta_k = (k - f_a)\Delta x` the node offsets. In exact arithmetic these are Gram–Schmidt
     applied to :math:`1, \delta, \delta^2, \dots`; the recurrence avoids the cancellation of Gram–Schmidt on
     monomials, which for the cubic spline (outer weights down to ~1e-6 of the inner ones) loses about seven
-    digits in the highest mode. A zero norm (a node with zero weight makes the top polynomial vanish on the
-    support) ends the recurrence's use of that polynomial: its :math:`\beta` and :math:`\alpha` are taken as 0.
+    digits in the highest mode. The recurrence gives :math:`q_0 \dots q_{S-2}`; the top polynomial
+    :math:`q_{S-1}` comes from its closed form (:func:`top_polynomial`), because the recurrence computes it
+    by cancellation where the particle sits next to a stencil switch.
 
     Parameters
     ----------
@@ -66,13 +68,73 @@ def axis_basis(w, fx, dx):
     norm = np.empty((n, d, S), dtype=w.dtype)
     q[:, :, 0] = 1.0
     norm[:, :, 0] = np.sum(w, axis=-1)
-    for j in range(S - 1):
+    for j in range(S - 2):
         alpha = _ratio(np.sum(w * delta * q[:, :, j] * q[:, :, j], axis=-1), norm[:, :, j])
         q[:, :, j + 1] = (delta - alpha[..., None]) * q[:, :, j]
         if j > 0:
             q[:, :, j + 1] -= _ratio(norm[:, :, j], norm[:, :, j - 1])[..., None] * q[:, :, j - 1]
         norm[:, :, j + 1] = np.sum(w * q[:, :, j + 1] * q[:, :, j + 1], axis=-1)
+    q[:, :, S - 1], norm[:, :, S - 1] = top_polynomial(w, dx)
     return q, norm
+
+
+def difference_stencil(S):
+    r"""Coefficients :math:`d_k = (-1)^{S-1-k}\binom{S-1}{k}` of the :math:`(S-1)`-th forward difference."""
+    return np.array([(-1) ** (S - 1 - k) * comb(S - 1, k) for k in range(S)], dtype=np.float64)
+
+
+def top_polynomial(w, dx):
+    r"""The top orthogonal polynomial :math:`q_{S-1}` of each axis at its stencil nodes, in closed form, and its norm.
+
+    On :math:`S` equally spaced nodes the only vector orthogonal (in the plain dot product) to every
+    polynomial of degree below :math:`S-1` is the :math:`(S-1)`-th difference stencil :math:`d_k`
+    (:func:`difference_stencil`: :math:`(1, -2, 1)` for the quadratic kernel, :math:`(-1, 3, -3, 1)` for the
+    cubic). Orthogonality under the weights therefore fixes :math:`N_k\, q_{S-1}(\delta_k) = \lambda\, d_k`,
+    and the monic normalisation (leading coefficient = the :math:`(S-1)`-th divided difference
+    :math:`\sum_k d_k q_k / L = 1`, :math:`L = (S-1)!\,\Delta x^{S-1}`) fixes :math:`\lambda`:
+
+    .. math::
+
+        q_{S-1}(\delta_k) = \frac{\lambda\, d_k}{N_k},\qquad
+        \lambda = \frac{L}{\sum_k d_k^2 / N_k},\qquad
+        \langle q_{S-1}, q_{S-1}\rangle = \lambda L .
+
+    Every quantity is a product, quotient or sum of positive terms, so it carries a relative error of a few
+    ulps however small the smallest weight is; the recurrence instead forms the small values at the heavy
+    nodes as differences of O(1) terms (an absolute error of an ulp, a relative one of ulp / :math:`N_{min}`).
+    The G2P projection onto this mode, :math:`\sum_k N_k q_k v_k / \langle q, q\rangle`, becomes
+    :math:`\sum_k d_k v_k / L`: the divided difference of the node velocities, which does not depend on the
+    weights (Fu et al. 2017 write the quadratic kernel's top mode with this coefficient,
+    :math:`(v_0 - 2 v_1 + v_2) / (2\Delta x^2)`). **Tie rule**: a particle with a weight exactly 0 on an axis
+    (it sits on the stencil switch, e.g. :math:`f = 1/2` for the quadratic kernel) has
+    :math:`\lambda = 0`; the mode's values and norm are 0, and G2P gives it the coefficient 0, which P2G then
+    multiplies by weights that are 0 at that node and values that are 0 elsewhere (docs/transfers.md,
+    "Conditioning of the top modes").
+
+    Parameters
+    ----------
+    w : (n, d, S) array   per-axis kernel weights :math:`N_{a,k}`
+    dx : float            grid spacing :math:`\Delta x`
+
+    Returns
+    -------
+    q : (n, d, S)   :math:`q_{S-1}(\delta_k)`;  norm : (n, d)   :math:`\langle q_{S-1}, q_{S-1}\rangle_a`
+    """
+    S = w.shape[-1]
+    d = difference_stencil(S).astype(w.dtype)
+    L = factorial(S - 1) * _power(dx, S - 1)
+    inside = np.all(w > 0, axis=-1)
+    w_safe = np.where(inside[..., None], w, 1.0)
+    lam = np.where(inside, L / np.sum(d * d / w_safe, axis=-1), 0.0)
+    return lam[..., None] * d / w_safe, lam * L
+
+
+def _power(x, k):
+    """``x**k`` as a product of ``k`` factors (the order the Numba backend uses)."""
+    out = 1.0
+    for _ in range(k):
+        out *= x
+    return out
 
 
 def _ratio(a, b):

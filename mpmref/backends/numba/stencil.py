@@ -62,13 +62,16 @@ def kernel_axis(kernel, xi):
 
 @njit(cache=True)
 def polypic_axis_basis(w, fx, dx, q, norm):
-    r"""Per-axis orthogonal polynomials by the three-term recurrence of :func:`mpmref.physics.polypic.axis_basis`.
+    r"""Per-axis orthogonal polynomials of :func:`mpmref.physics.polypic.axis_basis`.
 
+    :math:`q_0 \dots q_{S-2}` by the three-term recurrence
     :math:`q_0 = 1,\ q_{j+1} = (\delta - \alpha_j) q_j - \beta_j q_{j-1}` with
     :math:`\alpha_j = \langle \delta q_j, q_j\rangle / \langle q_j, q_j\rangle`,
     :math:`\beta_j = \langle q_j, q_j\rangle / \langle q_{j-1}, q_{j-1}\rangle`,
     :math:`\langle f, g\rangle_a = \sum_k N_{a,k} f_k g_k`, :math:`\delta_k = (k - f_a)\Delta x` (Gautschi 2004
-    §2.2.3; Fu et al. 2017 §4 for their use in PolyPIC). Fills ``q[a, j, k]`` and ``norm[a, j]``.
+    §2.2.3; Fu et al. 2017 §4 for their use in PolyPIC); the top one in closed form,
+    :math:`q_{S-1}(\delta_k) = \lambda d_k / N_k` (:func:`polypic_top_polynomial`). Fills ``q[a, j, k]`` and
+    ``norm[a, j]``.
     """
     d, S = w.shape
     for a in range(d):
@@ -77,7 +80,7 @@ def polypic_axis_basis(w, fx, dx, q, norm):
             q[a, 0, k] = 1.0
             nrm += w[a, k]
         norm[a, 0] = nrm
-        for j in range(S - 1):
+        for j in range(S - 2):
             num = 0.0
             for k in range(S):
                 num += w[a, k] * ((k - fx[a]) * dx) * q[a, j, k] * q[a, j, k]
@@ -93,3 +96,49 @@ def polypic_axis_basis(w, fx, dx, q, norm):
                 q[a, j + 1, k] = nxt
                 nrm += w[a, k] * nxt * nxt
             norm[a, j + 1] = nrm
+        polypic_top_polynomial(w, dx, a, q, norm)
+
+
+@njit(cache=True)
+def polypic_top_polynomial(w, dx, a, q, norm):
+    r"""Top polynomial of axis ``a`` in closed form (:func:`mpmref.physics.polypic.top_polynomial`).
+
+    :math:`q_{S-1}(\delta_k) = \lambda d_k / N_k`, :math:`\lambda = L / \sum_k d_k^2 / N_k`, norm
+    :math:`\lambda L`, :math:`L = (S-1)!\,\Delta x^{S-1}`, :math:`d_k = (-1)^{S-1-k}\binom{S-1}{k}`; all zero
+    where a weight of the axis is exactly 0 (the tie rule).
+    """
+    S = w.shape[1]
+    top = S - 1
+    L = 1.0
+    for j in range(top):
+        L *= (j + 1.0)
+    power = 1.0
+    for _ in range(top):
+        power *= dx
+    L = L * power
+    inside = True
+    for k in range(S):
+        if not w[a, k] > 0:
+            inside = False
+    if not inside:
+        for k in range(S):
+            q[a, top, k] = 0.0
+        norm[a, top] = 0.0
+        return
+    total = 0.0
+    for k in range(S):
+        dk = difference_coefficient(top, k)
+        total += dk * dk / w[a, k]
+    lam = L / total
+    for k in range(S):
+        q[a, top, k] = lam * difference_coefficient(top, k) / w[a, k]
+    norm[a, top] = lam * L
+
+
+@njit(cache=True)
+def difference_coefficient(order, k):
+    r""":math:`(-1)^{order-k}\binom{order}{k}`, the ``k``-th coefficient of the ``order``-th forward difference."""
+    c = 1.0
+    for j in range(k):
+        c = c * (order - j) / (j + 1.0)
+    return c if (order - k) % 2 == 0 else -c
