@@ -260,7 +260,8 @@ class Simulation:
 
     # ------------------------------------------------------------------------------ outputs
     def point_data(self, fields=None):
-        """Per-particle output arrays named as in ``scene.output.fields``."""
+        """Per-particle output arrays named as in ``scene.output.fields``, after ``id`` (int64, the stable
+        identity of :attr:`id`, kept through deletion, reordering and asynchronous steps)."""
         fields = fields or self.scene.output.fields
         p = self.particles
         J = self.volume_ratio()
@@ -270,7 +271,7 @@ class Simulation:
             sigma = self.backend.stress(p) / self.elastic_volume_ratio()[:, None, None]
             data["stress"] = sigma
             data["pressure"] = -np.trace(sigma, axis1=1, axis2=2) / p.dim
-        out = {k: data[k] for k in fields}
+        out = {"id": p.id, **{k: data[k] for k in fields}}  # the stable identity, for pathlines across frames
         if p.level is not None:  # asynchronous stepping: log2 of each particle's last step in ticks
             out["dt_level"] = p.level.astype(np.int32)
         if p.tag_A is not None:  # CPIC: tags packed as the reference does, distance and near flag

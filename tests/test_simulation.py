@@ -131,7 +131,7 @@ def test_cli_run_writes_a_series_that_meshio_and_pyvista_read(tmp_path, capsys):
     frames = sorted(out.glob("particles_*.vtu"))
     assert [f.name for f in frames] == ["particles_000000.vtu", "particles_000002.vtu", "particles_000004.vtu"]
     mesh = meshio.read(frames[-1])
-    assert set(mesh.point_data) == {"velocity", "mass", "volume", "J", "stress", "pressure", "material"}
+    assert set(mesh.point_data) == {"id", "velocity", "mass", "volume", "J", "stress", "pressure", "material"}
     assert mesh.point_data["velocity"].shape == (len(mesh.points), 3)
     reader = pv.get_reader(str(out / "particles.pvd"))
     assert len(reader.time_values) == 3
@@ -166,3 +166,27 @@ def test_cli_reports_bad_scene_with_exit_code_2(tmp_path):
     assert proc.returncode == 2
     assert "materials.jelly.nu" in proc.stderr and "0.5" in proc.stderr and "[0.0, 0.5)" in proc.stderr
     assert not (tmp_path / "o").exists()  # validated before any work
+
+
+def test_frames_follow_particles_by_id_through_deletion_and_emission(tmp_path):
+    """A loner leaves the domain (deleted) while an emitter adds particles: every frame's ``id`` is the set of
+    ``sim.id`` at its step, and each written position is the particle's position at that step, looked up by id."""
+    from mpmref import Scene
+
+    data = jelly_with_loner(loner_velocity=(30.0, 0.0), exit_policy="delete", dt=2e-4, steps=30,
+                            walls="open").source
+    data = {**data, "output": {"every": 1}, "emitters": [{"material": "jelly", "center": [0.7, 0.4], "radius": 0.04,
+                                                          "velocity": [0.0, -5.0], "start": 1e-3, "interval": 0.02,
+                                                          "until": 2e-3}]}
+    sim = Simulation(Scene.from_dict(data), out_dir=tmp_path)
+    seen = {0: dict(zip(sim.id.tolist(), sim.x.copy()))}
+    for _ in range(30):
+        sim.run(steps=1)
+        seen[sim.step_count] = dict(zip(sim.id.tolist(), sim.x.copy()))
+    assert set(seen[0]) - set(seen[30]) and set(seen[30]) - set(seen[0])  # particles left and particles arrived
+    for step, positions in seen.items():
+        frame = meshio.read(tmp_path / f"particles_{step:06d}.vtu")
+        ids = frame.point_data["id"]
+        assert set(ids.tolist()) == set(positions)
+        for i, point in zip(ids.tolist(), frame.points):
+            np.testing.assert_array_equal(point[:2], positions[i])

@@ -228,8 +228,8 @@ def errors(problem, particles, X, t, dt):
 
 def _snapshot(problem, particles, X, t):
     u = particles.x - X
-    return {"time": t, "x": particles.x.copy(), "velocity": particles.v.copy(), "displacement": u,
-            "displacement_exact": problem.displacement(X, t)}
+    return {"time": t, "x": particles.x.copy(), "id": particles.id.copy(), "velocity": particles.v.copy(),
+            "displacement": u, "displacement_exact": problem.displacement(X, t)}
 
 
 def run_level(item):
@@ -382,7 +382,7 @@ def _write_vtk(rep, folder):
         name = f"particles_{k:06d}.vtu"
         error = frame["displacement"] - frame["displacement_exact"]
         write_particles_vtu(folder / name, frame["x"], {
-            "velocity": frame["velocity"], "displacement": frame["displacement"],
+            "id": frame["id"], "velocity": frame["velocity"], "displacement": frame["displacement"],
             "displacement_exact": frame["displacement_exact"], "displacement_error": error})
         entries.append((frame["time"], name))
     write_pvd(folder / "particles.pvd", entries)

@@ -271,7 +271,7 @@ def report(result, out_dir):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     best, frames = result["representative"]
-    vtk = [(f["time"], f["x"], {"velocity": f["velocity"], "displacement": f["displacement"],
+    vtk = [(f["time"], f["x"], {"id": f["id"], "velocity": f["velocity"], "displacement": f["displacement"],
                                 "displacement_error": f["displacement"] - f["displacement_exact"]}) for f in frames]
     paths = [write_series(out / "vtk" / "most_accurate", vtk)]
     timing = result["timing"]
