@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import pytest
 
+from helpers import assert_every_figure_has_a_caption
 from verification import transfer_energy as case
 from verification.common import failed
 
@@ -34,7 +35,9 @@ def test_cubic_kernel_study_also_holds():
     assert all(c.passed for c in case.checks(res))
 
 
-def test_report_writes_the_table(result, tmp_path):
-    path = case.report(result, tmp_path)
-    text = path.read_text()
+def test_report_writes_the_plot_and_the_table(result, tmp_path):
+    figure, table = case.report(result, tmp_path)
+    assert figure.name == case.MAIN_FIGURE
+    text = table.read_text()
     assert "| polypic |" in text and "pass" in text
+    assert_every_figure_has_a_caption(tmp_path)

@@ -36,6 +36,7 @@ def test_registry_lists_and_loads_the_cases():
         module = registry.load(name)
         for preset in registry.PRESETS:
             assert isinstance(registry.preset_params(module, preset), module.Params)
+        assert module.MAIN_FIGURE.endswith(".png")  # the figure index.html shows for it
     with pytest.raises(KeyError, match="available: momentum"):
         registry.load("nonsense")
 
@@ -69,7 +70,8 @@ def test_index_lists_every_check_with_figure_bound_and_verdict(report_dir):
     out, _ = report_dir
     index, page = (out / "report.md").read_text(), (out / "index.html").read_text()
     for case in ("momentum", "transfer_energy"):
-        assert f"| {case} |" in index and f"{case}/report.md" in page
+        assert f"| {case} |" in index and f"{case}/index.html" in page
+        assert f"<img src='{case}/{registry.load(case).MAIN_FIGURE}'" in page  # its main figure, inline
     cells = [re.split(r"(?<!\\)\|", line)[1:-1] for line in index.splitlines()]
     checks = [[c.strip() for c in row] for row in cells if len(row) == 6 and row[0].strip() == "momentum"]
     assert len(checks) == 2 * len(momentum.VARIANTS)  # linear + angular per scheme

@@ -4,6 +4,7 @@ figure captions and progress lines, on a toy case whose every figure is known (`
 import argparse
 import html
 import json
+import re
 from dataclasses import replace
 
 import pytest
@@ -64,18 +65,48 @@ def test_results_json_holds_exactly_the_checks_of_the_markdown_index(toy_case, m
     assert [(r[1], r[4]) for r in rows] == [(c["name"], c["verdict"]) for c in data["checks"]]
 
 
-def test_findings_have_their_own_section_at_the_top_of_the_index(toy_case, monkeypatch, tmp_path):
-    assert run_toy(monkeypatch, tmp_path) == 0
-    md = (tmp_path / "report.md").read_text()
-    assert md.index("## Findings") < md.index("## Cases") < md.index("## Every check")
-    assert "| toy | curvature of the line | 0 | The line is straight: measured, not judged. |" in md
+def test_the_index_reads_verdict_failures_figures_findings_then_checks(toy_case, monkeypatch, tmp_path):
+    """index.html and report.md open with the verdict and the failures, then the cases (in index.html: one figure
+    each), then the findings, then every check."""
+    assert run_toy(monkeypatch, tmp_path, slope=3.0) == 1
     page = (tmp_path / "index.html").read_text()
-    assert page.index("<h2>Findings") < page.index("<h2>Cases") < page.index("<h2>Every check")
-    assert "<td>curvature of the line</td><td>0</td>" in page
+    assert page.index("<strong>FAIL</strong> — 1 of 2 checks pass") < page.index("<h2 id='failures'>")
+    assert (page.index("<h2 id='failures'>") < page.index("<h2 id='cases'>") < page.index("<h2 id='findings'>")
+            < page.index("<h2 id='checks'>"))
+    failures = page[page.index("<h2 id='failures'>"):page.index("<h2 id='cases'>")]
+    assert "<td>slope of the line</td>" in failures and "infinite bound" not in failures
+    assert "<td>curvature of the line</td><td class='num'>0</td>" in page
+    md = (tmp_path / "report.md").read_text()
+    assert md.index("**FAIL**") < md.index("## Failures") < md.index("## Cases") < md.index("## Findings") < md.index(
+        "## Every check")
+    assert "| toy | curvature of the line | 0 | The line is straight: measured, not judged. |" in md
     assert strict_json(tmp_path / "results.json")["findings"] == [
         {"case": "toy", "name": "curvature of the line", "figure": 0.0,
          "sentence": "The line is straight: measured, not judged."}]
     assert "## Findings (measured, not judged)" in (tmp_path / "toy" / "report.md").read_text()
+    assert run_toy(monkeypatch, tmp_path, slope=1.0) == 0
+    page = (tmp_path / "index.html").read_text()
+    assert "<strong>PASS</strong> — 2 of 2 checks pass" in page and "None: every check of every case passes." in page
+
+
+def test_the_index_shows_each_cases_main_figure_and_its_page_every_figure(toy_case, monkeypatch, tmp_path):
+    assert run_toy(monkeypatch, tmp_path) == 0
+    page = (tmp_path / "index.html").read_text()
+    assert f"<img src='toy/{toy.MAIN_FIGURE}'" in page and "uncaptioned.png" not in page
+    assert "<a href='toy/index.html'>All 2 figures" in page
+    case_page = (tmp_path / "toy" / "index.html").read_text()
+    assert "<img src='line.png'" in case_page and "<img src='uncaptioned.png'" in case_page
+    assert f"<figcaption>{html.escape(NO_CAPTION)}</figcaption>" in case_page
+
+
+def test_the_pages_are_self_contained(toy_case, monkeypatch, tmp_path):
+    """No address outside the report folder, and every relative link or image resolves to a file."""
+    assert run_toy(monkeypatch, tmp_path) == 0
+    for path in (tmp_path / "index.html", tmp_path / "toy" / "index.html"):
+        text = path.read_text()
+        assert "http://" not in text and "https://" not in text
+        for target in re.findall(r"(?:src|href)='([^'#]+)'", text):
+            assert (path.parent / target).is_file(), (path, target)
 
 
 def test_the_header_names_the_backends_each_case_ran(toy_case, monkeypatch, tmp_path):
@@ -91,7 +122,7 @@ def test_figures_carry_their_captions_not_their_paths(toy_case, monkeypatch, tmp
     assert run_toy(monkeypatch, tmp_path) == 0
     page = (tmp_path / "index.html").read_text()
     assert f"<figcaption>{html.escape(toy.CAPTION)}</figcaption>" in page
-    assert f"<figcaption>{html.escape(NO_CAPTION)}</figcaption>" in page
+    assert f"<figcaption>{html.escape(NO_CAPTION)}</figcaption>" in (tmp_path / "toy" / "index.html").read_text()
     assert "<figcaption>toy/line.png" not in page
     figures = strict_json(tmp_path / "results.json")["cases"][0]["figures"]
     assert figures == [{"path": "toy/line.png", "caption": toy.CAPTION},

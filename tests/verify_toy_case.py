@@ -12,6 +12,8 @@ from pathlib import Path
 from verification.common import Check, Finding
 from verification.report import pyplot, save_figure
 
+#: the figure index.html shows for this case
+MAIN_FIGURE = "line.png"
 CAPTION = ("A straight line of the chosen slope through the origin. Look for the slope: it is the figure "
            "that the first check holds to 2.5.")
 

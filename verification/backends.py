@@ -45,6 +45,9 @@ from .executor import Executor
 from .momentum import VARIANT, VARIANTS
 from .report import pyplot, save_figure, snapshot, write_series
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "difference_growth.png"
+
 FIELDS = ("x", "v", "C", "F", "J", "Jp")
 ONE_STEP_RTOL = 1e-12
 

@@ -42,6 +42,9 @@ from .common import Check, Finding, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "convergence_bar.png"
+
 SCHEME_NAMES = {("apic", "classic"): "APIC", ("mls", "mls"): "MLS-MPM", ("pic", "classic"): "PIC"}
 CFL = 0.4
 

@@ -70,6 +70,9 @@ from mpmref.physics.trimesh import TriMesh, triangle_frame, validate_trimesh
 from .common import Check, Finding, checks_table
 from .report import pyplot, save_figure, snapshot, write_series
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "momentum.png"
+
 FRAME_FIELDS = ("velocity", "material")
 
 

@@ -50,6 +50,9 @@ from .executor import Executor
 from .momentum import VARIANT, VARIANTS
 from .report import pyplot, save_figure, snapshot, write_series
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "energy_total_disks.png"
+
 DISKS_TOML = Path(__file__).resolve().parent.parent / "examples" / "colliding_disks.toml"
 PROBLEMS = ("disks", "jelly")
 

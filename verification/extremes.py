@@ -53,6 +53,9 @@ SCHEMES = {
 }
 
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "extremes.png"
+
 @dataclass(frozen=True)
 class Condition:
     """Material and sampling of one stability probe: Young's modulus, Poisson ratio, particles per cell."""

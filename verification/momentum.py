@@ -42,6 +42,9 @@ from .executor import Executor
 from .report import pyplot, save_figure, snapshot, write_series
 
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "momentum_drift.png"
+
 @dataclass(frozen=True)
 class Variant:
     """One scheme/force combination of the comparison; ``options`` are extra ``method`` keys."""

@@ -4,13 +4,12 @@ Cases use :func:`snapshot`, :func:`write_series` and :func:`save_figure` to writ
 representative runs and their PNG plots (each PNG carries its caption, the sentence that says what to
 look for, in its ``Description`` text chunk: :func:`figure_caption`). ``mpmref verify`` turns each
 case's :class:`~verification.registry.Outcome` into a :class:`CaseRecord` (:func:`case_record`: the
-backends it ran, its findings, its figures) and writes the per-case ``report.md``
-(:func:`write_case_report`) and the top-level ``report.md``, ``index.html`` and ``results.json``
+backends it ran, its findings, its figures, the one that carries its main claim) and writes the
+per-case ``report.md`` and ``index.html`` (:func:`write_case_report`) and the top-level ``report.md``, ``index.html`` and ``results.json``
 (:func:`write_index`). Every file is written atomically (:mod:`mpmref.io.atomic`).
 """
 
 import datetime
-import html
 import json
 import math
 import os
@@ -23,7 +22,7 @@ from pathlib import Path
 from mpmref.io.atomic import atomic_path, write_text_atomic
 from mpmref.io.vtk import write_particles_vtu, write_pvd
 
-from . import registry
+from . import html_report, registry
 from .common import failed
 
 #: particle fields recorded in the VTK frames of verification runs
@@ -100,6 +99,14 @@ def figure_caption(path):
         return image.text.get("Description") or None
 
 
+def aspect_ratio(path):
+    """Width over height of a PNG."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return image.width / image.height
+
+
 # ------------------------------------------------------------------------------------------ machine
 def machine():
     """What ran the cases, for reports: host, CPU, cores, load average now, OS, Python and NumPy versions
@@ -141,12 +148,17 @@ class CaseRecord:
         Its ``findings(result)`` where it defines one: measured behaviour reported, not judged.
     figures : tuple of (Path, str)
         Each PNG written by this run (relative to the case folder) with its caption.
+    main_figure : (Path, str, float) or None
+        The figure that carries the case's main claim, its caption and its width over its height: the case's
+        ``MAIN_FIGURE`` (a file name in the case folder) where it declares one and wrote it, else its first
+        figure; ``None`` when it wrote none.
     """
 
     outcome: object
     backends: tuple
     findings: tuple
     figures: tuple
+    main_figure: tuple = None
 
     @property
     def name(self):
@@ -171,7 +183,11 @@ def case_record(outcome, case_dir):
             outcome.error = traceback.format_exc()
     pngs, _, _ = _files_by_kind(case_dir, outcome.started)
     figures = tuple((p, figure_caption(Path(case_dir) / p) or NO_CAPTION) for p in pngs)
-    return CaseRecord(outcome, backends, findings, figures)
+    declared = getattr(module, "MAIN_FIGURE", None)
+    main = next((f for f in figures if f[0].as_posix() == declared), figures[0] if figures else None)
+    if main is not None:
+        main = (*main, aspect_ratio(Path(case_dir) / main[0]))
+    return CaseRecord(outcome, backends, findings, figures, main)
 
 
 # ------------------------------------------------------------------------------------ case reports
@@ -218,11 +234,13 @@ def case_summary_md(record, case_dir):
 
 
 def write_case_report(record, case_dir):
-    """Write ``case_dir/report.md`` for one case's :class:`CaseRecord`."""
+    """Write ``case_dir/report.md`` and ``case_dir/index.html`` for one case's :class:`CaseRecord`."""
     case_dir = Path(case_dir)
     case_dir.mkdir(parents=True, exist_ok=True)
     path = case_dir / "report.md"
     write_text_atomic(path, case_summary_md(record, case_dir))
+    _, series, others = _files_by_kind(case_dir, record.outcome.started)
+    write_text_atomic(case_dir / "index.html", html_report.case_html(record, series, others))
     return path
 
 
@@ -270,75 +288,40 @@ def _all_backends(records):
 
 
 def index_md(records, meta):
-    """Markdown of the top-level ``report.md``: findings, verdicts per case, then every check."""
+    """Markdown of the top-level ``report.md``: the verdict and the failures, the cases, the findings, then every
+    check (the order of ``index.html``)."""
     n = _summary(records)
+    verdict = "PASS" if n["failing"] == 0 and n["errors"] == 0 else "FAIL"
     lines = ["# mpmref verification report", "",
-             f"{n['cases']} cases, {n['checks']} checks, {n['failing']} failing; {n['errors']} cases stopped with "
-             f"an error; {n['findings']} findings (measured, not judged).", "",
+             f"**{verdict}**: {n['checks'] - n['failing']} of {n['checks']} checks pass in {n['cases']} cases; "
+             f"{n['errors']} cases stopped with an error; {n['findings']} findings (measured, not judged).", "",
              f"Preset `{meta['preset']}`; backends run: {', '.join(_all_backends(records))} (per case below); "
              f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s.", "",
-             "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "",
-             "## Findings (measured, not judged)", ""]
-    findings = [(r.name, f) for r in records for f in r.findings]
-    lines += _findings_md(findings, with_case=True) if findings else ["(none in these cases)"]
+             "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "", "## Failures", ""]
+    failing = [(o, c) for o, c in _check_rows(records) if c is None or not c.passed]
+    if failing:
+        lines += _check_header(True) + [_error_row(o) if c is None else _check_row(c, case=o.name) for o, c in failing]
+    else:
+        lines.append("None: every check of every case passes.")
     lines += ["", "## Cases", "", "| case (its report) | backends | checks | verdict | wall time [s] |",
               "|---|---|---|---|---|"]
     lines += [f"| [{r.name}]({r.name}/report.md) | {', '.join(r.backends)} | {len(r.outcome.checks)} | "
               f"{r.outcome.verdict} | {r.outcome.wall_s:.1f} |" for r in records]
+    lines += ["", "## Findings (measured, not judged)", ""]
+    findings = [(r.name, f) for r in records for f in r.findings]
+    lines += _findings_md(findings, with_case=True) if findings else ["(none in these cases)"]
     lines += ["", "## Every check", ""] + _check_header(True)
-    for o, c in _check_rows(records):
-        if c is None:
-            lines.append(f"| {o.name} | (the case stopped with an error) | — | — | FAIL | see {o.name}/report.md |")
-        else:
-            lines.append(_check_row(c, case=o.name))
+    lines += [_error_row(o) if c is None else _check_row(c, case=o.name) for o, c in _check_rows(records)]
     return "\n".join(lines) + "\n"
 
 
-def _html_check_row(o, c):
-    e = html.escape
-    if c is None:
-        return (f"<tr class='fail'><td>{e(o.name)}</td><td>(the case stopped with an error)</td>"
-                "<td>—</td><td>—</td><td>FAIL</td><td></td></tr>")
-    return (f"<tr class='{'pass' if c.passed else 'fail'}'><td>{e(o.name)}</td><td>{e(c.name)}</td>"
-            f"<td>{c.value:.6g}</td><td>{e(c.relation)} {c.bound:.6g}</td>"
-            f"<td>{'pass' if c.passed else 'FAIL'}</td><td>{e(c.reason)}</td></tr>")
+def _error_row(outcome):
+    return f"| {outcome.name} | (the case stopped with an error) | — | — | FAIL | see {outcome.name}/report.md |"
 
 
 def index_html(records, meta):
-    """A standalone HTML page with the content of :func:`index_md`, plus each case's figures and captions."""
-    e = html.escape
-    n = _summary(records)
-    findings = "".join(f"<tr><td>{e(r.name)}</td><td>{e(f.name)}</td><td>{f.value:.6g}</td><td>{e(f.sentence)}</td>"
-                       "</tr>" for r in records for f in r.findings)
-    findings = (f"<table><tr><th>case</th><th>finding</th><th>figure</th><th>what it shows</th></tr>{findings}</table>"
-                if findings else "<p>(none in these cases)</p>")
-    cases = "".join(f"<tr class='{'pass' if r.outcome.passed else 'fail'}'><td><a href='{e(r.name)}/report.md'>"
-                    f"{e(r.name)}</a></td><td>{e(', '.join(r.backends))}</td><td>{len(r.outcome.checks)}</td>"
-                    f"<td>{e(r.outcome.verdict)}</td><td>{r.outcome.wall_s:.1f}</td></tr>" for r in records)
-    rows = "".join(_html_check_row(o, c) for o, c in _check_rows(records))
-    figures = "".join(f"<h3>{e(r.name)}</h3>" + "".join(
-        f"<figure><img src='{e(r.name)}/{e(p.as_posix())}' alt='{e(caption)}'><figcaption>{e(caption)}</figcaption>"
-        "</figure>" for p, caption in r.figures) for r in records if r.figures)
-    machine = ", ".join(f"{e(k)} {e(str(v))}" for k, v in meta["machine"].items())
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>mpmref verification report</title>
-<style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
-td,th{{border:1px solid #ccc;padding:3px 6px;text-align:left}} tr.fail td{{background:#fdd}}
-tr.pass td:nth-child(5){{color:#070}} img{{max-width:640px}} figure{{display:inline-block;max-width:660px;
-vertical-align:top}} figcaption{{font-size:90%}}</style></head>
-<body><h1>mpmref verification report</h1>
-<p>{n['cases']} cases, {n['checks']} checks, {n['failing']} failing; {n['errors']} cases stopped with an error;
-{n['findings']} findings (measured, not judged).</p>
-<p>Preset <code>{e(meta['preset'])}</code>; backends run: {e(', '.join(_all_backends(records)))} (per case below);
-sweeps run in {e(meta['executor'])}; total wall time {meta['wall_s']:.1f} s.</p><p>Machine: {machine}.</p>
-<h2>Findings (measured, not judged)</h2>{findings}
-<h2>Cases</h2><table><tr><th>case</th><th>backends</th><th>checks</th><th>verdict</th><th>wall time [s]</th></tr>
-{cases}</table>
-<h2>Every check</h2><table><tr><th>case</th><th>check</th><th>figure</th><th>bound</th><th>verdict</th>
-<th>why this bound</th></tr>{rows}</table>
-<h2>Figures</h2>{figures}
-</body></html>
-"""
+    """``index.html`` (:func:`verification.html_report.index_html`)."""
+    return html_report.index_html(records, meta, _summary(records), _all_backends(records))
 
 
 # ------------------------------------------------------------------------------------- results.json

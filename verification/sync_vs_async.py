@@ -37,6 +37,9 @@ from mpmref.steppers.asynchronous import _Interval
 from .common import Check, Finding, checks_table
 from .report import pyplot, save_figure, snapshot, write_series
 
+#: the figure that carries this case's main claim (the one ``index.html`` shows)
+MAIN_FIGURE = "energy_stork2d.png"
+
 SCHEDULE_DX = 1.0 / 16
 
 
