@@ -194,8 +194,10 @@ class BoundarySpec:
 @dataclass(frozen=True)
 class TimeSpec:
     """Time stepping. ``stepping = "async"`` uses ``tick`` (seconds per integer time unit), ``levels``
-    (block steps are ``2^k`` ticks, ``k = 0 .. levels``), ``cfl`` (the strength multiplier) and
-    ``advection_cfl`` (cells a particle may cross per step); see docs/async.md."""
+    (block steps are ``2^k`` ticks, ``k = 0 .. levels``), ``cfl`` (the strength multiplier),
+    ``advection_cfl`` (cells a particle may cross per step) and ``interface`` (how level interfaces exchange
+    momentum: ``"conservative"``, impulse refluxing, or ``"reference"``, Fang et al. 2018 as published);
+    see docs/async.md."""
 
     dt: float | None
     cfl: float | None
@@ -205,6 +207,7 @@ class TimeSpec:
     tick: float | None = None
     levels: int | None = None
     advection_cfl: float | None = None
+    interface: str | None = None
 
 
 @dataclass(frozen=True)
@@ -850,7 +853,9 @@ def _parse_boundary(bd, dim, grid):
     return BoundarySpec(width=width, walls=walls, domain_exit=exit_policy)
 
 
-ASYNC_TIME_KEYS = ("tick", "levels", "advection_cfl")
+ASYNC_TIME_KEYS = ("tick", "levels", "advection_cfl", "interface")
+#: how level interfaces of asynchronous stepping exchange momentum (:mod:`mpmref.physics.interface`)
+INTERFACES = ("conservative", "reference")
 
 
 def _parse_time(t):
@@ -876,7 +881,8 @@ def _parse_time(t):
     return TimeSpec(dt=None, cfl=cfl, steps=steps, t_end=t_end, stepping="async",
                     tick=_number(t, "tick", "time", default=1e-6, lo=0.0, lo_open=True),
                     levels=_integer(t, "levels", "time", default=13, lo=0, hi=30),
-                    advection_cfl=_number(t, "advection_cfl", "time", default=1.0, lo=0.0, hi=10.0, lo_open=True))
+                    advection_cfl=_number(t, "advection_cfl", "time", default=1.0, lo=0.0, hi=10.0, lo_open=True),
+                    interface=_choice(t, "interface", "time", INTERFACES, default="reference"))
 
 
 def _parse_output(o):

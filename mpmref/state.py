@@ -167,7 +167,10 @@ class GridState:
     """Grid quantities after P2G: node mass (N,), momentum (N, d) and internal force (N, d).
 
     With CPIC, also what particles did not give incompatible nodes (N, d): ``rejected_momentum`` and
-    ``rejected_force`` (:func:`mpmref.backends.numpy.transfers.p2g`); ``None`` otherwise.
+    ``rejected_force`` (:func:`mpmref.backends.numpy.transfers.p2g`); ``None`` otherwise. With particle
+    classes (a level update of asynchronous stepping, :mod:`mpmref.physics.interface`), ``class_sums``
+    (K, N, 1 + 2d): each class's node mass, momentum and force, of which ``mass``, ``momentum`` and
+    ``force`` are the sums over the classes.
 
     ``layout`` is ``None`` for dense arrays over every node of the grid in C order. A backend with a sparse
     grid (the Numba backend's :class:`~mpmref.backends.numba.sparse.BlockLayout`) stores rows of its active
@@ -180,6 +183,7 @@ class GridState:
     rejected_momentum: np.ndarray | None = None
     rejected_force: np.ndarray | None = None
     layout: object = None
+    class_sums: np.ndarray | None = None
 
     def node_arrays(self):
         """Mapping of name to node array, for the arrays that are allocated."""

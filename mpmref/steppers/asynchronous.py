@@ -36,17 +36,26 @@ A census at every synchronised time checks it anyway.
 
 A shadow that an update needs but that no earlier update brought to the current tick (possible only when
 fine particles move next to a coarse block mid-step) is used as it is and counted as ``stale_shadows``.
+
+**Level interfaces** (``time.interface``). With ``"reference"`` an update is the plain substep, as Fang et
+al. publish it: the coarse side takes its exchange with finer neighbours once per coarse step, the fine
+side its exchange with the coarse shadows at every fine step, and neither reaction is applied, so momentum
+is not conserved across levels. With ``"conservative"`` (impulse refluxing, :mod:`mpmref.physics.interface`)
+each update also returns the reaction impulses of its exchanges; they accumulate in per-particle
+registers (``dP``, ``dL``) and are applied at the end of each particle's own step, before its state is
+read again (at its next boundary tick, or when the interval ends).
 """
 
 from dataclasses import replace
-import numpy as np
 
+import numpy as np
 from scipy.ndimage import maximum_filter
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
+from ..physics.interface import ACTIVE, COARSER, FINER, apply_registers
 from ..state import State
 from .limits import particle_speeds, wave_speeds
-from .pipeline import NO_HOOKS, substep
+from .pipeline import NO_HOOKS, interface_substep, substep
 
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
@@ -96,6 +105,8 @@ class AsynchronousStepper:
         self.strength, self.advection = t.cfl, t.advection_cfl
         self.grid, self.kernel = scene.grid, scene.kernel
         self.reach = 2 * (self.kernel.support - 1)
+        self.conservative = t.interface == "conservative"
+        self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
         self.trace = None
 
     # ------------------------------------------------------------------ state
@@ -210,6 +221,9 @@ class _Interval:
         self.own_updates = 0
         self.stale = 0
         self.finest = stepper.max_units
+        if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
+            self.dP = np.zeros((n, self.P.dim))
+            self.dL = np.zeros(n if self.P.dim == 2 else (n, 3))
 
     def synchronised(self):
         return self.t > self.t0 and bool(np.all(self.t_p == self.t))
@@ -218,6 +232,7 @@ class _Interval:
         """Everything that happens at the current tick: re-levelling, then each due level, coarse first."""
         t, s = self.t, self.s
         at = np.flatnonzero(self.t_p == t)
+        self.apply_registers(at)
         here = self.P.select(at)
         self.base[at] = s.base_nodes(here.x)
         self.owner[at] = s.grid.owner_blocks(self.base[at])
@@ -241,6 +256,19 @@ class _Interval:
             D //= 2
         self.refresh_shadows(proposals)
         self.t = int(self.t_p.min())
+
+    def apply_registers(self, idx):
+        """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end)."""
+        if not self.s.conservative or idx.size == 0:
+            return
+        P = self.P
+        v, C = apply_registers(P.v[idx], None if P.C is None else P.C[idx], P.x[idx].astype(np.float64),
+                               P.mass[idx], self.dP[idx], self.dL[idx], self.s.inertia)
+        P.v[idx] = v
+        if C is not None:
+            P.C[idx] = C
+        self.dP[idx] = 0.0
+        self.dL[idx] = 0.0
 
     def refresh_shadows(self, proposals):
         """Each shadow takes the result of the finest update that used it at this tick (if any).
@@ -267,12 +295,20 @@ class _Interval:
         self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
         group = self.P.concatenate([self.P.select(active), self.P.select(level_ghosts),
                                     self.shadow.select(shadow_ghosts)])
-        result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
         n_active = active.size
+        first_shadow = n_active + level_ghosts.size
+        if s.conservative:
+            classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
+            result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s)
+            self.dP[active] += dP[:n_active]
+            self.dL[active] += dL[:n_active]
+            self.dP[shadow_ghosts] += dP[first_shadow:]
+            self.dL[shadow_ghosts] += dL[first_shadow:]
+        else:
+            result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
         self.P.assign(active, result.select(slice(0, n_active)))
         self.P.level[active] = int(D).bit_length() - 1
         self.t_p[active] = t + D
-        first_shadow = n_active + level_ghosts.size
         self.updates += group.n
         self.own_updates += n_active
         if s.trace is not None:
@@ -283,7 +319,9 @@ class _Interval:
         return shadow_ghosts, result.select(slice(first_shadow, None)), t + D
 
     def finish(self):
-        """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census."""
+        """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census (and, with
+        conservative interfaces, every register applied: each particle is at its step end)."""
+        self.apply_registers(np.arange(self.P.n))
         census(self.state.particles.id, self.P.id, self.t)
         n, ticks = self.P.n, self.t - self.t0
         old = self.state.stepper

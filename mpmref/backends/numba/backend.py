@@ -6,6 +6,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
+from ...physics.interface import KICK_ROW, N_CLASSES
 from ...physics.materials import WeaklyCompressibleFluid, material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
@@ -17,6 +18,16 @@ from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
+#: the empty row array that tells a transfer kernel it has no particle classes (or no kicks)
+NO_ROWS = np.empty(0, dtype=np.int64)
+
+
+def dense_with_classes(state):
+    """:meth:`~mpmref.state.GridState.dense` that carries ``class_sums`` over too (dense, per class)."""
+    dense = state.dense()
+    if state.class_sums is not None:
+        dense.class_sums = np.stack([state.layout.to_dense(c) for c in state.class_sums])
+    return dense
 
 #: below this many particles a step runs on one thread: each parallel region costs a fork and a join
 #: (tens of microseconds, far more on a busy machine), which small problems do not repay. The answer is the
@@ -159,7 +170,7 @@ class NumbaBackend:
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
         return self.materials.return_map(particles)
 
-    def p2g(self, particles, prepared=None, contact=None):
+    def p2g(self, particles, prepared=None, contact=None, classes=None):
         """Node mass, momentum and internal force (parallel by colour over slabs or blocks; bitwise
         thread-count independent);
         with a CPIC ``contact``, only to compatible nodes (:func:`mpmref.backends.numba.cpic.p2g`, dense).
@@ -170,7 +181,9 @@ class NumbaBackend:
         blocks live in one (rows, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
         momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
-        copies (see the class doc).
+        copies (see the class doc). With ``classes`` (:mod:`mpmref.physics.interface`), each class is summed
+        into its own block of rows in the same pass: the state's ``class_sums`` (K, rows, 1 + 2d), whose sum
+        over the classes gives its mass, momentum and force.
         """
         blocks = prepared or self.prepare(particles)
         if contact is not None:
@@ -178,19 +191,26 @@ class NumbaBackend:
         layout = blocks.layout
         n, d = particles.x.shape
         stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
-        grid, = self.buffers.take("grid", (layout.n_rows, 1 + 2 * d))
+        n_classes = 1 if classes is None else N_CLASSES
+        grid, = self.buffers.take("grid", (n_classes * layout.n_rows, 1 + 2 * d))
         transfers.zero_rows(grid)
+        class_rows = NO_ROWS if classes is None else np.ascontiguousarray(classes, dtype=np.int64) * layout.n_rows
         chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
         try:
             self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
                       self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, stress,
                       self._or_empty(particles.J, 0), particles.material, self.fluid_params, self.origin,
                       self.dx, self.inertia, layout.slot_of, layout.table_strides,
-                      self.mode_index, blocks.order, *blocks.p2g_groups, grid)
+                      self.mode_index, blocks.order, *blocks.p2g_groups, class_rows, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
-        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout)
-        return state if prepared is not None else state.dense()
+        class_sums = None
+        if classes is not None:
+            class_sums = grid.reshape(N_CLASSES, layout.n_rows, 1 + 2 * d)
+            grid = class_sums[0] + class_sums[1] + class_sums[2]
+        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
+                          class_sums=class_sums)
+        return state if prepared is not None else dense_with_classes(state)
 
     def grid_update(self, grid_state, dt, time=0.0):
         """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays) in
@@ -211,21 +231,33 @@ class NumbaBackend:
                 v = collider.apply(v, node_x, has_mass, time)
         return v, v_tilde
 
-    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
         """New particle state from the grid velocities (a parallel gather).
 
         A gather needs no sort: it runs over the particles in their storage order; it reads ``v_grid`` and
         ``v_tilde`` as rows of ``prepared.layout`` or, without ``prepared``, as dense node arrays (gathered
         into the rows of the particles' layout first; see the class doc). The new arrays come from the
         backend's :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state
-        swaps two sets of them instead of allocating a state per step.
+        swaps two sets of them instead of allocating a state per step. With ``kicks`` = ``(classes, kick)``
+        (conservative interfaces; see :func:`mpmref.backends.numpy.transfers.g2p`) the same gather collects
+        each particle's impulse and its moment, and the result is ``(particles, (dP, dL_rel))``.
         """
         n, d = particles.x.shape
         if prepared is None:
             layout = self.prepare(particles).layout
             v_grid, v_tilde = layout.from_dense(v_grid), layout.from_dense(v_tilde)
+            if kicks is not None:
+                kicks = (kicks[0], np.stack([layout.from_dense(k) for k in kicks[1]]))
         else:
             layout = prepared.layout
+        if kicks is None:
+            kick_rows, kick, kick_sum, kick_moment = NO_ROWS, np.empty((0, d)), np.empty((0, d)), np.empty((0, 1))
+        else:
+            row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
+            first = row_of_class[kicks[0]]
+            kick_rows = np.where(first >= 0, first * layout.n_rows, -1)
+            kick = np.ascontiguousarray(kicks[1].reshape(-1, d), dtype=np.float64)
+            kick_sum, kick_moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
 
         def shape(name, *full):
             return full if getattr(particles, name) is not None else (0,) * len(full)
@@ -235,12 +267,18 @@ class NumbaBackend:
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
-                  self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
+                  self.mode_index, v_grid, v_tilde, kick_rows, kick, x_new, v_new, C_new, F_new, J_new, modes_new,
+                  kick_sum, kick_moment)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
                 changes[name] = array
-        return particles.with_(**changes)
+        new = particles.with_(**changes)
+        if kicks is None:
+            return new
+        m = particles.mass.astype(np.float64)
+        moment = kick_moment[:, 0] * m if d == 2 else kick_moment * m[:, None]
+        return new, (kick_sum * m[:, None], moment)
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):

@@ -69,8 +69,8 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, origin, dx,
-    inertia, slot_of, table_strides, mode_index, order, group_start, groups, colour_start, grid)`` adds into
-    the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
+    inertia, slot_of, table_strides, mode_index, order, group_start, groups, colour_start, class_rows, grid)``
+    adds into the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
     :class:`~.sparse.BlockLayout` (``slot_of`` its block-pointer table, ``table_strides`` the table's strides;
     rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, group
     by group (slabs or blocks, ``order[group_start[g]:group_start[g + 1]]`` the particles of group ``g``) in
@@ -87,14 +87,17 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
     weight derivatives. Per node it then forms only products: :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)`
     for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic MPM (:func:`p2g_node`). Products are contracted to
     fused multiply-adds where the CPU has them (``fastmath={"contract"}``, no other fast-math licence: still
-    IEEE operations, one rounding fewer).
+    IEEE operations, one rounding fewer). With particle classes (a level update of asynchronous stepping with
+    conservative interfaces, :mod:`mpmref.physics.interface`), ``class_rows[p]`` is the first row of particle
+    ``p``'s class in a ``grid`` that holds one block of rows per class, so the classes are summed apart in
+    this one pass; ``class_rows`` is empty otherwise.
     """
     SOURCES = SOURCE_DIGEST
     N = BLOCK**DIM  # nodes (rows) per block
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, origin, dx, inertia, slot_of,
-            table_strides, mode_index, order, group_start, groups, colour_start, grid):
+            table_strides, mode_index, order, group_start, groups, colour_start, class_rows, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         inv_dx = 1.0 / dx
         T = grid.dtype.type
@@ -109,6 +112,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
                 fx_arr = np.empty(DIM if POLY else 0)
                 for k in range(group_start[group], group_start[group + 1]):
                     p = order[k]
+                    shift = class_rows[p] if class_rows.shape[0] > 0 else 0  # the particle's class's rows
                     if FLUIDS_ONLY:  # a closure constant: the other branch is not compiled
                         prm = fluid_params[material[p]]
                         fluid_stress_into(J[p], prm[0], prm[1], fluid_tau)
@@ -138,7 +142,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
                             fx_arr[0], fx_arr[1] = f0, f1
                             polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
                         for i in range(S):
-                            row_i = (k1 if c0[i] else k0) + r0[i]
+                            row_i = (k1 if c0[i] else k0) + r0[i] + shift
                             for j in range(S):
                                 w = v0[i] * v1[j]
                                 d = (d0[i], d1[j])
@@ -162,7 +166,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
                             ka, kb = (k10, k11) if c0[i] else (k00, k01)
                             for j in range(S):
                                 w01 = v0[i] * v1[j]
-                                row_ij = (kb if c1[j] else ka) + r0[i] + r1[j]
+                                row_ij = (kb if c1[j] else ka) + r0[i] + r1[j] + shift
                                 for l in range(S):
                                     w = w01 * v2[l]
                                     d = (d0[i], d1[j], d2[l])
@@ -344,7 +348,10 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
     (:func:`gather_modes`).
     ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
-    from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
+    from the force. With conservative interfaces (:mod:`mpmref.physics.interface`), ``kick_rows[p]`` is the
+    first row of particle ``p``'s kicks in ``kicks`` (-1: none) and the same gather writes
+    ``kick_sum[p]`` :math:`= \sum_i w_{ip} k_i` and ``kick_moment[p]`` :math:`= \sum_i w_{ip} (x_i - x_p)
+    \times k_i` (one column in 2D, three in 3D), in float64; ``kick_rows`` is empty otherwise. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
     test per particle, so one compiled kernel serves scenes that track F, J or both.
     """
     NEED_B = AFFINE or MLS
@@ -353,7 +360,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index, v_grid,
-            v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
+            v_tilde, kick_rows, kicks, x_new, v_new, C_new, F_new, J_new, modes_new, kick_sum, kick_moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         n_modes = mode_index.shape[0]
         T = x_new.dtype.type
@@ -370,6 +377,8 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                     acc[:] = 0.0
                 v_pic, dv_flip = zeros(T, DIM), zeros(T, DIM)
                 B, grad_v = zeros2(T, DIM), zeros2(T, DIM)
+                k_first = kick_rows[p] if kick_rows.shape[0] > 0 else -1  # -1: the particle takes no kick
+                kp, kl = zeros(np.float64, DIM), zeros(np.float64, 3)
                 b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                 b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                 d0, d1 = cast(offsets(f0, dx, S), T, S), cast(offsets(f1, dx, S), T, S)
@@ -400,6 +409,10 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                                 dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
                             if POLY:
                                 gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
+                            if k_first >= 0:
+                                kick = scaled(row(kicks, k_first + idx, DIM), w, DIM)
+                                kp = axpy(kp, 1.0, kick, DIM)
+                                kl = (kl[0], kl[1], kl[2] + d0[i] * kick[1] - d1[j] * kick[0])
                 else:
                     b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                     d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
@@ -432,9 +445,18 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                                     dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
                                 if POLY:
                                     gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
+                                if k_first >= 0:
+                                    kick = scaled(row(kicks, k_first + idx, DIM), w, DIM)
+                                    kp = axpy(kp, 1.0, kick, DIM)
+                                    kl = axpy(kl, 1.0, cross((d0[i], d1[j], d2[l]), kick), 3)
                 finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
                                 mode_index, x_new, v_new, C_new, F_new, J_new, modes_new,
                                 AFFINE, POLY, FLIP, MLS, F_new.shape[0] > 0, J_new.shape[0] > 0)
+                if k_first >= 0:
+                    for a in range(DIM):
+                        kick_sum[p, a] = kp[a]
+                    for a in range(kick_moment.shape[1]):
+                        kick_moment[p, a] = kl[3 - kick_moment.shape[1] + a]
 
     return g2p
 
@@ -465,6 +487,12 @@ def axpy(y, a, x, dim):
     if dim == 2:
         return (y[0] + a * x[0], y[1] + a * x[1])
     return (y[0] + a * x[0], y[1] + a * x[1], y[2] + a * x[2])
+
+
+@njit(cache=True, inline="always")
+def cross(a, b):
+    """The cross product of 3-tuples."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @njit(cache=True, inline="always")

@@ -48,18 +48,18 @@ class NumpyBackend:
     def prepare(self, particles):
         return transfers.prepare(particles, self.scene.grid, self.kernel, self.scene.transfer)
 
-    def p2g(self, particles, prepared=None, contact=None):
+    def p2g(self, particles, prepared=None, contact=None, classes=None):
         tau = self.stress(particles) if contact is None else contact.tau  # CPIC computed it for the ghosts
         return transfers.p2g(particles, tau, self.scene.grid, self.kernel, self.scene.transfer,
-                             prepared, contact)
+                             prepared, contact, classes)
 
     def grid_update(self, grid_state, dt, time=0.0):
         return transfers.grid_update(grid_state, self.scene.grid, dt, self.gravity, self.scene.boundary.walls,
                                      self.bands, self.scene.colliders, time, self.node_x)
 
-    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None):
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
         return transfers.g2p(particles, v_grid, v_tilde, self.scene.grid, self.kernel, self.scene.transfer, dt,
-                             prepared)
+                             prepared, kicks=kicks)
 
     # CPIC stages (scenes with rigid bodies; :mod:`.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):

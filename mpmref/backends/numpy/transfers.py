@@ -9,6 +9,7 @@ B-spline, held as the scalar ``stencil.inertia``.
 import numpy as np
 
 from ...physics.boundary import project_velocity
+from ...physics.interface import KICK_ROW, N_CLASSES, moment
 from ...physics.kernels import compute_stencil
 from ...physics.polypic import axis_basis, higher_modes, mode_norms, mode_values
 from ...state import GridState
@@ -64,7 +65,7 @@ def prepare(particles, grid, kernel, spec):
     return st, (polypic_basis(st, grid) if spec.polypic else None)
 
 
-def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None):
+def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes=None):
     r"""Particle to grid: node mass, momentum and internal force.
 
     .. math::
@@ -94,16 +95,19 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None):
         force only to compatible nodes; what they would have given an incompatible node is collected there
         as ``rejected_momentum`` :math:`\sum_p m_p w_{ip}(v^*_p - \tilde v_i)` and ``rejected_force``
         :math:`-\sum_p V_p^0 \tau_p g_{ip}` (Hu et al. 2018 §4–5; docs/cpic.md)
+    classes : (n,) int array or None
+        each particle's class in a level update of asynchronous stepping
+        (:mod:`mpmref.physics.interface`): the sums go to ``class_sums`` (K, N, 1 + 2d) per class, in the
+        same pass, and the totals are their sums
     """
     st, basis = prepared or prepare(particles, grid, kernel, spec)
     gradient_weight = GRADIENT_WEIGHTS[spec.force]
-    m, n_nodes = particles.mass, grid.n_nodes
+    m, d = particles.mass, grid.dim
+    n_bins = grid.n_nodes * (N_CLASSES if classes is not None else 1)
     stress_volume = particles.vol0[:, None, None] * tau
-    mass = np.zeros(n_nodes)
-    momentum = np.zeros((n_nodes, grid.dim))
-    force = np.zeros((n_nodes, grid.dim))
-    rejected_momentum = np.zeros((n_nodes, grid.dim)) if contact is not None else None
-    rejected_force = np.zeros((n_nodes, grid.dim)) if contact is not None else None
+    sums = np.zeros((n_bins, 1 + 2 * d))  # per node (and class): mass, momentum, force
+    rejected_momentum = np.zeros((grid.n_nodes, d)) if contact is not None else None
+    rejected_force = np.zeros((grid.n_nodes, d)) if contact is not None else None
     for k, offset in enumerate(st.offsets):
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
@@ -112,20 +116,26 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None):
         if contact is not None:
             keep = contact.compatible[k]
             rejected = w * m * ~keep
-            rejected_momentum += scatter(idx, rejected[:, None] * (contact.v_star - contact.ghost[k]), n_nodes)
-            rejected_force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gw * ~keep[:, None]), n_nodes)
+            rejected_momentum += scatter(idx, rejected[:, None] * (contact.v_star - contact.ghost[k]), grid.n_nodes)
+            rejected_force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gw * ~keep[:, None]), grid.n_nodes)
             w, gw = w * keep, gw * keep[:, None]
         p_mom = particles.v
         if spec.affine:
             p_mom = p_mom + np.einsum("nab,nb->na", particles.C, dpos)
         if basis is not None:
             p_mom = p_mom + np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]), particles.modes)
-        mass += scatter(idx, w * m, n_nodes)
-        momentum += scatter(idx, (w * m)[:, None] * p_mom, n_nodes)
-        force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gw), n_nodes)
+        bins = idx if classes is None else classes * grid.n_nodes + idx
+        sums[:, 0] += scatter(bins, w * m, n_bins)
+        sums[:, 1:1 + d] += scatter(bins, (w * m)[:, None] * p_mom, n_bins)
+        sums[:, 1 + d:] -= scatter(bins, np.einsum("nab,nb->na", stress_volume, gw), n_bins)
     dtype = particles.x.dtype
-    return GridState(mass=mass.astype(dtype), momentum=momentum.astype(dtype), force=force.astype(dtype),
-                     rejected_momentum=rejected_momentum, rejected_force=rejected_force)
+    class_sums = None
+    if classes is not None:
+        class_sums = sums.reshape(N_CLASSES, grid.n_nodes, 1 + 2 * d)
+        sums = class_sums[0] + class_sums[1] + class_sums[2]
+    return GridState(mass=sums[:, 0].astype(dtype), momentum=sums[:, 1:1 + d].astype(dtype),
+                     force=sums[:, 1 + d:].astype(dtype), rejected_momentum=rejected_momentum,
+                     rejected_force=rejected_force, class_sums=class_sums)
 
 
 def polypic_basis(stencil, grid):
@@ -183,7 +193,7 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     return v, v_tilde
 
 
-def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost=None):
+def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost=None, kicks=None):
     r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
     .. math::
@@ -207,6 +217,16 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; docs/cpic.md). Returns new
     :class:`~mpmref.state.Particles`; the input is not modified.
 
+    ``kicks`` (a level update of asynchronous stepping with conservative interfaces) is ``(classes,
+    kick)``: each particle's class and the node kicks (2, N, d) of
+    :func:`mpmref.physics.interface.interface_kicks`. In the same gather, the particles of the active and
+    coarser classes collect their impulse and its moment about themselves,
+
+    .. math:: \delta P_p = m_p \sum_i w_{ip}\, k_i, \qquad
+              \delta L^{rel}_p = m_p \sum_i w_{ip}\, (x_i - x_p) \times k_i,
+
+    and the function returns ``(particles, (dP, dL_rel))``.
+
     Docs: docs/mls_vs_classic.md#consistency-with-apics-affine-field, docs/mls_vs_classic.md#two-gradient-weights,
     docs/mpm_cycle.md#g2p-grid-to-particle, docs/mpm_cycle.md#polypic,
     docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#flipα, docs/transfers.md#pic,
@@ -221,6 +241,12 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     grad_v = np.zeros((n, d, d), dtype=dtype) if not spec.mls_gradient else None
     dv_flip = np.zeros((n, d), dtype=dtype) if spec.flip else None
     modes = np.zeros_like(particles.modes) if basis is not None else None
+    if kicks is not None:
+        classes, kick = kicks
+        kick_row = np.array([KICK_ROW.get(c, 0) for c in range(N_CLASSES)])[classes]
+        kicked = np.isin(classes, list(KICK_ROW))
+        dP = np.zeros((n, d))
+        dL = np.zeros(n if d == 2 else (n, 3))
     for k, offset in enumerate(st.offsets):
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
@@ -234,6 +260,10 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
             dv_flip += w[:, None] * (vi - v_tilde[idx])
         if basis is not None:
             modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
+        if kicks is not None:
+            ki = kick[kick_row, idx] * (w * kicked)[:, None]
+            dP += ki
+            dL += moment(st.node_offset_vector(offset), ki)
     C = B / st.inertia if need_B else None
     grad_v = C if spec.mls_gradient else grad_v
     v_new = v_pic
@@ -249,4 +279,8 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
         changes["F"] = particles.F + dt * grad_v @ particles.F
     if particles.J is not None:
         changes["J"] = particles.J * (1.0 + dt * np.trace(grad_v, axis1=1, axis2=2))
-    return particles.with_(**changes)
+    new = particles.with_(**changes)
+    if kicks is None:
+        return new
+    m = particles.mass
+    return new, (dP * m[:, None], dL * (m if d == 2 else m[:, None]))
