@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mpmref import SceneBuilder, Simulation
+from mpmref.backends import BACKENDS
 from mpmref.errors import SceneError, TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
 from verification.sync_vs_async import two_bodies
@@ -103,3 +104,60 @@ def test_every_material_steps_asynchronously_on_both_backends(material, backend)
     sim.run()
     assert len(set(sim.particles.level.tolist())) >= 2 and np.all(np.isfinite(sim.x))
     assert sim.stepper.summary(sim.state)["particle_updates"] > 0
+
+
+# ------------------------------------------------------------------------------- compiled bookkeeping
+def test_zone_members_is_the_chebyshev_dilation_of_the_active_base_nodes():
+    """The compiled ghost zone against an independent computation (scipy's maximum filter over the lattice)."""
+    from scipy.ndimage import maximum_filter
+
+    from mpmref.steppers.async_kernels import zone_members
+
+    rng = np.random.default_rng(5)
+    for d in (2, 3):
+        shape = np.array([30, 25, 20][:d])
+        for _ in range(40):
+            active = rng.integers(0, shape, size=(int(rng.integers(1, 20)), d))
+            candidates = rng.integers(0, shape, size=(300, d))
+            reach = int(rng.integers(1, 7))
+            mask = np.zeros(shape, dtype=bool)
+            mask[tuple(active.T)] = True
+            expected = np.flatnonzero(maximum_filter(mask, size=2 * reach + 1, mode="constant")[tuple(candidates.T)])
+            got = zone_members(np.arange(len(active)), active, np.arange(len(candidates)), candidates, reach, shape)
+            np.testing.assert_array_equal(got, expected)
+
+
+def test_the_compiled_relevel_follows_the_rule():
+    from mpmref.steppers.async_kernels import relevel_one
+
+    rng = np.random.default_rng(6)
+    dt = 2 ** rng.integers(0, 8, size=500)
+    limit = rng.integers(1, 300, size=500)
+    for t in (0, 4, 8, 24, 64, 96, 128):
+        aligned = dt[t % dt == 0]
+        lim = limit[t % dt == 0]
+        np.testing.assert_array_equal([relevel_one(a, b, t) for a, b in zip(aligned, lim)], relevel(aligned, lim, t))
+
+
+@pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")
+def test_wave_speeds_of_every_material_agree_across_backends():
+    """The step limits' wave speeds: the Numba backend's compiled rules against each material's own (NumPy)."""
+    from mpmref.backends import make_backend
+
+    scene = (SceneBuilder(dim=2, name="waves").grid(size=1.0, cells=16).method("mls")
+             .material("fc", "fixed_corotated", E=1e3, nu=0.3, rho=1.0).material("nh", "neo_hookean", E=2e3, nu=0.2, rho=2.0)
+             .material("w", "fluid", K=400.0, gamma=7.0, rho=1.0).material("s", "snow", E=1.4e5, nu=0.2, rho=400.0)
+             .material("d", "sand", E=3.5e5, nu=0.3, rho=2200.0)
+             .box("fc", lower=[0.2, 0.2], upper=[0.3, 0.3]).box("nh", lower=[0.3, 0.2], upper=[0.4, 0.3])
+             .box("w", lower=[0.4, 0.2], upper=[0.5, 0.3]).box("s", lower=[0.5, 0.2], upper=[0.6, 0.3])
+             .box("d", lower=[0.6, 0.2], upper=[0.7, 0.3]).walls("open").time(dt=1e-4, steps=1).build())
+    sim = Simulation(scene)
+    rng = np.random.default_rng(7)
+    p = sim.particles
+    p.F[:] = np.eye(2) + 0.2 * rng.standard_normal(p.F.shape)
+    p.J[:] = 0.8 + 0.4 * rng.random(p.n)
+    p.Jp[:] = 0.7 + 0.6 * rng.random(p.n)
+    idx = rng.permutation(p.n)[: p.n // 2]
+    ref = make_backend("numpy", scene).wave_speeds(p, idx)
+    got = make_backend("numba", scene).wave_speeds(p, idx)
+    assert np.all(np.isfinite(ref)) and np.max(np.abs(got - ref) / ref) <= 1e-13

@@ -157,8 +157,9 @@ def free_fall(params, backend, stepper=None):
 class ForcedLevels(AsynchronousStepper):
     """Particles left of ``8.5 dx`` limited to 1 tick, the others to 2: the two-block worked example."""
 
-    def particle_limits(self, particles):
-        return np.where(particles.x[:, 0] < 8.5 * SCHEDULE_DX, 1.0, 2.0)
+    def particle_limits(self, particles, idx=None):
+        x = particles.x if idx is None else particles.x[idx]
+        return np.where(x[:, 0] < 8.5 * SCHEDULE_DX, 1.0, 2.0)
 
 
 class RandomLevels(AsynchronousStepper):
@@ -169,9 +170,10 @@ class RandomLevels(AsynchronousStepper):
         super().__init__(*args, **kwargs)
         self.rng = np.random.default_rng(7)
 
-    def particle_limits(self, particles):
+    def particle_limits(self, particles, idx=None):
         per_block = self.rng.choice(5, size=self.grid.n_blocks, p=[0.02, 0.03, 0.1, 0.25, 0.6])
-        return np.exp2(per_block[self.owner_blocks(particles.x)]).astype(float)
+        x = particles.x if idx is None else particles.x[idx]
+        return np.exp2(per_block[self.owner_blocks(x)]).astype(float)
 
 
 class _FrozenShadows(_Interval):

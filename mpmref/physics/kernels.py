@@ -27,6 +27,8 @@ class QuadraticBSpline:
     """
 
     name: str = "quadratic"
+    #: the base node is ``floor(xi - base_shift)`` (what compiled code uses in place of :meth:`base_node`)
+    base_shift: float = 0.5
     support: int = 3
     inertia_factor: float = 0.25
     #: particles must satisfy ``low_margin <= xi < n_cells - high_margin`` so the stencil fits
@@ -64,6 +66,8 @@ class CubicBSpline:
     """
 
     name: str = "cubic"
+    #: the base node is ``floor(xi - base_shift)`` (what compiled code uses in place of :meth:`base_node`)
+    base_shift: float = 1.0
     support: int = 4
     inertia_factor: float = 1.0 / 3.0
     low_margin: float = 1.0
@@ -95,6 +99,8 @@ class LinearHat:
     """
 
     name: str = "linear"
+    #: the base node is ``floor(xi - base_shift)`` (what compiled code uses in place of :meth:`base_node`)
+    base_shift: float = 0.0
     support: int = 2
     inertia_factor: float = None
     low_margin: float = 0.0

@@ -7,6 +7,7 @@ needs (Hu et al. 2018 Eq. 18); ``first_piola`` gives :math:`P = \partial\Psi/\pa
 """
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -17,6 +18,16 @@ def lame_parameters(E, nu):
     .. math:: \mu = \frac{E}{2(1+\nu)},\qquad \lambda = \frac{E\nu}{(1+\nu)(1-2\nu)}
     """
     return E / (2.0 * (1.0 + nu)), E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+
+def determinant(F):
+    r""":math:`\det F` of each (d, d) matrix of ``F`` (n, d, d), d = 2 or 3, by its cofactor expansion
+    (vectorised; LAPACK's batched ``det`` factorises every small matrix, an order of magnitude slower)."""
+    if F.shape[1] == 2:
+        return F[:, 0, 0] * F[:, 1, 1] - F[:, 0, 1] * F[:, 1, 0]
+    return (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+            - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+            + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
 
 
 def signed_svd(F):
@@ -75,7 +86,7 @@ class ElasticSolid(LameParameters):
     def wave_speeds(self, F):
         r"""P-wave speed of each particle in its current state (the CFL rule's :math:`c_p`); see
         :func:`elastic_wave_speeds`."""
-        return elastic_wave_speeds(self.mu, self.lam, self.rho, np.linalg.det(F))
+        return elastic_wave_speeds(self.mu, self.lam, self.rho, determinant(F))
 
     def first_piola(self, F):
         r"""First Piola–Kirchhoff stress :math:`P = \tau F^{-T}`."""
@@ -250,3 +261,33 @@ def kirchhoff_stress_of(material, particles, sel):
     if material.tracks == "J":
         return material.kirchhoff_stress_from_J(particles.J[sel], particles.dim)
     return material.kirchhoff_stress(*state_args(material, particles, sel))
+
+
+def wave_speeds_of(materials, particles, idx):
+    r"""Current wave speed :math:`c_p` of the particles ``idx`` of ``particles`` (float64), reading only their rows.
+
+    The elastic solids that share :meth:`~mpmref.physics.materials.ElasticSolid.wave_speeds` (fixed-corotated
+    and Neo-Hookean, whatever their parameters) are done in one pass, with per-particle Lamé parameters and
+    density; each other material on its own.
+    """
+    c = np.zeros(idx.size)
+    material_of = particles.material[idx]
+    shared, lame = _shared_elastic(tuple(materials))
+    if shared.any():
+        where = np.flatnonzero(shared[material_of]) if not shared.all() else np.arange(idx.size)
+        mu, lam, rho = lame[material_of[where]].T
+        c[where] = elastic_wave_speeds(mu, lam, rho, determinant(particles.F[idx[where]]))
+    for mat_id in np.flatnonzero(~shared):
+        where = np.flatnonzero(material_of == mat_id)
+        if where.size:
+            c[where] = wave_speed_of(materials[mat_id], particles, idx[where])
+    return c
+
+
+@lru_cache(maxsize=32)
+def _shared_elastic(materials):
+    """Which materials share :meth:`~mpmref.physics.materials.ElasticSolid.wave_speeds`, and every material's
+    ``(mu, lam, rho)`` (placeholders for the others)."""
+    shared = np.array([type(m).wave_speeds is ElasticSolid.wave_speeds for m in materials])
+    lame = np.array([[m.mu, m.lam, m.rho] if s else [0.0, 0.0, 1.0] for m, s in zip(materials, shared)])
+    return shared, lame

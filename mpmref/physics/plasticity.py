@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import FixedCorotated, LameParameters, elastic_wave_speeds, signed_svd
+from .materials import FixedCorotated, LameParameters, determinant, elastic_wave_speeds, signed_svd
 
 SIGMA_FLOOR = 1.0e-6
 """Smallest singular value the Hencky strain :math:`\\ln\\sigma` is taken of (sand): a compression of a
@@ -128,7 +128,7 @@ class SnowPlasticity(LameParameters):
 
         (the snow rule of Fang et al. 2018's regional time stepping; :math:`\rho_0/J` is the current density).
         """
-        J = np.maximum(np.linalg.det(F) * Jp, 1e-6)
+        J = np.maximum(determinant(F) * Jp, 1e-6)
         return np.sqrt((self.lam + 2.0 * self.mu) * self.hardening_factor(Jp) * J / self.rho)
 
 
@@ -233,4 +233,4 @@ class DruckerPragerSand(LameParameters):
     def wave_speeds(self, F, Jp):
         r"""Current wave speed of each particle: the elastic rule (:func:`~.materials.elastic_wave_speeds`)
         at the elastic volume ratio :math:`\det F_E`."""
-        return elastic_wave_speeds(self.mu, self.lam, self.rho, np.linalg.det(F))
+        return elastic_wave_speeds(self.mu, self.lam, self.rho, determinant(F))

@@ -49,14 +49,17 @@ read again (at its next boundary tick, or when the interval ends).
 from dataclasses import replace
 
 import numpy as np
-from scipy.ndimage import maximum_filter
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..physics.interface import ACTIVE, COARSER, FINER, apply_registers
-from ..state import State
+from ..state import Particles, State
+from .async_kernels import (boundary_nodes, clock_scan, copy_rows, particle_steps, put_rows, relevel_blocks,
+                            row_views, same_rows, shadow_nodes, step_limits, zone_members)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, interface_substep, substep
 
+#: the particle fields a step changes: the shadows store only these
+EVOLVING = ("x", "v", "C", "F", "J", "Jp", "modes")
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
 
@@ -64,11 +67,6 @@ MAX_STEP_S = 0.1
 def alignment(t, cap):
     """The largest power of two (at most ``cap``) that divides tick ``t`` (``cap`` for ``t = 0``)."""
     return cap if t == 0 else min(t & -t, cap)
-
-
-def floor_power_of_two(limit):
-    """The largest power of two ``<= limit`` for each entry of ``limit`` (an int64 array of values >= 1)."""
-    return np.left_shift(1, np.floor(np.log2(limit)).astype(np.int64))
 
 
 def relevel(dt, limit, t):
@@ -105,6 +103,13 @@ class AsynchronousStepper:
         self.strength, self.advection = t.cfl, t.advection_cfl
         self.grid, self.kernel = scene.grid, scene.kernel
         self.reach = 2 * (self.kernel.support - 1)
+        self.node_shape = np.array(self.grid.node_shape, dtype=np.int64)
+        #: what the compiled bookkeeping needs of the grid: origin, dx, the kernel's base-node shift, the node
+        #: lattice, the block size and the block lattice
+        self.lattice = (np.asarray(self.grid.origin, dtype=np.float64), float(self.grid.dx),
+                        self.kernel.base_shift, self.node_shape, self.grid.block,
+                        np.asarray(self.grid.blocks_per_axis, dtype=np.int64))
+        self._stores = {}
         self.conservative = t.interface == "conservative"
         self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
         self.trace = None
@@ -128,41 +133,25 @@ class AsynchronousStepper:
         """Block of each position's stencil base node."""
         return self.grid.owner_blocks(self.base_nodes(x))
 
-    def ghost_zone(self, base):
-        """Boolean lattice of base nodes within ``2 (S - 1)`` nodes (per axis) of the base nodes ``base``."""
-        mask = np.zeros(self.grid.node_shape, dtype=bool)
-        mask[tuple(base.T)] = True
-        return maximum_filter(mask, size=2 * self.reach + 1, mode="constant")
-
     # ------------------------------------------------------------------ limits
-    def particle_limits(self, particles):
-        """Each particle's step limit in ticks, ``min(S_p, A_p, 2^levels)`` (float64; see the module docstring)."""
+    def particle_limits(self, particles, idx=None):
+        """Step limit in ticks, ``min(S_p, A_p, 2^levels)`` (float64; see the module docstring), of each particle
+        of ``particles`` or of its particles ``idx``."""
         dx = self.grid.dx
-        speed = particle_speeds(particles)
-        signal = wave_speeds(self.scene.material_list, particles) + speed
-        strength = self.strength * np.minimum(dx / np.maximum(signal, 1e-300), MAX_STEP_S) / self.tick_s
-        with np.errstate(divide="ignore"):
-            advection = np.where(speed > 0, self.advection * dx / (np.maximum(speed, 1e-300) * self.tick_s), np.inf)
-        return np.minimum(np.floor(np.minimum(strength, advection)), self.max_units)
+        idx = np.arange(particles.n) if idx is None else idx
+        return step_limits(particles.v, idx, self.backend.wave_speeds(particles, idx), dx, self.strength,
+                           self.advection, self.tick_s, MAX_STEP_S, self.max_units)
 
-    def relevel_blocks(self, block_dt, owner, limit, t):
-        """New block steps at tick ``t`` from the particles at a boundary (``owner`` blocks, ``limit`` ticks).
-
-        A block's limit is the smallest of the particles it owns (Fang et al. 2018). Taking instead every
-        particle whose stencil touches the block's nodes was tried: it cost 15 % of the stork's savings and
-        did not reduce the error of colliding balls (docs/async.md), so the reference rule stays.
-        """
-        block_limit = np.full(self.grid.n_blocks, np.inf)
-        np.minimum.at(block_limit, owner, limit)
-        nonempty = np.isfinite(block_limit)
-        due = t % block_dt == 0
-        new = block_dt.copy()
-        sel = due & nonempty
-        new[sel] = relevel(block_dt[sel], np.minimum(block_limit[sel], self.max_units).astype(np.int64), t)
-        coarsest = new[nonempty].max() if nonempty.any() else self.max_units
-        empty = due & ~nonempty
-        new[empty] = relevel(block_dt[empty], np.full(int(empty.sum()), coarsest), t)
-        return new
+    def store(self, particles, names, key):
+        """Arrays shaped like the fields ``names`` of ``particles`` (contents undefined), kept on the stepper and
+        handed out again to the next interval while the particle count and fields stay the same."""
+        arrays = particles.arrays()
+        spec = tuple((k, arrays[k].shape, arrays[k].dtype) for k in names)
+        held = self._stores.get(key)
+        if held is None or held[0] != spec:
+            held = (spec, {k: np.empty(shape, dtype) for k, shape, dtype in spec})
+            self._stores[key] = held
+        return held[1]
 
     # ------------------------------------------------------------------ stepping
     def advance(self, state, dt=None, t_end=None):
@@ -201,7 +190,15 @@ class AsynchronousStepper:
 
 
 class _Interval:
-    """The working state of one :meth:`AsynchronousStepper.advance`: particles with their own clocks."""
+    """The working state of one :meth:`AsynchronousStepper.advance`: particles with their own clocks.
+
+    Three stores hold the particles: ``P`` (the authoritative particles, every field), ``shadow`` (each
+    particle's shadow) and ``proposed`` (the shadows proposed by the updates of the current tick, committed
+    at its end); the shadow stores hold only the fields a step changes (:data:`EVOLVING`), the others are
+    read from ``P``. Every update copies its group's rows out of them and its results back with the
+    compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
+    the particle count. Per tick, one scan of the particle clocks is the only work over every particle.
+    """
 
     def __init__(self, stepper, state):
         self.s = stepper
@@ -213,14 +210,21 @@ class _Interval:
         self.dt_p = np.zeros(n, dtype=np.int64)  # its current step (ticks)
         self.base = np.zeros((n, self.P.dim), dtype=np.int64)  # its stencil base node at its last boundary
         self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
-        self.shadow = self.P.copy()
+        self.names = tuple(self.P.arrays())
+        self.evolving = tuple(k for k in self.names if k in EVOLVING)
+        self.constant = tuple(k for k in self.names if k not in EVOLVING)
+        self.shadow = stepper.store(self.P, self.evolving, "shadow")  # filled at the first tick: all are due
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
+        self.proposed = stepper.store(self.P, self.evolving, "proposed")
         self.block_dt = np.asarray(state.stepper["block_dt"]).copy()
         self.updates = 0
         self.own_updates = 0
         self.stale = 0
         self.finest = stepper.max_units
+        arrays = self.P.arrays()
+        self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
+                     "proposed": row_views(self.proposed.values()), "P_constant": row_views(arrays[k] for k in self.constant)}
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros(n if self.P.dim == 2 else (n, 3))
@@ -230,32 +234,33 @@ class _Interval:
 
     def tick_once(self):
         """Everything that happens at the current tick: re-levelling, then each due level, coarse first."""
-        t, s = self.t, self.s
-        at = np.flatnonzero(self.t_p == t)
+        t, s, P = self.t, self.s, self.P
+        at, past = clock_scan(self.t_p, t)
         self.apply_registers(at)
-        here = self.P.select(at)
-        self.base[at] = s.base_nodes(here.x)
-        self.owner[at] = s.grid.owner_blocks(self.base[at])
-        limit = s.particle_limits(here)
+        boundary_nodes(P.x, at, *s.lattice, t, self.base, self.owner, self.shadow_base, self.shadow_t)
+        limit = s.particle_limits(P, at)
         if (limit < 1).any():
             bad = int(np.argmin(limit))
-            raise TickTooLongError(t, int(here.id[bad]), float(limit[bad] + 1) * s.tick_s)
-        self.block_dt = s.relevel_blocks(self.block_dt, self.owner[at], limit, t)
-        self.dt_p[at] = np.minimum(np.minimum(self.block_dt[self.owner[at]], alignment(t, s.max_units)),
-                                   floor_power_of_two(limit))
-        self.finest = min(self.finest, int(self.dt_p[at].min()))
-        self.shadow.assign(at, here)
-        self.shadow_t[at] = t
-        self.shadow_base[at] = self.base[at]
-        proposals = []  # (shadow indices, their results, end tick) of each update, coarse first
-        D = s.max_units
-        while D >= 1:
-            active = at[self.dt_p[at] == D] if t % D == 0 else at[:0]
-            if active.size:
-                proposals.append(self.update_level(D, active))
-            D //= 2
+            raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
+        self.block_dt = relevel_blocks(self.block_dt, self.owner, at, limit, t, s.max_units)
+        taken = particle_steps(at, self.block_dt, self.owner, alignment(t, s.max_units), limit, self.dt_p)
+        self.finest = min(self.finest, taken & -taken)
+        same_rows(self.pairs("P", "shadow"), at)
+        mid = [past]  # mid-step particles, whose shadows may be ghosts; each update adds its own
+        proposals = []  # (shadow indices, end tick) of each update, coarse first
+        steps = self.dt_p[at]
+        for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]:  # coarse first
+            active = at[steps == D]
+            proposals.append(self.update_level(D, active, at[steps < D], mid))
+            mid.append(active)
         self.refresh_shadows(proposals)
         self.t = int(self.t_p.min())
+
+    def pairs(self, src, dst):
+        """``(source, destination)`` row views of every field between two stores (or a store and a group)."""
+        a = self.rows[src] if isinstance(src, str) else src
+        b = self.rows[dst] if isinstance(dst, str) else dst
+        return tuple(zip(a, b))
 
     def apply_registers(self, idx):
         """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end)."""
@@ -273,28 +278,39 @@ class _Interval:
     def refresh_shadows(self, proposals):
         """Each shadow takes the result of the finest update that used it at this tick (if any).
 
-        Updates ran coarse first, so writing the proposals in order leaves the finest one.
+        Updates ran coarse first and each wrote its proposals over the coarser ones in ``proposed``, so
+        committing them in order leaves the finest one.
         """
-        for idx, rows, end in proposals:
-            self.shadow.assign(idx, rows)
-            self.shadow_t[idx] = end
-            self.shadow_base[idx] = self.s.base_nodes(rows.x)
+        s = self.s
+        for idx, end in proposals:
+            same_rows(self.pairs("proposed", "shadow"), idx)
+            shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t)
 
-    def update_level(self, D, active):
+    def group(self, active, level_ghosts, shadow_ghosts):
+        """One :class:`~mpmref.state.Particles` holding the rows of the active particles and the level ghosts
+        (from ``P``) and the shadow ghosts (from ``shadow``; their constant fields from ``P``), in that order."""
+        members = np.concatenate([active, level_ghosts, shadow_ghosts])
+        arrays = {k: np.empty((members.size,) + a.shape[1:], dtype=a.dtype) for k, a in self.P.arrays().items()}
+        evolving = row_views(arrays[k] for k in self.evolving)
+        copy_rows(self.pairs("P_constant", row_views(arrays[k] for k in self.constant)), members, 0)
+        copy_rows(self.pairs("P", evolving), members[:active.size + level_ghosts.size], 0)
+        copy_rows(self.pairs("shadow", evolving), shadow_ghosts, active.size + level_ghosts.size)
+        return Particles(**arrays)
+
+    def update_level(self, D, active, waiting, mid):
         """One level-``D`` update at the current tick: a substep of the active particles and their ghosts.
 
-        Returns the shadow proposal ``(indices, results, end tick)`` of the coarser ghosts.
+        ``waiting`` are the finer particles at this tick, not yet advanced (they may be ghosts at their own
+        state); ``mid`` a list of index arrays of the particles mid-step (their shadows may be ghosts).
+        Returns the shadow proposal ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into
+        ``proposed``.
         """
         s, t = self.s, self.t
-        zone = s.ghost_zone(self.base[active])
-        waiting = np.flatnonzero(self.t_p == t)  # the active particles and the finer ones, not yet advanced
-        waiting = waiting[self.dt_p[waiting] < D]
-        level_ghosts = waiting[zone[tuple(self.base[waiting].T)]]
-        mid = np.flatnonzero(self.t_p > t)
-        shadow_ghosts = mid[zone[tuple(self.shadow_base[mid].T)]]
+        level_ghosts = zone_members(active, self.base, waiting, self.base, s.reach, s.node_shape)
+        shadow_ghosts = np.sort(np.concatenate([zone_members(active, self.base, m, self.shadow_base, s.reach,
+                                                             s.node_shape) for m in mid]))
         self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
-        group = self.P.concatenate([self.P.select(active), self.P.select(level_ghosts),
-                                    self.shadow.select(shadow_ghosts)])
+        group = self.group(active, level_ghosts, shadow_ghosts)
         n_active = active.size
         first_shadow = n_active + level_ghosts.size
         if s.conservative:
@@ -306,7 +322,9 @@ class _Interval:
             self.dL[shadow_ghosts] += dL[first_shadow:]
         else:
             result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
-        self.P.assign(active, result.select(slice(0, n_active)))
+        result_rows = row_views(getattr(result, k) for k in self.evolving)
+        put_rows(self.pairs(result_rows, "P"), 0, active)
+        put_rows(self.pairs(result_rows, "proposed"), first_shadow, shadow_ghosts)
         self.P.level[active] = int(D).bit_length() - 1
         self.t_p[active] = t + D
         self.updates += group.n
@@ -314,9 +332,9 @@ class _Interval:
         if s.trace is not None:
             s.trace.append({"tick": t, "level": D, "active": sorted(set(self.owner[active].tolist())),
                             "level_ghosts": sorted(set(self.owner[level_ghosts].tolist())),
-                            "shadow_ghosts": sorted(set(zip(s.owner_blocks(self.shadow.x[shadow_ghosts]).tolist(),
+                            "shadow_ghosts": sorted(set(zip(s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist(),
                                                             self.shadow_t[shadow_ghosts].tolist())))})
-        return shadow_ghosts, result.select(slice(first_shadow, None)), t + D
+        return shadow_ghosts, t + D
 
     def finish(self):
         """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census (and, with
@@ -340,6 +358,8 @@ AsynchronousStepper.interval = _Interval
 
 def census(before, after, tick):
     """Check that the ids ``after`` are exactly the ids ``before``, each once; raise :class:`AsyncCensusError`."""
+    if np.array_equal(before, after):  # an interval keeps every particle in its row: the usual case
+        return
     ids, counts = np.unique(after, return_counts=True)
     duplicated = ids[counts > 1]
     lost = np.setdiff1d(before, ids)

@@ -84,7 +84,7 @@ class Blocks:
     def __init__(self, order, block_start, blocks_per_axis, layout):
         self.order, self.block_start, self.blocks_per_axis = order, block_start, blocks_per_axis
         slab_start, slabs, colour_start = slab_colours(block_start, blocks_per_axis)
-        enough = min(np.diff(colour_start)) >= MIN_SLABS_PER_COLOUR
+        enough = min(colour_start[1] - colour_start[0], colour_start[2] - colour_start[1]) >= MIN_SLABS_PER_COLOUR
         #: ``(group_start, groups, colour_start)``: ``order[group_start[g]:group_start[g + 1]]`` are group ``g``'s
         #: particles; ``groups[colour_start[c]:colour_start[c + 1]]`` the groups of colour ``c``
         self.p2g_groups = (slab_start, slabs, colour_start) if enough else (block_start, *self.block_colours)
@@ -140,6 +140,7 @@ class NumbaBackend:
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.materials = MaterialTable(scene.material_list, KERNELS)
         self.fluid_params = materials.fluid_parameters(scene.material_list)
+        self.wave_params = materials.wave_parameters(scene.material_list)
         self.buffers = BufferPool(self.dtype)
 
     running = staticmethod(threads_for)
@@ -161,6 +162,15 @@ class NumbaBackend:
                                               self.blocks_per_axis)
         layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
         return Blocks(order, block_start, self.blocks_per_axis, layout)
+
+    def wave_speeds(self, particles, idx):
+        """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, in one compiled
+        pass over every material (:func:`.materials.wave_speeds_kernel`)."""
+        d = particles.dim
+        out = np.empty(idx.size)
+        materials.wave_speeds_kernel(self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+                                     self._or_empty(particles.Jp, 0), particles.material, idx, *self.wave_params, out)
+        return out
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""

@@ -67,17 +67,29 @@ def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
     return order, block_start
 
 
+@njit(cache=True)
 def slab_colours(block_start, blocks_per_axis):
     """``(slab_start, slabs, colour_start)`` of the slabs (see the module doc).
 
     ``order[slab_start[s]:slab_start[s+1]]`` are slab ``s``'s particles; ``slabs`` lists the non-empty
     slabs, colour 0 (even ``b_0``) first; ``slabs[colour_start[c]:colour_start[c+1]]`` have colour ``c``.
     """
-    per_slab = int(np.prod(blocks_per_axis[1:]))
-    slab_start = np.ascontiguousarray(block_start[::per_slab])
-    occupied = np.flatnonzero(np.diff(slab_start) > 0)
-    even, odd = occupied[occupied % 2 == 0], occupied[occupied % 2 == 1]
-    return slab_start, np.concatenate([even, odd]), np.array([0, even.size, even.size + odd.size], dtype=np.int64)
+    per_slab = (block_start.shape[0] - 1) // blocks_per_axis[0]
+    n_slabs = blocks_per_axis[0]
+    slab_start = np.empty(n_slabs + 1, dtype=np.int64)
+    for s in range(n_slabs + 1):
+        slab_start[s] = block_start[s * per_slab]
+    slabs = np.empty(n_slabs, dtype=np.int64)
+    count = 0
+    for parity in range(2):
+        for s in range(parity, n_slabs, 2):
+            if slab_start[s + 1] > slab_start[s]:
+                slabs[count] = s
+                count += 1
+        if parity == 0:
+            even = count
+    colour_start = np.array([0, even, count], dtype=np.int64)
+    return slab_start, slabs[:count], colour_start
 
 
 @njit(cache=True)

@@ -257,6 +257,56 @@ KERNELS = {
 }
 
 
+# --------------------------------------------------------------------------- wave speeds (step limits)
+#: wave-speed rules of :func:`wave_speeds_kernel`, per material class (the ``wave_speeds`` method each follows)
+WAVE_RULE = {FixedCorotated: 0, NeoHookean: 0, DruckerPragerSand: 0, WeaklyCompressibleFluid: 1, SnowPlasticity: 2}
+
+
+def wave_parameters(materials):
+    r"""``(rules, params)`` of :func:`wave_speeds_kernel` for a scene's materials: each material's rule
+    (0 elastic, 1 fluid, 2 snow) and its parameters: :math:`(\mu, \lambda, \rho, \xi)` for the solids
+    (:math:`\xi` the snow hardening), :math:`(K, \gamma, \rho)` for a fluid."""
+    rules = np.array([WAVE_RULE[type(m)] for m in materials], dtype=np.int64)
+    params = np.zeros((len(materials), 4), dtype=np.float64)
+    for i, m in enumerate(materials):
+        if isinstance(m, WeaklyCompressibleFluid):
+            params[i, :3] = m.K, m.gamma, m.rho
+        else:
+            params[i, :3] = m.mu, m.lam, m.rho
+            params[i, 3] = getattr(m, "hardening", 0.0)
+    return rules, params
+
+
+@njit(cache=True)
+def wave_speeds_kernel(F, J, Jp, material, idx, rules, params, out):
+    r"""Current wave speed :math:`c_p` (the CFL rule's) of the particles ``idx`` into ``out``, one particle at a
+    time, by its material's rule (the ``wave_speeds`` methods of :mod:`mpmref.physics.materials` and
+    :mod:`mpmref.physics.plasticity`, which give the sources):
+
+    * elastic solids and sand (rule 0): :math:`c^2 = 4\mu J/(3\rho_0) + (2\mu/3 + \lambda)(1 - \ln J)/\rho_0`,
+      at least the shear part, :math:`J = \max(\det F, 10^{-6})`;
+    * fluid (rule 1): :math:`c^2 = \gamma K / (\rho_0 J^{\gamma - 1})`, :math:`J \ge 10^{-6}`;
+    * snow (rule 2): :math:`c^2 = (\lambda + 2\mu)\, e^{\xi(1 - J_P)} J / \rho_0`,
+      :math:`J = \max(\det F_E\, J_P, 10^{-6})`.
+    """
+    for k in range(idx.shape[0]):
+        p = idx[k]
+        m = material[p]
+        rule = rules[m]
+        if rule == 1:
+            K, gamma, rho = params[m, 0], params[m, 1], params[m, 2]
+            out[k] = np.sqrt(gamma * K / (rho * max(J[p], 1e-6) ** (gamma - 1.0)))
+            continue
+        mu, lam, rho = params[m, 0], params[m, 1], params[m, 2]
+        if rule == 2:
+            Jv = max(det_small(F[p]) * Jp[p], 1e-6)
+            out[k] = np.sqrt((lam + 2.0 * mu) * np.exp(params[m, 3] * (1.0 - Jp[p])) * Jv / rho)
+        else:
+            Jv = max(det_small(F[p]), 1e-6)
+            shear = 4.0 * mu * Jv / (3.0 * rho)
+            out[k] = np.sqrt(max(shear + (2.0 * mu / 3.0 + lam) * (1.0 - np.log(Jv)) / rho, shear))
+
+
 # --------------------------------------------------------------------------- fluid stress inside P2G
 def fluid_parameters(materials):
     r"""``(k, 2)`` float64: :math:`(K, \gamma)` of each of a scene's materials that is a weakly compressible

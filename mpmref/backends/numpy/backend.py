@@ -1,7 +1,7 @@
 """The NumPy backend object: binds the reference stages to one scene."""
 
 from ...physics.catalogue import MATERIALS
-from ...physics.materials import kirchhoff_stress_of
+from ...physics.materials import kirchhoff_stress_of, wave_speeds_of
 from ..base import MaterialTable, serial_context
 from . import cpic, transfers
 
@@ -44,6 +44,11 @@ class NumpyBackend:
     def return_map(self, particles):
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
         return self.materials.return_map(particles)
+
+    def wave_speeds(self, particles, idx):
+        """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64: each material's
+        ``wave_speeds`` (:func:`mpmref.physics.materials.wave_speeds_of`)."""
+        return wave_speeds_of(self.scene.material_list, particles, idx)
 
     def prepare(self, particles):
         return transfers.prepare(particles, self.scene.grid, self.kernel, self.scene.transfer)
