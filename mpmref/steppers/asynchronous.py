@@ -212,7 +212,8 @@ class _Interval:
         self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
         self.names = tuple(self.P.arrays())
         self.evolving = tuple(k for k in self.names if k in EVOLVING)
-        self.constant = tuple(k for k in self.names if k not in EVOLVING)
+        # the fields a step reads but does not change (id and level are the stepper's, not the step's)
+        self.constant = tuple(k for k in self.names if k not in EVOLVING and k not in ("id", "level"))
         self.shadow = stepper.store(self.P, self.evolving, "shadow")  # filled at the first tick: all are due
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
@@ -290,7 +291,8 @@ class _Interval:
         """One :class:`~mpmref.state.Particles` holding the rows of the active particles and the level ghosts
         (from ``P``) and the shadow ghosts (from ``shadow``; their constant fields from ``P``), in that order."""
         members = np.concatenate([active, level_ghosts, shadow_ghosts])
-        arrays = {k: np.empty((members.size,) + a.shape[1:], dtype=a.dtype) for k, a in self.P.arrays().items()}
+        arrays = {k: np.empty((members.size,) + a.shape[1:], dtype=a.dtype) for k, a in self.P.arrays().items()
+                  if k in self.evolving or k in self.constant}
         evolving = row_views(arrays[k] for k in self.evolving)
         copy_rows(self.pairs("P_constant", row_views(arrays[k] for k in self.constant)), members, 0)
         copy_rows(self.pairs("P", evolving), members[:active.size + level_ghosts.size], 0)
