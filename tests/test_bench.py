@@ -149,7 +149,7 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert record["ratio"] == pytest.approx(record["coupled"]["median_s"] / record["plain"]["median_s"])
     assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
     assert "CPIC: a step with 3 bodies" in out
-    assert "Goals" in out and len(results["goals"]) == 11 and all("met" in g for g in results["goals"])
+    assert "Goals" in out and len(results["goals"]) == 14 and all("met" in g for g in results["goals"])
 
 
 def test_table2_ratios_divide_mpm_by_mls():
@@ -342,3 +342,18 @@ def test_goals_are_read_off_the_sections_with_their_direction():
     assert by_name["256^3 domain: peak memory (MB)"]["met"] is True  # 180 MB
     table = render_goals(goals_section(results))
     assert "Goals" in table and table.count("\n") == len(by_name) + 1
+
+
+def test_async_case_reports_updates_wall_times_and_the_cost_of_a_level_update():
+    pytest.importorskip("numba")
+    from mpmref.bench.asynchronous import render_async, time_case
+    from mpmref.bench.goals import goals
+
+    r = time_case("stork2d", 0.0005, "numba", 1, 1)
+    a = r["async"]
+    assert a["level_updates"] > 0 and a["updates"] >= a["own_updates"] > 0
+    assert 0 < a["stages_s"] < a["times_s"][-1] and a["stages_us_per_update"] > 0 and a["bookkeeping_us_per_update"] > 0
+    assert r["wall_ratio"] == pytest.approx(r["sync"]["median_s"] / a["median_s"])
+    assert "stork2d" in render_async({"results": [r]})
+    goal = next(g for g in goals({"async": {"results": [r]}}) if g.name.startswith("stork2d:"))
+    assert goal.figure == r["wall_ratio"] and goal.bound == 1.5

@@ -22,7 +22,7 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 #: is also run at 4x the example's resolution (16x the particles), where the particles' work, not the
 #: per-update orchestration in Python, dominates a step.
 ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-256": ("stork2d", 256, 0.004, 0.0005),
-               "stork3d": ("stork3d", 32, 0.01, 0.001)}
+               "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002)}
 
 
 def example_scene(name, t_end, dt=None, cells=None):
@@ -54,6 +54,7 @@ def time_case(case, t_end, backend, threads, repeats):
     rec_a, a = measure(lambda: _run(a_scene, backend), repeats,
                        first=lambda: _run(example_scene(name, t_end / 10, cells=cells), backend))
     summary = a.stepper.summary(a.state)
+    stages_s, n_updates = a.stepper.stage_seconds, a.stepper.level_updates
     dt = summary["finest_dt_ticks"] * a_scene.time.tick
     s_scene = example_scene(name, t_end, dt=dt, cells=cells)
     rec_s, s = measure(lambda: _run(s_scene, backend), repeats,
@@ -63,7 +64,10 @@ def time_case(case, t_end, backend, threads, repeats):
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
     return {"case": case, "backend": backend, "threads": threads, "particles": a.n_particles, "t_end": t_end,
             "levels": sorted(set(a.particles.level.tolist())), "sync_dt": dt,
-            "async": {**rec_a, "updates": summary["particle_updates"], "own_updates": summary["own_updates"]},
+            "async": {**rec_a, "updates": summary["particle_updates"], "own_updates": summary["own_updates"],
+                      "level_updates": n_updates, "stages_s": stages_s,
+                      "stages_us_per_update": 1e6 * stages_s / max(n_updates, 1),
+                      "bookkeeping_us_per_update": 1e6 * (rec_a["times_s"][-1] - stages_s) / max(n_updates, 1)},
             "sync": {**rec_s, "updates": s.n_particles * s.step_count},
             "updates_ratio": s.n_particles * s.step_count / summary["particle_updates"],
             "own_updates_ratio": s.n_particles * s.step_count / summary["own_updates"],
@@ -84,13 +88,17 @@ def run_async(quick, backends, threads, repeats, log=print):
 
 
 def render_async(section):
-    """One line per case: updates and wall time of both runs, their ratios, the agreement."""
-    lines = ["Async vs sync at the finest async step (stork); updates include ghosts (own steps in brackets)",
-             f"{'case':12}{'backend':8}{'levels':>12}{'sync upd':>11}{'async upd':>18}{'upd x':>7}"
-             f"{'sync s':>9}{'async s':>9}{'wall x':>8}{'dE/E0':>10}{'dx':>8}"]
+    """One line per case: updates and wall time of both runs, their ratios, the agreement, and what one level
+    update of the asynchronous run cost (in the step's stages, and in the bookkeeping around them)."""
+    lines = ["Async vs sync at the finest async step (stork); updates include ghosts (own steps in brackets); "
+             "per level update: us in the step's stages / us of bookkeeping",
+             f"{'case':12}{'backend':8}{'levels':>12}{'sync upd':>11}{'async upd':>19}{'upd x':>7}"
+             f"{'sync s':>9}{'async s':>9}{'wall x':>8}{'dE/E0':>10}{'dx':>8}{'updates':>9}{'us/update':>15}"]
     for r in section["results"]:
+        a = r["async"]
         lines.append(f"{r['case']:12}{r['backend']:8}{str(r['levels']):>12}{r['sync']['updates']:>11}"
-                     f"{r['async']['updates']:>10} ({r['async']['own_updates']:>6}){r['updates_ratio']:>6.2f}x"
-                     f"{r['sync']['median_s']:>9.3f}{r['async']['median_s']:>9.3f}{r['wall_ratio']:>7.2f}x"
-                     f"{r['energy_difference']:>10.2e}{r['position_difference_dx']:>8.3f}")
+                     f"{a['updates']:>10} ({a['own_updates']:>7}){r['updates_ratio']:>6.2f}x"
+                     f"{r['sync']['median_s']:>9.3f}{a['median_s']:>9.3f}{r['wall_ratio']:>7.2f}x"
+                     f"{r['energy_difference']:>10.2e}{r['position_difference_dx']:>8.3f}{a['level_updates']:>9}"
+                     f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}")
     return "\n".join(lines)

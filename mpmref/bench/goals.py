@@ -75,6 +75,15 @@ def _cpic(results):
     return (None, "") if r is None else (r["ratio"], f"{r['threads']} thread(s), float64")
 
 
+#: asynchronous stepping: wall time of sync at the finest async step over async (issue 24), per bench case
+ASYNC_GOALS = (("stork2d-256", 3.0), ("stork3d-128", 2.5), ("stork2d", 1.5))
+
+
+def _async_ratio(results, case):
+    r = _first((results.get("async") or {}).get("results", []), case=case, backend=BACKEND)
+    return (None, "") if r is None else (r["wall_ratio"], f"{r['threads']} thread(s), {r['particles']:,} particles")
+
+
 def goals(results):
     """Every goal of a bench result dict (:func:`mpmref.bench.run_bench`), as :class:`Goal` records."""
     out = [Goal(f"{case} {THREADS} threads {DTYPE}: mpmref / Taichi CPU", _peer_ratio(results, case), bound)
@@ -93,6 +102,9 @@ def goals(results):
                     DOMAIN_MEMORY / 1e6, at_most=True))
     figure, where = _cpic(results)
     out.append(Goal("CPIC step / step without bodies", figure, 1.5, True, where))
+    for case, bound in ASYNC_GOALS:
+        figure, where = _async_ratio(results, case)
+        out.append(Goal(f"{case}: sync at the finest async step / async, wall time", figure, bound, where=where))
     return out
 
 

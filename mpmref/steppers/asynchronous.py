@@ -47,6 +47,7 @@ read again (at its next boundary tick, or when the interval ends).
 """
 
 from dataclasses import replace
+from time import perf_counter
 
 import numpy as np
 
@@ -113,6 +114,9 @@ class AsynchronousStepper:
         self.conservative = t.interface == "conservative"
         self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
         self.trace = None
+        #: wall time spent in the step's stages (the substeps) and the number of level updates, since
+        #: construction: the benchmark's split of an update's cost into stages and bookkeeping
+        self.stage_seconds, self.level_updates = 0.0, 0
 
     # ------------------------------------------------------------------ state
     def initial_state(self, particles):
@@ -315,6 +319,7 @@ class _Interval:
         group = self.group(active, level_ghosts, shadow_ghosts)
         n_active = active.size
         first_shadow = n_active + level_ghosts.size
+        start = perf_counter()
         if s.conservative:
             classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
             result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s)
@@ -324,6 +329,8 @@ class _Interval:
             self.dL[shadow_ghosts] += dL[first_shadow:]
         else:
             result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
+        s.stage_seconds += perf_counter() - start
+        s.level_updates += 1
         result_rows = row_views(getattr(result, k) for k in self.evolving)
         put_rows(self.pairs(result_rows, "P"), 0, active)
         put_rows(self.pairs(result_rows, "proposed"), first_shadow, shadow_ghosts)
