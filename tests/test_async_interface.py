@@ -11,9 +11,10 @@ for angular momentum) — a few hundred level updates of round-off, far below th
 import numpy as np
 import pytest
 
-from mpmref import SceneBuilder, Simulation
+from mpmref import Simulation
 from mpmref.backends import BACKENDS
 from mpmref.steppers.asynchronous import _Interval
+from verification import sync_vs_async as case
 
 SCHEMES = {"pic": {}, "flip": {"flip_alpha": 0.95}, "apic": {}, "polypic": {}, "mls": {}}
 AFFINE = ("apic", "polypic", "mls")
@@ -21,16 +22,8 @@ BOUND = 1e-12
 
 
 def pressed_disks(scheme="mls", interface="conservative", stepping="async", **time):
-    """A soft and a stiff disk overlapping by a cell, spinning, in free space (open walls, no gravity)."""
-    b = (SceneBuilder(dim=2, name="pressed").grid(size=1.0, cells=20).method(scheme, **SCHEMES[scheme])
-         .material("soft", "fixed_corotated", E=1e3, nu=0.3, rho=10.0)
-         .material("stiff", "fixed_corotated", E=1e5, nu=0.3, rho=10.0)
-         .ball("soft", center=[0.38, 0.5], radius=0.13, velocity=[0.4, 0.1], angular_velocity=2.0)
-         .ball("stiff", center=[0.62, 0.52], radius=0.13, velocity=[-0.4, 0.0], angular_velocity=-1.0)
-         .walls("open"))
-    if stepping == "async":
-        return b.time(stepping="async", cfl=0.4, tick=1e-6, levels=10, steps=3, interface=interface).build()
-    return b.time(**time).build()
+    """The isolated scene of the ``sync_vs_async`` case, three synchronised intervals."""
+    return case.pressed_disks(interface, stepping, scheme, SCHEMES[scheme], intervals=3, **time)
 
 
 def drifts(sim):

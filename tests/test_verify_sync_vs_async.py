@@ -22,8 +22,38 @@ def test_report_writes_plots_series_and_findings(result, tmp_path):
     paths = case.report(result, tmp_path)
     assert all(p.exists() for p in paths)
     text = (tmp_path / "sync_vs_async.md").read_text()
-    assert "## Findings" in text and "colliding balls" in text
-    assert (tmp_path / "vtk" / "stork2d" / "particles.pvd").exists()
+    assert "## Findings" in text and "colliding balls" in text and "Pareto" in text
+    assert (tmp_path / "vtk" / "stork2d_conservative" / "particles.pvd").exists()
+    assert (tmp_path / case.MAIN_FIGURE).exists()
+
+
+def test_both_interface_treatments_run_and_the_trade_has_a_front(result):
+    assert set(result["isolated"]) == {"conservative", "reference"}
+    assert result["isolated"]["reference"]["P"] > 1e6 * case.ROUND_OFF  # the drift the conservative one removes
+    front = [r for r in result["trade"] if r["pareto"]]
+    assert front and {r["kind"] for r in result["trade"]} == {"sync", "async"}
+    # no run off the front is both faster and more accurate than a run on it
+    for r in result["trade"]:
+        assert not any(f["wall"] > r["wall"] and f["error_dx"] > r["error_dx"] for f in front)
+
+
+@pytest.mark.parametrize("broken", ["applied twice", "dropped"])
+def test_a_broken_conservative_interface_fails_the_momentum_check(broken, monkeypatch):
+    """The recorded exchange applied twice, or dropped: the isolated scene's momentum check fails."""
+    from mpmref.steppers.asynchronous import _Interval
+
+    class Broken(_Interval):
+        def apply_registers(self, idx):
+            if self.s.conservative and idx.size:
+                self.dP[idx] *= 2.0 if broken == "applied twice" else 0.0
+                self.dL[idx] *= 2.0 if broken == "applied twice" else 0.0
+            super().apply_registers(idx)
+
+    monkeypatch.setattr(case.AsynchronousStepper, "interval", Broken)
+    params = case.Params.quick()
+    iso = {"conservative": case.isolated(params, "numpy", "conservative")}
+    failing = {c.name for c in failed(case.checks({**_passing(params), "isolated": iso}))}
+    assert "isolated, conservative: linear momentum drift / sum m|v|" in failing
 
 
 def test_frozen_shadows_fail_the_free_fall_check():
@@ -38,7 +68,11 @@ def test_frozen_shadows_fail_the_free_fall_check():
 
 def _passing(params):
     """A result whose other parts pass, so that only the part under test is judged."""
-    pair = {"position_dx": 0.0, "updates_sync": 3, "own_updates": 1, "compare": {"energy_rel": 0.0}}
+    pair = {"position_dx": 0.0, "updates_sync": 3, "own_updates": 1, "mass": 1.0,
+            "compare": {"energy_rel": 0.0, "P_drift_async": 0.0}}
+    pairs = {f"{key}/{itf}": pair for key in case.PAIRS for itf in params.interfaces}
     return {"params": params, "one_level": [{"backend": "numpy", "max_rel": 0.0}],
             "schedule": {"matches": True, "census_ticks": 1, "lost": 0, "duplicated": 0},
-            "stork2d": pair, "stork3d": pair}
+            "free_fall": {"max_rel": 0.0, "levels": [0, 1]}, **pairs,
+            "isolated": {"conservative": {"P": 0.0, "L": 0.0, "levels": [0, 3]}},
+            "bonded": [{"cfl": 0.4, "conservative": 0.0}]}
