@@ -882,7 +882,7 @@ def _parse_time(t):
                     tick=_number(t, "tick", "time", default=1e-6, lo=0.0, lo_open=True),
                     levels=_integer(t, "levels", "time", default=13, lo=0, hi=30),
                     advection_cfl=_number(t, "advection_cfl", "time", default=1.0, lo=0.0, hi=10.0, lo_open=True),
-                    interface=_choice(t, "interface", "time", INTERFACES, default="reference"))
+                    interface=_choice(t, "interface", "time", INTERFACES, default="conservative"))
 
 
 def _parse_output(o):

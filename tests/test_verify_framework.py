@@ -123,22 +123,23 @@ def test_results_json_holds_every_check_of_the_real_cases(report_dir):
 
 
 def test_the_warm_up_compiles_every_kernel_of_the_compiled_cases_once():
-    """verify compiles ahead only what later cases run on Numba: each queued scene compiles kernels that
-    the scenes before it do not, the positions each case needs cover every kernel of its scenes, and a
-    NumPy-only selection starts no process."""
+    """verify compiles ahead only what later cases run on Numba (and the compiled bookkeeping of an asynchronous
+    scene they run on NumPy): each queued Numba scene compiles kernels that the scenes before it do not, the
+    positions each case needs cover every kernel of its scenes, and a NumPy-only selection starts no process."""
     from mpmref.backends import make_backend
     from verification import backends, warmup
 
     cases = ["momentum", "backends", "speed_accuracy", "sync_vs_async"]
     queue, needs = warmup.plan(cases, "quick", "numpy")
-    assert {name for name, _ in queue} == {"numba"} and set(needs) == set(cases[1:])
-    kernels = [make_backend(name, scene).compiled_kernels() for name, scene in queue]
+    assert all(name == "numba" or scene.time.stepping == "async" for name, scene in queue)
+    assert set(needs) == set(cases[1:])
+    kernels = [make_backend(name, scene).compiled_kernels() if name == "numba" else set() for name, scene in queue]
     for k in range(1, len(kernels)):
-        assert not kernels[k] <= set().union(*kernels[:k])
+        assert queue[k][0] != "numba" or not kernels[k] <= set().union(*kernels[:k])
     for case in needs:
         covered = set().union(*(kernels[k] for k in needs[case]))
         assert all(make_backend(name, scene).compiled_kernels() <= covered
-                   for name, scene in warmup.declared_scenes(case, "quick", "numpy"))
+                   for name, scene in warmup.declared_scenes(case, "quick", "numpy") if name == "numba")
     assert {v.scheme for v in backends.VARIANTS} <= {scene.method.scheme for _, scene in queue}
     assert warmup.start(["momentum", "transfer_energy"], "quick", "numpy") is None
 

@@ -1,7 +1,9 @@
 """Asynchronous against synchronous stepping on the stiff/soft stork (the talk's Part IV claim, ~3.3x).
 
-Each case runs an example scene asynchronously, then synchronously at the finest step the asynchronous
-run took, on the same backend and thread count, to the same end time. Reported: particle updates (ghosts
+Each case runs an example scene asynchronously (with its declared level interfaces, conservative by
+default), then synchronously at the finest step the asynchronous run took, on the same backend and thread
+count, to the same end time; then asynchronously once more with ``time.interface = "reference"``, for the
+cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported: particle updates (ghosts
 included, and the particles' own steps), median wall time of ``repeats`` runs of each (compilation
 excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
 relative to the initial energy, and the largest position difference (particles matched by id) in Δx.
@@ -25,19 +27,26 @@ ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-256": ("stork2d
                "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002)}
 
 
-def example_scene(name, t_end, dt=None, cells=None):
+def example_scene(name, t_end, dt=None, cells=None, interface=None):
     """The example ``name`` ending at ``t_end`` (at ``cells`` cells along the first axis if given): as declared
-    (asynchronous), or synchronous with step ``dt``."""
+    (asynchronous, with ``time.interface`` = ``interface`` if given), or synchronous with step ``dt``."""
     path = EXAMPLES / f"{name}.toml"
     if not path.exists():
         raise MpmrefError(f"the async benchmark needs {path} (run it from a checkout of mpmref)")
     with open(path, "rb") as fh:
         data = tomllib.load(fh)
     data["time"] = {"dt": dt, "t_end": t_end} if dt is not None else {**data["time"], "t_end": t_end}
+    if interface is not None and dt is None:
+        data["time"]["interface"] = interface
     data.pop("output", None)
     if cells is not None:
         data["grid"] = {"size": data["grid"]["size"], "cells": cells}
     return Scene.from_dict(data, base_dir=EXAMPLES)
+
+
+def ghost_us(stepper):
+    """Microseconds in the step's stages per level update that had ghosts."""
+    return 1e6 * stepper.ghost_stage_seconds / max(stepper.ghost_level_updates, 1)
 
 
 def _run(scene, backend):
@@ -59,6 +68,8 @@ def time_case(case, t_end, backend, threads, repeats):
     s_scene = example_scene(name, t_end, dt=dt, cells=cells)
     rec_s, s = measure(lambda: _run(s_scene, backend), repeats,
                        first=lambda: _run(example_scene(name, t_end / 10, dt=dt, cells=cells), backend))
+    rec_r, r = measure(lambda: _run(example_scene(name, t_end, cells=cells, interface="reference"), backend), 1,
+                       first=lambda: _run(example_scene(name, t_end / 10, cells=cells, interface="reference"), backend))
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
@@ -67,7 +78,11 @@ def time_case(case, t_end, backend, threads, repeats):
             "async": {**rec_a, "updates": summary["particle_updates"], "own_updates": summary["own_updates"],
                       "level_updates": n_updates, "stages_s": stages_s,
                       "stages_us_per_update": 1e6 * stages_s / max(n_updates, 1),
-                      "bookkeeping_us_per_update": 1e6 * (rec_a["times_s"][-1] - stages_s) / max(n_updates, 1)},
+                      "bookkeeping_us_per_update": 1e6 * (rec_a["times_s"][-1] - stages_s) / max(n_updates, 1),
+                      "interface": a_scene.time.interface,
+                      "ghost_stages_us_per_update": ghost_us(a.stepper)},
+            "reference_interface": {**rec_r, "ghost_stages_us_per_update": ghost_us(r.stepper)},
+            "interface_cost_ratio": ghost_us(a.stepper) / max(ghost_us(r.stepper), 1e-300),
             "sync": {**rec_s, "updates": s.n_particles * s.step_count},
             "updates_ratio": s.n_particles * s.step_count / summary["particle_updates"],
             "own_updates_ratio": s.n_particles * s.step_count / summary["own_updates"],
@@ -91,14 +106,17 @@ def render_async(section):
     """One line per case: updates and wall time of both runs, their ratios, the agreement, and what one level
     update of the asynchronous run cost (in the step's stages, and in the bookkeeping around them)."""
     lines = ["Async vs sync at the finest async step (stork); updates include ghosts (own steps in brackets); "
-             "per level update: us in the step's stages / us of bookkeeping",
+             "per level update: us in the step's stages / us of bookkeeping; 'itf x': stage time per update with "
+             "ghosts, conservative over reference interfaces",
              f"{'case':12}{'backend':8}{'levels':>12}{'sync upd':>11}{'async upd':>19}{'upd x':>7}"
-             f"{'sync s':>9}{'async s':>9}{'wall x':>8}{'dE/E0':>10}{'dx':>8}{'updates':>9}{'us/update':>15}"]
+             f"{'sync s':>9}{'async s':>9}{'wall x':>8}{'dE/E0':>10}{'dx':>8}{'updates':>9}{'us/update':>15}"
+             f"{'itf x':>7}"]
     for r in section["results"]:
         a = r["async"]
         lines.append(f"{r['case']:12}{r['backend']:8}{str(r['levels']):>12}{r['sync']['updates']:>11}"
                      f"{a['updates']:>10} ({a['own_updates']:>7}){r['updates_ratio']:>6.2f}x"
                      f"{r['sync']['median_s']:>9.3f}{a['median_s']:>9.3f}{r['wall_ratio']:>7.2f}x"
                      f"{r['energy_difference']:>10.2e}{r['position_difference_dx']:>8.3f}{a['level_updates']:>9}"
-                     f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}")
+                     f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}"
+                     f"{r['interface_cost_ratio']:>6.2f}x")
     return "\n".join(lines)

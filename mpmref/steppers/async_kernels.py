@@ -254,3 +254,47 @@ def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, m
             limit = min(limit, advection * dx / (max(speed, 1e-300) * tick))
         out[k] = min(np.floor(limit), max_units)
     return out
+
+
+@njit(cache=True)
+def add_rows(dst, idx, src, start):
+    """``dst[idx[k]] += src[start + k]`` (rows of 2D arrays): a particle's register takes an update's impulse."""
+    for k in range(idx.shape[0]):
+        for c in range(dst.shape[1]):
+            dst[idx[k], c] += src[start + k, c]
+
+
+@njit(cache=True)
+def apply_registers(idx, x, v, C, mass, dP, dL, inertia):
+    r"""Apply and clear the impulse registers of the particles ``idx`` at their step end: the formula of
+    :func:`mpmref.physics.interface.apply_registers`, one particle at a time,
+
+    .. math:: v_p \mathrel{+}= \delta P_p / m_p, \qquad
+              C_p \mathrel{+}= W\big((\delta L_p - x_p \times \delta P_p) / (m_p D_p)\big)
+
+    (``C`` empty for PIC and FLIP; ``dL`` (n, 1) in 2D, (n, 3) in 3D; ``inertia`` :math:`D_p`)."""
+    d = x.shape[1]
+    for k in range(idx.shape[0]):
+        p = idx[k]
+        m = np.float64(mass[p])
+        for a in range(d):
+            v[p, a] += dP[p, a] / m
+        if C.shape[0] > 0:
+            if d == 2:
+                spin = (dL[p, 0] - (x[p, 0] * dP[p, 1] - x[p, 1] * dP[p, 0])) / (m * inertia)
+                C[p, 1, 0] += 0.5 * spin
+                C[p, 0, 1] -= 0.5 * spin
+            else:
+                s0 = (dL[p, 0] - (x[p, 1] * dP[p, 2] - x[p, 2] * dP[p, 1])) / (m * inertia)
+                s1 = (dL[p, 1] - (x[p, 2] * dP[p, 0] - x[p, 0] * dP[p, 2])) / (m * inertia)
+                s2 = (dL[p, 2] - (x[p, 0] * dP[p, 1] - x[p, 1] * dP[p, 0])) / (m * inertia)
+                C[p, 2, 1] += 0.5 * s0
+                C[p, 1, 2] -= 0.5 * s0
+                C[p, 0, 2] += 0.5 * s1
+                C[p, 2, 0] -= 0.5 * s1
+                C[p, 1, 0] += 0.5 * s2
+                C[p, 0, 1] -= 0.5 * s2
+        for a in range(dP.shape[1]):
+            dP[p, a] = 0.0
+        for a in range(dL.shape[1]):
+            dL[p, a] = 0.0

@@ -52,10 +52,10 @@ from time import perf_counter
 import numpy as np
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
-from ..physics.interface import ACTIVE, COARSER, FINER, apply_registers
+from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import Particles, State
-from .async_kernels import (boundary_nodes, clock_scan, copy_rows, particle_steps, put_rows, relevel_blocks,
-                            row_views, same_rows, shadow_nodes, step_limits, zone_members)
+from .async_kernels import (add_rows, apply_registers, boundary_nodes, clock_scan, copy_rows, particle_steps,
+                            put_rows, relevel_blocks, row_views, same_rows, shadow_nodes, step_limits, zone_members)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, interface_substep, substep
 
@@ -114,9 +114,10 @@ class AsynchronousStepper:
         self.conservative = t.interface == "conservative"
         self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
         self.trace = None
-        #: wall time spent in the step's stages (the substeps) and the number of level updates, since
-        #: construction: the benchmark's split of an update's cost into stages and bookkeeping
+        #: wall time spent in the step's stages (the substeps) and the number of level updates since
+        #: construction, in all and in the updates that had ghosts: the benchmark's split of an update's cost
         self.stage_seconds, self.level_updates = 0.0, 0
+        self.ghost_stage_seconds, self.ghost_level_updates = 0.0, 0
 
     # ------------------------------------------------------------------ state
     def initial_state(self, particles):
@@ -156,6 +157,24 @@ class AsynchronousStepper:
             held = (spec, {k: np.empty(shape, dtype) for k, shape, dtype in spec})
             self._stores[key] = held
         return held[1]
+
+    def warm_up(self, particles):
+        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on empty
+        index lists: no particle is read or written."""
+        interval = self.interval(self, self.initial_state(particles.select(slice(0, 1))))
+        none = np.empty(0, dtype=np.int64)
+        at, past = clock_scan(interval.t_p, interval.t)
+        boundary_nodes(interval.P.x, none, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
+                       interval.shadow_t)
+        step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+        particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
+        relevel_blocks(interval.block_dt, interval.owner, none, np.empty(0), 0, self.max_units)
+        same_rows(interval.pairs("P", "shadow"), none)
+        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t)
+        zone_members(at, interval.base, none, interval.shadow_base, self.reach, self.node_shape)
+        group = interval.group(at, none, none)
+        rows = row_views(getattr(group, k) for k in interval.evolving)
+        put_rows(interval.pairs(rows, "P"), 0, none)
 
     # ------------------------------------------------------------------ stepping
     def advance(self, state, dt=None, t_end=None):
@@ -232,7 +251,7 @@ class _Interval:
                      "proposed": row_views(self.proposed.values()), "P_constant": row_views(arrays[k] for k in self.constant)}
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
-            self.dL = np.zeros(n if self.P.dim == 2 else (n, 3))
+            self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
 
     def synchronised(self):
         return self.t > self.t0 and bool(np.all(self.t_p == self.t))
@@ -268,17 +287,13 @@ class _Interval:
         return tuple(zip(a, b))
 
     def apply_registers(self, idx):
-        """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end)."""
+        """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end;
+        :func:`mpmref.physics.interface.apply_registers`, compiled)."""
         if not self.s.conservative or idx.size == 0:
             return
         P = self.P
-        v, C = apply_registers(P.v[idx], None if P.C is None else P.C[idx], P.x[idx].astype(np.float64),
-                               P.mass[idx], self.dP[idx], self.dL[idx], self.s.inertia)
-        P.v[idx] = v
-        if C is not None:
-            P.C[idx] = C
-        self.dP[idx] = 0.0
-        self.dL[idx] = 0.0
+        C = P.C if P.C is not None else np.empty((0, P.dim, P.dim), dtype=P.x.dtype)
+        apply_registers(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
 
     def refresh_shadows(self, proposals):
         """Each shadow takes the result of the finest update that used it at this tick (if any).
@@ -320,17 +335,20 @@ class _Interval:
         n_active = active.size
         first_shadow = n_active + level_ghosts.size
         start = perf_counter()
-        if s.conservative:
+        if s.conservative and n_active < group.n:  # with no ghost there is no exchange to reflux
             classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
             result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s)
-            self.dP[active] += dP[:n_active]
-            self.dL[active] += dL[:n_active]
-            self.dP[shadow_ghosts] += dP[first_shadow:]
-            self.dL[shadow_ghosts] += dL[first_shadow:]
+            for register, impulse in ((self.dP, dP), (self.dL, dL)):
+                add_rows(register, active, impulse, 0)
+                add_rows(register, shadow_ghosts, impulse, first_shadow)
         else:
             result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
-        s.stage_seconds += perf_counter() - start
+        elapsed = perf_counter() - start
+        s.stage_seconds += elapsed
         s.level_updates += 1
+        if n_active < group.n:
+            s.ghost_stage_seconds += elapsed
+            s.ghost_level_updates += 1
         result_rows = row_views(getattr(result, k) for k in self.evolving)
         put_rows(self.pairs(result_rows, "P"), 0, active)
         put_rows(self.pairs(result_rows, "proposed"), first_shadow, shadow_ghosts)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..physics.interface import interface_kicks, moment, momentum_share
+from ..physics.interface import momentum_share
 from ..physics.kernels import compute_stencil
 from ..physics.rigid_dynamics import apply_impulses, begin_step, end_step
 
@@ -92,9 +92,10 @@ def interface_substep(backend, particles, classes, dt, time):
     that also returns the impulses of impulse refluxing.
 
     P2G sums each class apart in the same pass; the grid update uses their totals; the node kicks
-    (:func:`~mpmref.physics.interface.interface_kicks`) are gathered in the same G2P pass. Returns
+    (the backend's ``interface_kicks``, :func:`~mpmref.physics.interface.interface_kicks`) are gathered in the
+    same G2P pass. Returns
     ``(particles, dP, dL)``: the new particles, and for each one the impulse :math:`\delta P_p` and its moment
-    :math:`\delta L_p` about the origin (zero for the finer ghosts). No hooks, no rigid bodies (asynchronous
+    :math:`\delta L_p` about the origin ((n, 1) in 2D, (n, 3) in 3D; zero for the finer ghosts). No hooks, no rigid bodies (asynchronous
     stepping takes neither).
     """
     scene = backend.scene
@@ -102,9 +103,9 @@ def interface_substep(backend, particles, classes, dt, time):
         prepared = backend.prepare(particles)
         grid_state = backend.p2g(particles, prepared, classes=classes)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
-        kicks = interface_kicks(grid_state.class_sums, dt, momentum_share(scene.transfer))
-        new, (dP, dL_rel) = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=(classes, kicks))
-        return backend.return_map(new), dP, dL_rel + moment(particles.x.astype(np.float64), dP)
+        kicks = backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer))
+        new, (dP, dL) = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=(classes, kicks))
+        return backend.return_map(new), dP, dL
 
 
 def apply_hooks(hooks, grid_state, particles, scene, time):

@@ -217,10 +217,19 @@ class NumbaBackend:
         class_sums = None
         if classes is not None:
             class_sums = grid.reshape(N_CLASSES, layout.n_rows, 1 + 2 * d)
-            grid = class_sums[0] + class_sums[1] + class_sums[2]
+            grid, = self.buffers.take("grid_totals", (layout.n_rows, 1 + 2 * d))
+            transfers.class_totals(class_sums, grid)
         state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
                           class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
+
+    def interface_kicks(self, grid_state, dt, kappa):
+        """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
+        (:func:`.transfers.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`)."""
+        sums = grid_state.class_sums
+        kicks = np.empty((2, sums.shape[1], (sums.shape[2] - 1) // 2))
+        transfers.node_kicks(sums, dt, kappa, kicks)
+        return kicks
 
     def grid_update(self, grid_state, dt, time=0.0):
         """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays) in
@@ -250,7 +259,7 @@ class NumbaBackend:
         backend's :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state
         swaps two sets of them instead of allocating a state per step. With ``kicks`` = ``(classes, kick)``
         (conservative interfaces; see :func:`mpmref.backends.numpy.transfers.g2p`) the same gather collects
-        each particle's impulse and its moment, and the result is ``(particles, (dP, dL_rel))``.
+        each particle's impulse and its moment about the origin, and the result is ``(particles, (dP, dL))``.
         """
         n, d = particles.x.shape
         if prepared is None:
@@ -266,7 +275,7 @@ class NumbaBackend:
             row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
             first = row_of_class[kicks[0]]
             kick_rows = np.where(first >= 0, first * layout.n_rows, -1)
-            kick = np.ascontiguousarray(kicks[1].reshape(-1, d), dtype=np.float64)
+            kick = kicks[1].reshape(-1, d)
             kick_sum, kick_moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
 
         def shape(name, *full):
@@ -277,18 +286,14 @@ class NumbaBackend:
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
-                  self.mode_index, v_grid, v_tilde, kick_rows, kick, x_new, v_new, C_new, F_new, J_new, modes_new,
-                  kick_sum, kick_moment)
+                  self.mode_index, v_grid, v_tilde, kick_rows, kick, particles.mass, x_new, v_new, C_new, F_new, J_new,
+                  modes_new, kick_sum, kick_moment)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
                 changes[name] = array
         new = particles.with_(**changes)
-        if kicks is None:
-            return new
-        m = particles.mass.astype(np.float64)
-        moment = kick_moment[:, 0] * m if d == 2 else kick_moment * m[:, None]
-        return new, (kick_sum * m[:, None], moment)
+        return new if kicks is None else (new, (kick_sum, kick_moment))
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):

@@ -349,9 +349,10 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
     (:func:`gather_modes`).
     ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
     from the force. With conservative interfaces (:mod:`mpmref.physics.interface`), ``kick_rows[p]`` is the
-    first row of particle ``p``'s kicks in ``kicks`` (-1: none) and the same gather writes
-    ``kick_sum[p]`` :math:`= \sum_i w_{ip} k_i` and ``kick_moment[p]`` :math:`= \sum_i w_{ip} (x_i - x_p)
-    \times k_i` (one column in 2D, three in 3D), in float64; ``kick_rows`` is empty otherwise. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
+    first row of particle ``p``'s kicks in ``kicks`` (-1: none) and the same gather writes its impulse
+    ``kick_sum[p]`` :math:`= m_p \sum_i w_{ip} k_i` and its moment about the origin ``kick_moment[p]``
+    :math:`= m_p \sum_i w_{ip}\, x_i \times k_i` (one column in 2D, three in 3D), in float64; ``kick_rows`` is
+    empty otherwise. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
     test per particle, so one compiled kernel serves scenes that track F, J or both.
     """
     NEED_B = AFFINE or MLS
@@ -360,7 +361,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index, v_grid,
-            v_tilde, kick_rows, kicks, x_new, v_new, C_new, F_new, J_new, modes_new, kick_sum, kick_moment):
+            v_tilde, kick_rows, kicks, mass, x_new, v_new, C_new, F_new, J_new, modes_new, kick_sum, kick_moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         n_modes = mode_index.shape[0]
         T = x_new.dtype.type
@@ -453,10 +454,14 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                                 mode_index, x_new, v_new, C_new, F_new, J_new, modes_new,
                                 AFFINE, POLY, FLIP, MLS, F_new.shape[0] > 0, J_new.shape[0] > 0)
                 if k_first >= 0:
+                    m = np.float64(mass[p])
+                    xp = (np.float64(x[p, 0]), np.float64(x[p, 1]), np.float64(x[p, 2]) if DIM == 3 else 0.0)
+                    kp3 = (kp[0], kp[1], kp[2] if DIM == 3 else 0.0)
+                    about_origin = axpy(kl, 1.0, cross(xp, kp3), 3)  # moment about the origin, not about x_p
                     for a in range(DIM):
-                        kick_sum[p, a] = kp[a]
+                        kick_sum[p, a] = m * kp[a]
                     for a in range(kick_moment.shape[1]):
-                        kick_moment[p, a] = kl[3 - kick_moment.shape[1] + a]
+                        kick_moment[p, a] = m * about_origin[3 - kick_moment.shape[1] + a]
 
     return g2p
 
@@ -651,3 +656,35 @@ def project_at_wall(v, i, axis, sign, kind, friction):
     for a in range(d):
         if a != axis:
             v[i, a] *= scale
+
+
+@njit(parallel=True, cache=True)
+def class_totals(class_sums, total):
+    """``total[r] = class_sums[0, r] + class_sums[1, r] + class_sums[2, r]``: the node sums of a P2G by
+    particle classes (:mod:`mpmref.physics.interface`), row by row."""
+    for r in prange(total.shape[0]):
+        for c in range(total.shape[1]):
+            total[r, c] = class_sums[0, r, c] + class_sums[1, r, c] + class_sums[2, r, c]
+
+
+@njit(parallel=True, cache=True)
+def node_kicks(class_sums, dt, kappa, kicks):
+    r"""The node kicks of impulse refluxing, row by row (the equations of
+    :func:`mpmref.physics.interface.interface_kicks`): ``kicks[0]`` :math:`= -I_i(A \leftarrow F)/m^A_i` for
+    the active particles, ``kicks[1]`` :math:`= -I_i(A \leftarrow S)/m^S_i` for the coarser shadows, with
+    :math:`I_i(A \leftarrow Y) = (\kappa (m^A (mv)^Y - m^Y (mv)^A) + \Delta t (m^A f^Y - m^Y f^A)) / m_i`;
+    zero where the receiving class (or the node) has no mass."""
+    d = kicks.shape[2]
+    for r in prange(kicks.shape[1]):
+        mA, mF, mS = class_sums[0, r, 0], class_sums[1, r, 0], class_sums[2, r, 0]
+        m = mA + mF + mS
+        for k in range(2):
+            y, receiver = (1, mA) if k == 0 else (2, mS)
+            mY = class_sums[y, r, 0]
+            for a in range(d):
+                if m > 0 and receiver > 0:
+                    exchange = (kappa * (mA * class_sums[y, r, 1 + a] - mY * class_sums[0, r, 1 + a])
+                                + dt * (mA * class_sums[y, r, 1 + d + a] - mY * class_sums[0, r, 1 + d + a])) / m
+                    kicks[k, r, a] = -exchange / receiver
+                else:
+                    kicks[k, r, a] = 0.0

@@ -1,6 +1,7 @@
 """The NumPy backend object: binds the reference stages to one scene."""
 
 from ...physics.catalogue import MATERIALS
+from ...physics.interface import interface_kicks
 from ...physics.materials import kirchhoff_stress_of, wave_speeds_of
 from ..base import MaterialTable, serial_context
 from . import cpic, transfers
@@ -57,6 +58,10 @@ class NumpyBackend:
         tau = self.stress(particles) if contact is None else contact.tau  # CPIC computed it for the ghosts
         return transfers.p2g(particles, tau, self.scene.grid, self.kernel, self.scene.transfer,
                              prepared, contact, classes)
+
+    def interface_kicks(self, grid_state, dt, kappa):
+        """The node kicks of impulse refluxing (:func:`mpmref.physics.interface.interface_kicks`)."""
+        return interface_kicks(grid_state.class_sums, dt, kappa)
 
     def grid_update(self, grid_state, dt, time=0.0):
         return transfers.grid_update(grid_state, self.scene.grid, dt, self.gravity, self.scene.boundary.walls,

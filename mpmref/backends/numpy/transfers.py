@@ -224,12 +224,13 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     ``kicks`` (a level update of asynchronous stepping with conservative interfaces) is ``(classes,
     kick)``: each particle's class and the node kicks (2, N, d) of
     :func:`mpmref.physics.interface.interface_kicks`. In the same gather, the particles of the active and
-    coarser classes collect their impulse and its moment about themselves,
+    coarser classes collect their impulse and its moment about the origin,
 
     .. math:: \delta P_p = m_p \sum_i w_{ip}\, k_i, \qquad
-              \delta L^{rel}_p = m_p \sum_i w_{ip}\, (x_i - x_p) \times k_i,
+              \delta L_p = m_p \sum_i w_{ip}\, x_i \times k_i
+              = x_p \times \delta P_p + m_p \sum_i w_{ip}\, (x_i - x_p) \times k_i,
 
-    and the function returns ``(particles, (dP, dL_rel))``.
+    and the function returns ``(particles, (dP, dL))`` (``dL`` (n, 1) in 2D, (n, 3) in 3D).
 
     Docs: docs/mls_vs_classic.md#consistency-with-apics-affine-field, docs/mls_vs_classic.md#two-gradient-weights,
     docs/mpm_cycle.md#g2p-grid-to-particle, docs/mpm_cycle.md#polypic,
@@ -286,5 +287,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     new = particles.with_(**changes)
     if kicks is None:
         return new
-    m = particles.mass
-    return new, (dP * m[:, None], dL * (m if d == 2 else m[:, None]))
+    m = particles.mass[:, None]
+    dP = dP * m
+    dL = dL.reshape(n, -1) * m + moment(particles.x.astype(np.float64), dP).reshape(n, -1)
+    return new, (dP, dL)
