@@ -1,6 +1,6 @@
 r"""PolyPIC's top mode next to a stencil switch: the cause of the backends' PolyPIC divergence, in a few particles.
 
-Cause (issue 23, measured): where a particle sits within :math:`10^{-5}` cells of the point at which its
+Cause (measured): where a particle sits within :math:`10^{-5}` cells of the point at which its
 stencil switches (:math:`f = 1/2` for the quadratic kernel, :math:`f = 1` or 2 for the cubic), one per-axis
 weight :math:`N_{min}` is tiny and the top orthogonal polynomial :math:`q_{S-1}` is tiny at the other nodes.
 The three-term recurrence forms those small values as differences of O(1) terms, so they carry an absolute

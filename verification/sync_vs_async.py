@@ -33,7 +33,7 @@ from the AsyncMPM reference's reported agreement); at least 3× fewer particle u
 With conservative interfaces, linear momentum (and angular momentum for MLS-MPM) is conserved to
 :math:`10^{-12}` of :math:`\sum_p m_p |v_p|` on the isolated scene and on the balls (round-off of a few
 hundred level updates), and bonded bodies stay within 1 % of sync in energy at every CFL number
-(issue 24's target). The reference treatment's drift is a finding. The balls' end-state difference is a
+(the target set for the conservative treatment). The reference treatment's drift is a finding. The balls' end-state difference is a
 finding too, not a check: synchronous MPM on contact does not converge as Δt shrinks (its transfers
 dissipate per step, measured in the case), so no rate against it can be derived.
 """
@@ -592,7 +592,7 @@ def checks(result):
     if "conservative" in result["params"].interfaces:
         for row in result["bonded"]:
             out.append(Check(f"stork2d (bonded), conservative, CFL {row['cfl']}: max |E_async - E_sync| / E_0",
-                             row["conservative"], "<=", 0.01, "issue 24's target for bonded bodies: within 1 % of "
+                             row["conservative"], "<=", 0.01, "the target for bonded bodies: within 1 % of "
                              "sync at every CFL number"))
     s2 = result[f"stork2d/{result['params'].interfaces[0]}"]
     out.append(Check("stork2d: sync particle updates / async own particle steps",

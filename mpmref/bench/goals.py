@@ -75,7 +75,7 @@ def _cpic(results):
     return (None, "") if r is None else (r["ratio"], f"{r['threads']} thread(s), float64")
 
 
-#: asynchronous stepping: wall time of sync at the finest async step over async (issue 24), per bench case
+#: asynchronous stepping: wall time of sync at the finest async step over async, per bench case
 ASYNC_GOALS = (("stork2d-256", 3.0), ("stork3d-128", 2.5), ("stork2d", 1.5))
 
 

@@ -58,7 +58,10 @@ def momentum_share(spec):
 
 def exchange(sums, dt, kappa, a, y):
     r""":math:`I_i(A \leftarrow Y)` at every node (module docstring), from per-class sums ``sums`` (K, N, 1 + 2d)
-    (mass, momentum, force per class ``a`` and ``y``); (N, d), 0 where a node has no mass."""
+    (mass, momentum, force per class ``a`` and ``y``); (N, d), 0 where a node has no mass.
+
+    Docs: docs/async.md#what-is-conserved-at-level-interfaces
+    """
     d = (sums.shape[-1] - 1) // 2
     m = sums[..., 0]
     total = m.sum(axis=0)
@@ -117,6 +120,8 @@ def apply_registers(v, C, x, mass, dP, dL, inertia):
     :math:`x_p \times m_p v_p + m_p D_p \operatorname{spin}(C_p)`) by :math:`\delta L_p`. ``C`` is ``None`` for
     PIC and FLIP, which carry no affine matrix (and do not conserve angular momentum in any stepping).
     Returns ``(v, C)``, new arrays.
+
+    Docs: docs/async.md#conservative-interfaces
     """
     v = v + dP / mass[:, None]
     if C is None:

@@ -119,6 +119,8 @@ def top_polynomial(w, dx):
     Returns
     -------
     q : (n, d, S)   :math:`q_{S-1}(\delta_k)`;  norm : (n, d)   :math:`\langle q_{S-1}, q_{S-1}\rangle_a`
+
+    Docs: docs/transfers.md#conditioning-of-the-top-modes
     """
     S = w.shape[-1]
     d = difference_stencil(S).astype(w.dtype)

@@ -272,7 +272,10 @@ def apply_registers(idx, x, v, C, mass, dP, dL, inertia):
     .. math:: v_p \mathrel{+}= \delta P_p / m_p, \qquad
               C_p \mathrel{+}= W\big((\delta L_p - x_p \times \delta P_p) / (m_p D_p)\big)
 
-    (``C`` empty for PIC and FLIP; ``dL`` (n, 1) in 2D, (n, 3) in 3D; ``inertia`` :math:`D_p`)."""
+    (``C`` empty for PIC and FLIP; ``dL`` (n, 1) in 2D, (n, 3) in 3D; ``inertia`` :math:`D_p`).
+
+    Docs: docs/async.md#conservative-interfaces
+    """
     d = x.shape[1]
     for k in range(idx.shape[0]):
         p = idx[k]

@@ -106,6 +106,8 @@ def polypic_top_polynomial(w, dx, a, q, norm):
     :math:`q_{S-1}(\delta_k) = \lambda d_k / N_k`, :math:`\lambda = L / \sum_k d_k^2 / N_k`, norm
     :math:`\lambda L`, :math:`L = (S-1)!\,\Delta x^{S-1}`, :math:`d_k = (-1)^{S-1-k}\binom{S-1}{k}`; all zero
     where a weight of the axis is exactly 0 (the tie rule).
+
+    Docs: docs/transfers.md#conditioning-of-the-top-modes
     """
     S = w.shape[1]
     top = S - 1

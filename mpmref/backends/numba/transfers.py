@@ -673,7 +673,10 @@ def node_kicks(class_sums, dt, kappa, kicks):
     :func:`mpmref.physics.interface.interface_kicks`): ``kicks[0]`` :math:`= -I_i(A \leftarrow F)/m^A_i` for
     the active particles, ``kicks[1]`` :math:`= -I_i(A \leftarrow S)/m^S_i` for the coarser shadows, with
     :math:`I_i(A \leftarrow Y) = (\kappa (m^A (mv)^Y - m^Y (mv)^A) + \Delta t (m^A f^Y - m^Y f^A)) / m_i`;
-    zero where the receiving class (or the node) has no mass."""
+    zero where the receiving class (or the node) has no mass.
+
+    Docs: docs/async.md#what-is-conserved-at-level-interfaces
+    """
     d = kicks.shape[2]
     for r in prange(kicks.shape[1]):
         mA, mF, mS = class_sums[0, r, 0], class_sums[1, r, 0], class_sums[2, r, 0]
