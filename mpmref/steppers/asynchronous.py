@@ -160,7 +160,8 @@ class AsynchronousStepper:
 
     def warm_up(self, particles):
         """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on empty
-        index lists: no particle is read or written."""
+        index lists, and with conservative interfaces the level update by classes on one particle at Δt = 0:
+        ``particles`` is not modified."""
         interval = self.interval(self, self.initial_state(particles.select(slice(0, 1))))
         none = np.empty(0, dtype=np.int64)
         at, past = clock_scan(interval.t_p, interval.t)
@@ -175,6 +176,11 @@ class AsynchronousStepper:
         group = interval.group(at, none, none)
         rows = row_views(getattr(group, k) for k in interval.evolving)
         put_rows(interval.pairs(rows, "P"), 0, none)
+        if self.conservative:  # the backend's kernels of a level update by classes, and the registers
+            _, dP, dL = interface_substep(self.backend, group, np.zeros(group.n, dtype=np.int64), 0.0, 0.0)
+            add_rows(interval.dP, at, dP, 0)
+            add_rows(interval.dL, at, dL, 0)
+            interval.apply_registers(at)
 
     # ------------------------------------------------------------------ stepping
     def advance(self, state, dt=None, t_end=None):

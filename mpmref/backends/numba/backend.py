@@ -223,6 +223,11 @@ class NumbaBackend:
                           class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
 
+    @cached_property
+    def _g2p_kicks(self):
+        """The G2P kernel with the kick gather of conservative level interfaces (compiled on first use)."""
+        return transfers.make_g2p(self.cfg, self.block, kicks=True)
+
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
         (:func:`.transfers.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`)."""
@@ -269,9 +274,11 @@ class NumbaBackend:
                 kicks = (kicks[0], np.stack([layout.from_dense(k) for k in kicks[1]]))
         else:
             layout = prepared.layout
+        g2p = self._g2p
         if kicks is None:
             kick_rows, kick, kick_sum, kick_moment = NO_ROWS, np.empty((0, d)), np.empty((0, d)), np.empty((0, 1))
         else:
+            g2p = self._g2p_kicks
             row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
             first = row_of_class[kicks[0]]
             kick_rows = np.where(first >= 0, first * layout.n_rows, -1)
@@ -284,7 +291,7 @@ class NumbaBackend:
         modes_shape = particles.modes.shape if particles.modes is not None else (0, 0, d)
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
-        self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+        g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
                   self.mode_index, v_grid, v_tilde, kick_rows, kick, particles.mass, x_new, v_new, C_new, F_new, J_new,
                   modes_new, kick_sum, kick_moment)
@@ -307,14 +314,17 @@ class NumbaBackend:
 
     # ------------------------------------------------------------------ warm-up
     def compiled_kernels(self):
-        """What :meth:`warm_up` compiles for this scene, as a set: the transfer kernels (one per configuration,
-        shared by every scene that has it), and per dtype the step's other stages, each material law's
-        stress and return map, and the CPIC kernels where there are rigid bodies. A scene whose set lies
+        """What :meth:`warm_up` (and, for asynchronous stepping with conservative interfaces, the stepper's
+        warm-up) compiles for this scene, as a set: the transfer kernels (one per configuration, shared by every
+        scene that has it), and per dtype the step's other stages, each material law's stress and return map,
+        the CPIC kernels where there are rigid bodies, and the G2P kernel with the interfaces' kick gather. A scene whose set lies
         inside what earlier warm-ups compiled finds all of it in the cache."""
         dtype = np.dtype(self.dtype).str
         laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
         cpic_kernels = {(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set()
-        return {self._p2g, self._g2p, dtype} | laws | cpic_kernels
+        t = self.scene.time
+        kicks = {self._g2p_kicks} if t.stepping == "async" and t.interface == "conservative" else set()
+        return {self._p2g, self._g2p, dtype} | laws | cpic_kernels | kicks
 
     def warm_up(self, particles, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.

@@ -55,12 +55,12 @@ def make_p2g(spec, block, fluids_only):
                       fluids_only)
 
 
-def make_g2p(spec, block):
+def make_g2p(spec, block, kicks=False):
     """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (the tracked
-    deformation, F or J, is a run-time choice, so those variants share one compiled kernel); see
-    :func:`g2p_kernel`."""
+    deformation, F or J, is a run-time choice, so those variants share one compiled kernel), with the kick gather
+    of conservative level interfaces if ``kicks``; see :func:`g2p_kernel`."""
     return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
-                      spec.mls_gradient, block)
+                      spec.mls_gradient, block, kicks)
 
 
 @lru_cache(maxsize=None)
@@ -335,7 +335,7 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
+def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
@@ -348,7 +348,8 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
     (:func:`gather_modes`).
     ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
-    from the force. With conservative interfaces (:mod:`mpmref.physics.interface`), ``kick_rows[p]`` is the
+    from the force. With ``KICKS`` (conservative level interfaces, :mod:`mpmref.physics.interface`; a compile-time
+    choice, so the other kernels carry none of it), ``kick_rows[p]`` is the
     first row of particle ``p``'s kicks in ``kicks`` (-1: none) and the same gather writes its impulse
     ``kick_sum[p]`` :math:`= m_p \sum_i w_{ip} k_i` and its moment about the origin ``kick_moment[p]``
     :math:`= m_p \sum_i w_{ip}\, x_i \times k_i` (one column in 2D, three in 3D), in float64; ``kick_rows`` is
@@ -378,7 +379,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                     acc[:] = 0.0
                 v_pic, dv_flip = zeros(T, DIM), zeros(T, DIM)
                 B, grad_v = zeros2(T, DIM), zeros2(T, DIM)
-                k_first = kick_rows[p] if kick_rows.shape[0] > 0 else -1  # -1: the particle takes no kick
+                k_first = kick_rows[p] if KICKS else -1  # -1: the particle takes no kick
                 kp, kl = zeros(np.float64, DIM), zeros(np.float64, 3)
                 b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                 b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
