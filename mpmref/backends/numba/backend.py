@@ -224,9 +224,9 @@ class NumbaBackend:
         return state if prepared is not None else dense_with_classes(state)
 
     @cached_property
-    def _g2p_kicks(self):
-        """The G2P kernel with the kick gather of conservative level interfaces (compiled on first use)."""
-        return transfers.make_g2p(self.cfg, self.block, kicks=True)
+    def _kick_gather(self):
+        """The kick gather of conservative level interfaces (compiled on first use)."""
+        return transfers.make_kick_gather(self.cfg, self.block)
 
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
@@ -263,8 +263,9 @@ class NumbaBackend:
         into the rows of the particles' layout first; see the class doc). The new arrays come from the
         backend's :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state
         swaps two sets of them instead of allocating a state per step. With ``kicks`` = ``(classes, kick)``
-        (conservative interfaces; see :func:`mpmref.backends.numpy.transfers.g2p`) the same gather collects
-        each particle's impulse and its moment about the origin, and the result is ``(particles, (dP, dL))``.
+        (conservative interfaces; see :func:`mpmref.backends.numpy.transfers.g2p`) a second gather collects
+        each particle's impulse and its moment about the origin (:func:`.transfers.kick_gather_kernel`: its
+        own pass, so that no other run's G2P compiles it), and the result is ``(particles, (dP, dL))``.
         """
         n, d = particles.x.shape
         if prepared is None:
@@ -274,16 +275,6 @@ class NumbaBackend:
                 kicks = (kicks[0], np.stack([layout.from_dense(k) for k in kicks[1]]))
         else:
             layout = prepared.layout
-        g2p = self._g2p
-        if kicks is None:
-            kick_rows, kick, kick_sum, kick_moment = NO_ROWS, np.empty((0, d)), np.empty((0, d)), np.empty((0, 1))
-        else:
-            g2p = self._g2p_kicks
-            row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
-            first = row_of_class[kicks[0]]
-            kick_rows = np.where(first >= 0, first * layout.n_rows, -1)
-            kick = kicks[1].reshape(-1, d)
-            kick_sum, kick_moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
 
         def shape(name, *full):
             return full if getattr(particles, name) is not None else (0,) * len(full)
@@ -291,16 +282,22 @@ class NumbaBackend:
         modes_shape = particles.modes.shape if particles.modes is not None else (0, 0, d)
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
-        g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+        self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
-                  self.mode_index, v_grid, v_tilde, kick_rows, kick, particles.mass, x_new, v_new, C_new, F_new, J_new,
-                  modes_new, kick_sum, kick_moment)
+                  self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
                 changes[name] = array
         new = particles.with_(**changes)
-        return new if kicks is None else (new, (kick_sum, kick_moment))
+        if kicks is None:
+            return new
+        row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
+        first = row_of_class[kicks[0]]
+        impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
+        self._kick_gather(particles.x, particles.mass, self.origin, self.dx, layout.slot_of, layout.table_strides,
+                          np.where(first >= 0, first * layout.n_rows, -1), kicks[1].reshape(-1, d), impulse, moment)
+        return new, (impulse, moment)
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):
@@ -317,13 +314,13 @@ class NumbaBackend:
         """What :meth:`warm_up` (and, for asynchronous stepping with conservative interfaces, the stepper's
         warm-up) compiles for this scene, as a set: the transfer kernels (one per configuration, shared by every
         scene that has it), and per dtype the step's other stages, each material law's stress and return map,
-        the CPIC kernels where there are rigid bodies, and the G2P kernel with the interfaces' kick gather. A scene whose set lies
+        the CPIC kernels where there are rigid bodies, and the interfaces' kick gather. A scene whose set lies
         inside what earlier warm-ups compiled finds all of it in the cache."""
         dtype = np.dtype(self.dtype).str
         laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
         cpic_kernels = {(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set()
         t = self.scene.time
-        kicks = {self._g2p_kicks} if t.stepping == "async" and t.interface == "conservative" else set()
+        kicks = {self._kick_gather} if t.stepping == "async" and t.interface == "conservative" else set()
         return {self._p2g, self._g2p, dtype} | laws | cpic_kernels | kicks
 
     def warm_up(self, particles, per_material=2):

@@ -55,12 +55,17 @@ def make_p2g(spec, block, fluids_only):
                       fluids_only)
 
 
-def make_g2p(spec, block, kicks=False):
+def make_g2p(spec, block):
     """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (the tracked
-    deformation, F or J, is a run-time choice, so those variants share one compiled kernel), with the kick gather
-    of conservative level interfaces if ``kicks``; see :func:`g2p_kernel`."""
+    deformation, F or J, is a run-time choice, so those variants share one compiled kernel); see
+    :func:`g2p_kernel`."""
     return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
-                      spec.mls_gradient, block, kicks)
+                      spec.mls_gradient, block)
+
+
+def make_kick_gather(spec, block):
+    """The kick gather of conservative level interfaces for a configuration; see :func:`kick_gather_kernel`."""
+    return kick_gather_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, block)
 
 
 @lru_cache(maxsize=None)
@@ -335,7 +340,7 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
+def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
@@ -348,12 +353,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
     (:func:`gather_modes`).
     ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
-    from the force. With ``KICKS`` (conservative level interfaces, :mod:`mpmref.physics.interface`; a compile-time
-    choice, so the other kernels carry none of it), ``kick_rows[p]`` is the
-    first row of particle ``p``'s kicks in ``kicks`` (-1: none) and the same gather writes its impulse
-    ``kick_sum[p]`` :math:`= m_p \sum_i w_{ip} k_i` and its moment about the origin ``kick_moment[p]``
-    :math:`= m_p \sum_i w_{ip}\, x_i \times k_i` (one column in 2D, three in 3D), in float64; ``kick_rows`` is
-    empty otherwise. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
+    from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
     test per particle, so one compiled kernel serves scenes that track F, J or both.
     """
     NEED_B = AFFINE or MLS
@@ -362,7 +362,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index, v_grid,
-            v_tilde, kick_rows, kicks, mass, x_new, v_new, C_new, F_new, J_new, modes_new, kick_sum, kick_moment):
+            v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         n_modes = mode_index.shape[0]
         T = x_new.dtype.type
@@ -379,8 +379,6 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
                     acc[:] = 0.0
                 v_pic, dv_flip = zeros(T, DIM), zeros(T, DIM)
                 B, grad_v = zeros2(T, DIM), zeros2(T, DIM)
-                k_first = kick_rows[p] if KICKS else -1  # -1: the particle takes no kick
-                kp, kl = zeros(np.float64, DIM), zeros(np.float64, 3)
                 b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                 b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                 d0, d1 = cast(offsets(f0, dx, S), T, S), cast(offsets(f1, dx, S), T, S)
@@ -411,10 +409,6 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
                                 dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
                             if POLY:
                                 gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
-                            if k_first >= 0:
-                                kick = scaled(row(kicks, k_first + idx, DIM), w, DIM)
-                                kp = axpy(kp, 1.0, kick, DIM)
-                                kl = (kl[0], kl[1], kl[2] + d0[i] * kick[1] - d1[j] * kick[0])
                 else:
                     b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                     d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
@@ -447,22 +441,9 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK, KICKS):
                                     dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
                                 if POLY:
                                     gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
-                                if k_first >= 0:
-                                    kick = scaled(row(kicks, k_first + idx, DIM), w, DIM)
-                                    kp = axpy(kp, 1.0, kick, DIM)
-                                    kl = axpy(kl, 1.0, cross((d0[i], d1[j], d2[l]), kick), 3)
                 finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
                                 mode_index, x_new, v_new, C_new, F_new, J_new, modes_new,
                                 AFFINE, POLY, FLIP, MLS, F_new.shape[0] > 0, J_new.shape[0] > 0)
-                if k_first >= 0:
-                    m = np.float64(mass[p])
-                    xp = (np.float64(x[p, 0]), np.float64(x[p, 1]), np.float64(x[p, 2]) if DIM == 3 else 0.0)
-                    kp3 = (kp[0], kp[1], kp[2] if DIM == 3 else 0.0)
-                    about_origin = axpy(kl, 1.0, cross(xp, kp3), 3)  # moment about the origin, not about x_p
-                    for a in range(DIM):
-                        kick_sum[p, a] = m * kp[a]
-                    for a in range(kick_moment.shape[1]):
-                        kick_moment[p, a] = m * about_origin[3 - kick_moment.shape[1] + a]
 
     return g2p
 
@@ -692,3 +673,69 @@ def node_kicks(class_sums, dt, kappa, kicks):
                     kicks[k, r, a] = -exchange / receiver
                 else:
                     kicks[k, r, a] = 0.0
+
+
+@lru_cache(maxsize=None)
+def kick_gather_kernel(DIM, KERNEL, S, BLOCK):
+    r"""The kick gather of conservative level interfaces (:mod:`mpmref.physics.interface`), a pass of its own
+    after G2P, so that the G2P kernels of every other run compile without it.
+
+    The returned ``gather(x, mass, origin, dx, slot_of, table_strides, kick_rows, kicks, impulse, moment)``
+    writes, for each particle ``p`` with ``kick_rows[p] >= 0`` (the first row of its class's kicks in
+    ``kicks``), its impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[p]`` and its moment about
+    the origin :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`
+    into ``moment[p]`` (one column in 2D, three in 3D), in float64; the nodes are the rows of a
+    :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`.
+
+    Docs: docs/async.md#conservative-interfaces
+    """
+    SOURCES = SOURCE_DIGEST
+    N = BLOCK**DIM
+
+    @njit(parallel=True, cache=True, fastmath={"contract"})
+    def gather(x, mass, origin, dx, slot_of, table_strides, kick_rows, kicks, impulse, moment):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
+        for p in prange(x.shape[0]):
+            first = kick_rows[p]
+            if first < 0:
+                continue
+            kp, kl = zeros(np.float64, DIM), zeros(np.float64, 3)
+            b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
+            b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
+            if DIM == 2:
+                k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
+                l0, l1 = b0 % BLOCK, b1 % BLOCK
+                c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
+                r1 = local_rows(l1, BLOCK, 1, N, S)
+                for i in range(S):
+                    row_i = (k1 if c0[i] else k0) + r0[i] + first
+                    for j in range(S):
+                        kick = scaled(row(kicks, row_i + r1[j], DIM), w0[i] * w1[j], DIM)
+                        kp = axpy(kp, 1.0, kick, DIM)
+                        kl = (kl[0], kl[1], kl[2] + d0[i] * kick[1] - d1[j] * kick[0])
+            else:
+                b2, f2, w2, _ = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
+                d2 = offsets(f2, dx, S)
+                k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
+                l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
+                c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
+                r0, r1 = local_rows(l0, BLOCK, BLOCK * BLOCK, 0, S), local_rows(l1, BLOCK, BLOCK, 0, S)
+                r2 = local_rows(l2, BLOCK, 1, N, S)
+                for i in range(S):
+                    ka, kb = (k10, k11) if c0[i] else (k00, k01)
+                    for j in range(S):
+                        row_ij = (kb if c1[j] else ka) + r0[i] + r1[j] + first
+                        for l in range(S):
+                            kick = scaled(row(kicks, row_ij + r2[l], DIM), w0[i] * w1[j] * w2[l], DIM)
+                            kp = axpy(kp, 1.0, kick, DIM)
+                            kl = axpy(kl, 1.0, cross((d0[i], d1[j], d2[l]), kick), 3)
+            m = np.float64(mass[p])
+            xp = (np.float64(x[p, 0]), np.float64(x[p, 1]), np.float64(x[p, 2]) if DIM == 3 else 0.0)
+            about_origin = axpy(kl, 1.0, cross(xp, (kp[0], kp[1], kp[2] if DIM == 3 else 0.0)), 3)
+            for a in range(DIM):
+                impulse[p, a] = m * kp[a]
+            for a in range(moment.shape[1]):
+                moment[p, a] = m * about_origin[3 - moment.shape[1] + a]
+
+    return gather
