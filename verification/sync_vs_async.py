@@ -92,7 +92,7 @@ class Params:
         return cls(census_ticks=10_000, ball_cells=24, ball_t_end=0.04, stork_t_end=0.002, stork3d_t_end=0.001,
                    stork3d_cells=24, frames=3, series_cfls=(0.4, 0.2, 0.1, 0.05),
                    series_t_end=0.03, trade_cfls=(0.4,), trade_levels=(4, 7), trade_reference_division=4,
-                   trade_sync_divisions=(1, 2), bonded_interfaces=("conservative",), bonded_cfls=(0.4, 0.1),
+                   trade_sync_divisions=(1, 2), bonded_interfaces=("conservative",), bonded_cfls=(0.4, 0.2),
                    series_finer_rows=1, series_interfaces=("conservative",))
 
     @classmethod
