@@ -21,34 +21,20 @@ def row_views(arrays):
 
 
 @njit(cache=True)
-def copy_rows(pairs, src_idx, dst_start):
-    """``dst[dst_start + k] = src[src_idx[k]]`` for every ``(src, dst)`` pair of row views (a gather)."""
+def move_rows(pairs, src_idx, dst_idx):
+    """``dst[dst_idx[k]] = src[src_idx[k]]`` for every ``(src, dst)`` pair of row views: a gather, a scatter or a
+    copy between stores of the same rows (one function for all three, so each kind of store compiles once)."""
     for pair in literal_unroll(pairs):
         src, dst = pair
         for k in range(src_idx.shape[0]):
+            i, j = src_idx[k], dst_idx[k]
             for c in range(src.shape[1]):
-                dst[dst_start + k, c] = src[src_idx[k], c]
+                dst[j, c] = src[i, c]
 
 
-@njit(cache=True)
-def put_rows(pairs, src_start, dst_idx):
-    """``dst[dst_idx[k]] = src[src_start + k]`` for every ``(src, dst)`` pair of row views (a scatter)."""
-    for pair in literal_unroll(pairs):
-        src, dst = pair
-        for k in range(dst_idx.shape[0]):
-            for c in range(src.shape[1]):
-                dst[dst_idx[k], c] = src[src_start + k, c]
-
-
-@njit(cache=True)
-def same_rows(pairs, idx):
-    """``dst[i] = src[i]`` for every ``i`` in ``idx`` and every ``(src, dst)`` pair of row views."""
-    for pair in literal_unroll(pairs):
-        src, dst = pair
-        for k in range(idx.shape[0]):
-            i = idx[k]
-            for c in range(src.shape[1]):
-                dst[i, c] = src[i, c]
+def span(start, n):
+    """The rows ``start .. start + n - 1`` of a group, as an index array for :func:`move_rows`."""
+    return np.arange(start, start + n, dtype=np.int64)
 
 
 @njit(cache=True)

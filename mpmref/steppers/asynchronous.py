@@ -54,8 +54,8 @@ import numpy as np
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import Particles, State
-from .async_kernels import (add_rows, apply_registers, boundary_nodes, clock_scan, copy_rows, particle_steps,
-                            put_rows, relevel_blocks, row_views, same_rows, shadow_nodes, step_limits, zone_members)
+from .async_kernels import (add_rows, apply_registers, boundary_nodes, clock_scan, move_rows, particle_steps,
+                            relevel_blocks, row_views, shadow_nodes, span, step_limits, zone_members)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, interface_substep, substep
 
@@ -170,12 +170,12 @@ class AsynchronousStepper:
         step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
         particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
         relevel_blocks(interval.block_dt, interval.owner, none, np.empty(0), 0, self.max_units)
-        same_rows(interval.pairs("P", "shadow"), none)
+        move_rows(interval.pairs("P", "shadow"), none, none)
         shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t)
         zone_members(at, interval.base, none, interval.shadow_base, self.reach, self.node_shape)
         group = interval.group(at, none, none)
         rows = row_views(getattr(group, k) for k in interval.evolving)
-        put_rows(interval.pairs(rows, "P"), 0, none)
+        move_rows(interval.pairs(rows, "P"), none, none)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
             _, dP, dL = interface_substep(self.backend, group, np.zeros(group.n, dtype=np.int64), 0.0, 0.0)
             add_rows(interval.dP, at, dP, 0)
@@ -275,7 +275,7 @@ class _Interval:
         self.block_dt = relevel_blocks(self.block_dt, self.owner, at, limit, t, s.max_units)
         taken = particle_steps(at, self.block_dt, self.owner, alignment(t, s.max_units), limit, self.dt_p)
         self.finest = min(self.finest, taken & -taken)
-        same_rows(self.pairs("P", "shadow"), at)
+        move_rows(self.pairs("P", "shadow"), at, at)
         mid = [past]  # mid-step particles, whose shadows may be ghosts; each update adds its own
         proposals = []  # (shadow indices, end tick) of each update, coarse first
         steps = self.dt_p[at]
@@ -309,7 +309,7 @@ class _Interval:
         """
         s = self.s
         for idx, end in proposals:
-            same_rows(self.pairs("proposed", "shadow"), idx)
+            move_rows(self.pairs("proposed", "shadow"), idx, idx)
             shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t)
 
     def group(self, active, level_ghosts, shadow_ghosts):
@@ -319,9 +319,10 @@ class _Interval:
         arrays = {k: np.empty((members.size,) + a.shape[1:], dtype=a.dtype) for k, a in self.P.arrays().items()
                   if k in self.evolving or k in self.constant}
         evolving = row_views(arrays[k] for k in self.evolving)
-        copy_rows(self.pairs("P_constant", row_views(arrays[k] for k in self.constant)), members, 0)
-        copy_rows(self.pairs("P", evolving), members[:active.size + level_ghosts.size], 0)
-        copy_rows(self.pairs("shadow", evolving), shadow_ghosts, active.size + level_ghosts.size)
+        own = active.size + level_ghosts.size
+        move_rows(self.pairs("P_constant", row_views(arrays[k] for k in self.constant)), members, span(0, members.size))
+        move_rows(self.pairs("P", evolving), members[:own], span(0, own))
+        move_rows(self.pairs("shadow", evolving), shadow_ghosts, span(own, shadow_ghosts.size))
         return Particles(**arrays)
 
     def update_level(self, D, active, waiting, mid):
@@ -356,8 +357,8 @@ class _Interval:
             s.ghost_stage_seconds += elapsed
             s.ghost_level_updates += 1
         result_rows = row_views(getattr(result, k) for k in self.evolving)
-        put_rows(self.pairs(result_rows, "P"), 0, active)
-        put_rows(self.pairs(result_rows, "proposed"), first_shadow, shadow_ghosts)
+        move_rows(self.pairs(result_rows, "P"), span(0, n_active), active)
+        move_rows(self.pairs(result_rows, "proposed"), span(first_shadow, shadow_ghosts.size), shadow_ghosts)
         self.P.level[active] = int(D).bit_length() - 1
         self.t_p[active] = t + D
         self.updates += group.n
