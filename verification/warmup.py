@@ -28,7 +28,6 @@ import multiprocessing
 from dataclasses import dataclass
 
 from mpmref.backends import make_backend
-from mpmref.steppers import AsynchronousStepper
 from mpmref.bodies import sample_particles
 
 from . import registry
@@ -76,17 +75,6 @@ def scenes_to_compile(names, preset, backend):
     return plan(names, preset, backend)[0]
 
 
-def warm_up_scene(name, scene):
-    """Compile (or load) the kernels of one scene: the backend's stages where it compiles any, and an
-    asynchronous stepper's bookkeeping."""
-    backend = make_backend(name, scene)
-    particles = sample_particles(scene)
-    if hasattr(backend, "warm_up"):
-        backend.warm_up(particles)
-    if scene.time.stepping == "async":
-        AsynchronousStepper(scene, backend).warm_up(particles)
-
-
 def compile_scenes(names, preset, backend, queue=None, from_back=False, done=None):
     """Compile (or load) every kernel of :func:`scenes_to_compile` with one Δt = 0 step of each scene; with a
     ``queue`` (shared ``[front, back)`` bounds, see :func:`start`), only the scenes this worker claims, each
@@ -95,7 +83,7 @@ def compile_scenes(names, preset, backend, queue=None, from_back=False, done=Non
     queue = queue if queue is not None else multiprocessing.Array("i", [0, len(scenes)])
     while (index := claim(queue, from_back)) is not None:
         name, scene = scenes[index]
-        warm_up_scene(name, scene)
+        make_backend(name, scene).warm_up(sample_particles(scene))
         if done is not None:
             done[index] = 1
 

@@ -311,17 +311,14 @@ class NumbaBackend:
 
     # ------------------------------------------------------------------ warm-up
     def compiled_kernels(self):
-        """What :meth:`warm_up` (and, for asynchronous stepping with conservative interfaces, the stepper's
-        warm-up) compiles for this scene, as a set: the transfer kernels (one per configuration, shared by every
-        scene that has it), and per dtype the step's other stages, each material law's stress and return map,
-        the CPIC kernels where there are rigid bodies, and the interfaces' kick gather. A scene whose set lies
+        """What :meth:`warm_up` compiles for this scene, as a set: the transfer kernels (one per configuration,
+        shared by every scene that has it), and per dtype the step's other stages, each material law's
+        stress and return map, and the CPIC kernels where there are rigid bodies. A scene whose set lies
         inside what earlier warm-ups compiled finds all of it in the cache."""
         dtype = np.dtype(self.dtype).str
         laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
         cpic_kernels = {(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set()
-        t = self.scene.time
-        kicks = {self._kick_gather} if t.stepping == "async" and t.interface == "conservative" else set()
-        return {self._p2g, self._g2p, dtype} | laws | cpic_kernels | kicks
+        return {self._p2g, self._g2p, dtype} | laws | cpic_kernels
 
     def warm_up(self, particles, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.
