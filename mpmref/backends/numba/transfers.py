@@ -640,16 +640,17 @@ def project_at_wall(v, i, axis, sign, kind, friction):
             v[i, a] *= scale
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def class_totals(class_sums, total):
     """``total[r] = class_sums[0, r] + class_sums[1, r] + class_sums[2, r]``: the node sums of a P2G by
-    particle classes (:mod:`mpmref.physics.interface`), row by row."""
-    for r in prange(total.shape[0]):
+    particle classes (:mod:`mpmref.physics.interface`), row by row (serial: a pass over memory, which a second
+    thread hardly speeds up, and a parallel loop takes seconds longer to compile)."""
+    for r in range(total.shape[0]):
         for c in range(total.shape[1]):
             total[r, c] = class_sums[0, r, c] + class_sums[1, r, c] + class_sums[2, r, c]
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True)
 def node_kicks(class_sums, dt, kappa, kicks):
     r"""The node kicks of impulse refluxing, row by row (the equations of
     :func:`mpmref.physics.interface.interface_kicks`): ``kicks[0]`` :math:`= -I_i(A \leftarrow F)/m^A_i` for
@@ -660,7 +661,7 @@ def node_kicks(class_sums, dt, kappa, kicks):
     Docs: docs/async.md#what-is-conserved-at-level-interfaces
     """
     d = kicks.shape[2]
-    for r in prange(kicks.shape[1]):
+    for r in range(kicks.shape[1]):
         mA, mF, mS = class_sums[0, r, 0], class_sums[1, r, 0], class_sums[2, r, 0]
         m = mA + mF + mS
         for k in range(2):
