@@ -149,7 +149,7 @@ class Grid:
     def node_shape(self):
         return tuple(c + 1 for c in self.cells)
 
-    @property
+    @cached_property
     def n_nodes(self):
         return int(np.prod(self.node_shape))
 

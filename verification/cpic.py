@@ -68,6 +68,7 @@ from mpmref.physics.rigid_dynamics import current_shapes
 from mpmref.physics.trimesh import TriMesh, triangle_frame, validate_trimesh
 
 from .common import Check, Finding, checks_table
+from .executor import Executor
 from .report import pyplot, save_figure, snapshot, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
@@ -102,7 +103,7 @@ class Params:
 
     @classmethod
     def quick(cls):
-        return cls(cells=32, drop_t_end=0.5, sand_t_end=0.15, ball_t_end=0.1, cut_t_end=0.6, friction_t_end=0.45,
+        return cls(cells=32, drop_t_end=0.5, sand_t_end=0.15, ball_t_end=0.1, cut_t_end=0.45, friction_t_end=0.45,
                    extended=False, cut3d_cells=16, cut3d_t_end=0.1, wheel_cells=48, wheel_t_end=0.4)
 
     @classmethod
@@ -420,15 +421,9 @@ def components(x, link):
 
 
 # --------------------------------------------------------------------------------------------- parts
-def no_crossing(params):
-    drop = run_watching(drop_scene(params), params.frames, backend=params.backend)[1]
-    sand = run_watching(sand_scene(params), params.frames, backend=params.backend)[1]
-    impact = run_watching(impact_scene(params), params.frames, backend=params.backend)[1]
-    out = {"drop": drop, "sand": sand, "impact": impact}
-    if params.extended:  # the reference's default pushing force, for comparison
-        out["sand_2e4"] = run_watching(sand_scene(params, pushing_force=2e4), params.frames,
-                                       backend=params.backend)[1]
-    return out
+def watch(params, make_scene, **scene_kwargs):
+    """The crossings record of :func:`run_watching` for ``make_scene(params, **scene_kwargs)``."""
+    return run_watching(make_scene(params, **scene_kwargs), params.frames, backend=params.backend)[1]
 
 
 def momentum_run(params, exact, ghost_force=True):
@@ -487,18 +482,43 @@ def friction(params, ghost_force=True):
     return out
 
 
-def run(params=Params(), backend="numpy"):
-    """Every part of the case, every simulation on ``backend``."""
+def parts(params):
+    """``{key: (function, args)}``: the case's independent simulations, each a call ``function(params, *args)``
+    returning its record; the longest first (they run through an :class:`~verification.executor.Executor`)."""
+    jobs = {"wheel": (sand_wheel, ()), "drop": (watch, (drop_scene,)), "cut": (cutting, ()),
+            "exact": (momentum_run, (True,)), "default": (momentum_run, (False,)), "impact": (watch, (impact_scene,)),
+            "friction": (friction, ()), "cut3d": (cutting3d, ()), "sand": (watch, (sand_scene,))}
+    if params.extended:
+        jobs.update({"exact_reference": (momentum_run, (True, False)), "friction_reference": (friction, (False,)),
+                     "rotor": (watch, (rotor_scene,)), "sand_2e4": (_sand_2e4, ())})
+        jobs.update({f"baseline/{kind}/{width}": (baseline, (kind, width)) for kind, width in BASELINES})
+    return jobs
+
+
+def _sand_2e4(params):
+    """The blade through sand with the reference's default pushing force, for comparison."""
+    return watch(params, sand_scene, pushing_force=2e4)
+
+
+def run_part(job):
+    """``function(params, *args)`` of one entry of :func:`parts` (module level: picklable for the executor)."""
+    function, params, args = job
+    return function(params, *args)
+
+
+def run(params=Params(), backend="numpy", executor=None):
+    """Every part of the case, every simulation on ``backend``, the independent runs through ``executor``
+    (default: in this process)."""
     params = replace(params, backend=backend)
-    return {"params": params, "backend": backend, "no_crossing": no_crossing(params),
-            "exact": momentum_run(params, exact=True), "default": momentum_run(params, exact=False),
-            "exact_reference": momentum_run(params, exact=True, ghost_force=False) if params.extended else None,
-            "cut": cutting(params), "cut3d": cutting3d(params), "friction": friction(params),
-            "friction_reference": friction(params, ghost_force=False) if params.extended else None,
-            "baselines": [baseline(params, kind, width) for kind, width in BASELINES] if params.extended else [],
-            "rotor": (run_watching(rotor_scene(params), params.frames, backend=params.backend)[1]
-                      if params.extended else None),
-            "wheel": sand_wheel(params)}
+    jobs = parts(params)
+    done = dict(zip(jobs, (executor or Executor(workers=1)).map(
+        run_part, [(function, params, args) for function, args in jobs.values()])))
+    no_crossing = {key: done[key] for key in ("drop", "sand", "impact", "sand_2e4") if key in done}
+    return {"params": params, "backend": backend, "no_crossing": no_crossing, "exact": done["exact"],
+            "default": done["default"], "exact_reference": done.get("exact_reference"), "cut": done["cut"],
+            "cut3d": done["cut3d"], "friction": done["friction"], "friction_reference": done.get("friction_reference"),
+            "baselines": [done[f"baseline/{kind}/{width}"] for kind, width in BASELINES] if params.extended else [],
+            "rotor": done.get("rotor"), "wheel": done["wheel"]}
 
 
 # ------------------------------------------------------------------------------------------ checks

@@ -109,7 +109,7 @@ class Params:
 
     @classmethod
     def quick(cls):
-        return cls(cells=32, steps=400)
+        return cls(cells=32, steps=200)
 
     @classmethod
     def full(cls):

@@ -17,7 +17,8 @@ runs (``RUNS_ALONE = True`` in its module) always waits for the whole warm-up: c
 core would slow what it measures.
 
 The queue (:func:`plan`) holds one scene per set of kernels not yet compiled by the scenes before it
-(``compiled_kernels()`` of the backend), the scenes of cases that may start early first, fewest first.
+(``compiled_kernels()`` of the backend), the scenes of cases that may start early first, fewest first,
+and within a case the scene compiling the most kernels first (the short ones are left for the end).
 Two workers take from it, one from each end, each scene claimed under a lock: the background process
 from the front from the start, and, once the NumPy cases are done and the core they used is free, the
 main process from the back (:func:`wait`). No scene is compiled twice, and the kernels the main process
@@ -50,23 +51,32 @@ def plan(names, preset, backend):
     that compile its kernels (``{name: set}``).
 
     Cases that may start early come first, the one needing the fewest scenes first (it is ready soonest);
-    a scene enters the queue only if it compiles something the scenes before it do not (the kernels a
-    backend's ``compiled_kernels()`` names; a backend without it always enters).
+    within a case, the scene that compiles the most kernels not yet queued comes first, so that the scenes
+    left at the end, which the two workers take from the two ends of the queue, are short ones. A scene
+    enters the queue only if it compiles something the scenes before it do not (the kernels a backend's
+    ``compiled_kernels()`` names; a backend without it always enters).
     """
     declared = {name: declared_scenes(name, preset, backend) for name in names}
     queue, first = [], {}  # first: kernel -> position of the first scene that compiles it
     needs = {}
     for name in sorted((n for n in names if declared[n]), key=lambda n: (runs_alone(n), len(declared[n]))):
         needs[name] = set()
-        for backend_name, scene in declared[name]:
-            compiled = make_backend(backend_name, scene)
-            kernels = compiled.compiled_kernels() if hasattr(compiled, "compiled_kernels") else {id(scene)}
+        pending = [(backend_name, scene, _kernels(backend_name, scene)) for backend_name, scene in declared[name]]
+        while pending:  # the scene compiling the most kernels not yet queued first: the short ones come last
+            backend_name, scene, kernels = pending.pop(max(range(len(pending)),
+                                                           key=lambda i: len(pending[i][2] - first.keys())))
             if not kernels <= first.keys():
                 for kernel in kernels - first.keys():
                     first[kernel] = len(queue)
                 queue.append((backend_name, scene))
             needs[name] |= {first[kernel] for kernel in kernels}
     return queue, needs
+
+
+def _kernels(backend_name, scene):
+    """The compiled kernels a scene runs (``compiled_kernels()`` of its backend; the scene itself without it)."""
+    compiled = make_backend(backend_name, scene)
+    return compiled.compiled_kernels() if hasattr(compiled, "compiled_kernels") else {id(scene)}
 
 
 def scenes_to_compile(names, preset, backend):
@@ -147,13 +157,15 @@ def can_start(warm_up, name):
 
 
 def wait(warm_up, progress):
-    """Compile the scenes still queued from the back here, beside the background process, then wait for it
-    (a line through ``progress`` when it is still running)."""
+    """Compile the scenes still queued from the back here, beside the background process, then wait until
+    every scene is compiled (a line through ``progress`` when the background process is still running). The
+    process itself may still be shutting down; :func:`stop` ends it."""
     if warm_up is None or not warm_up.is_alive():
         return
     progress("compiling the rest of the kernels here and in the background process (each kernel compiles once)")
     compile_scenes(*warm_up.job, queue=warm_up.queue, from_back=True, done=warm_up.done)
-    warm_up.process.join()
+    while warm_up.is_alive() and not all(warm_up.done):
+        warm_up.process.join(timeout=0.05)
 
 
 def stop(warm_up):

@@ -105,11 +105,8 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes
     m, d = particles.mass, grid.dim
     n_bins = grid.n_nodes * (N_CLASSES if classes is not None else 1)
     stress_volume = particles.vol0[:, None, None] * tau
-    mass = np.zeros(n_bins)
-    momentum = np.zeros((n_bins, d))
-    force = np.zeros((n_bins, d))
-    rejected_momentum = np.zeros((grid.n_nodes, d)) if contact is not None else None
-    rejected_force = np.zeros((grid.n_nodes, d)) if contact is not None else None
+    sums = np.zeros((n_bins, 1 + 2 * d))  # per node: mass, momentum, force
+    rejected = np.zeros((grid.n_nodes, 2 * d)) if contact is not None else None  # momentum, force
     for k, offset in enumerate(st.offsets):
         idx = node_index(st, offset, grid)
         w = st.node_weight(offset)
@@ -117,9 +114,9 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes
         gw = gradient_weight(st, w, dpos, offset)
         if contact is not None:
             keep = contact.compatible[k]
-            rejected = w * m * ~keep
-            rejected_momentum += scatter(idx, rejected[:, None] * (contact.v_star - contact.ghost[k]), grid.n_nodes)
-            rejected_force -= scatter(idx, np.einsum("nab,nb->na", stress_volume, gw * ~keep[:, None]), grid.n_nodes)
+            kept_out = (w * m * ~keep)[:, None] * (contact.v_star - contact.ghost[k])
+            rejected += scatter(idx, np.concatenate(
+                [kept_out, -np.einsum("nab,nb->na", stress_volume, gw * ~keep[:, None])], axis=1), grid.n_nodes)
             w, gw = w * keep, gw * keep[:, None]
         p_mom = particles.v
         if spec.affine:
@@ -127,19 +124,19 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes
         if basis is not None:
             p_mom = p_mom + np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]), particles.modes)
         bins = idx if classes is None else classes * grid.n_nodes + idx  # each class has its own nodes
-        mass += scatter(bins, w * m, n_bins)
-        momentum += scatter(bins, (w * m)[:, None] * p_mom, n_bins)
-        force -= scatter(bins, np.einsum("nab,nb->na", stress_volume, gw), n_bins)
+        wm = w * m
+        sums += scatter(bins, np.concatenate(
+            [wm[:, None], wm[:, None] * p_mom, -np.einsum("nab,nb->na", stress_volume, gw)], axis=1), n_bins)
     class_sums = None
     if classes is not None:
-        class_sums = np.concatenate([mass[:, None], momentum, force], axis=1).reshape(N_CLASSES, grid.n_nodes, 1 + 2 * d)
-        mass, momentum, force = (np.ascontiguousarray(a) for a in (
-            class_sums[0, :, 0] + class_sums[1, :, 0] + class_sums[2, :, 0],
-            class_sums[0, :, 1:1 + d] + class_sums[1, :, 1:1 + d] + class_sums[2, :, 1:1 + d],
-            class_sums[0, :, 1 + d:] + class_sums[1, :, 1 + d:] + class_sums[2, :, 1 + d:]))
+        class_sums = sums.reshape(N_CLASSES, grid.n_nodes, 1 + 2 * d)
+        sums = class_sums[0] + class_sums[1] + class_sums[2]
     dtype = particles.x.dtype
-    return GridState(mass=mass.astype(dtype), momentum=momentum.astype(dtype), force=force.astype(dtype),
-                     rejected_momentum=rejected_momentum, rejected_force=rejected_force, class_sums=class_sums)
+    return GridState(mass=sums[:, 0].astype(dtype), momentum=sums[:, 1:1 + d].astype(dtype),
+                     force=sums[:, 1 + d:].astype(dtype),
+                     rejected_momentum=None if rejected is None else np.ascontiguousarray(rejected[:, :d]),
+                     rejected_force=None if rejected is None else np.ascontiguousarray(rejected[:, d:]),
+                     class_sums=class_sums)
 
 
 def polypic_basis(stencil, grid):
