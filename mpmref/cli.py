@@ -140,13 +140,17 @@ def _open_simulation(scene, args, out_dir):
 def _warm_up(sim):
     """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene before the timed
     run, saying so and how long it took."""
-    warm_ups = [w for w in (getattr(sim.backend, "warm_up", None), getattr(sim.stepper, "warm_up", None)) if w]
-    if not warm_ups:
+    from .steppers.pipeline import substep
+
+    backend, stepper = getattr(sim.backend, "warm_up", None), getattr(sim.stepper, "warm_up", None)
+    if backend is None and stepper is None:
         return
     print("mpmref: compiling kernels for this scene…", end="", file=sys.stderr, flush=True)
     start = time.perf_counter()
-    for warm_up in warm_ups:
-        warm_up(sim.particles)
+    if backend is not None:
+        backend(sim.particles, substep)
+    if stepper is not None:
+        stepper(sim.particles)
     print(f" done in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
 
 

@@ -11,7 +11,7 @@ import pytest
 from helpers import valid_methods
 from mpmref.backends import BACKENDS
 from mpmref.backends.numpy import NumpyBackend
-from mpmref.conformance import (STAGES, Case, add_parser, check, export, load_vectors, make_cases,
+from mpmref.conformance import (CONFORMANCE_STAGES, Case, add_parser, check, export, load_vectors, make_cases,
                                 relative_error)
 from mpmref.conformance.cases import DEFAULT_RTOL, EDGE_CELLS, MIN_WEIGHT
 from mpmref.physics.kernels import compute_stencil
@@ -46,7 +46,7 @@ def test_cases_cover_every_valid_combination():
         assert {w.type for s in scenes for w in s.boundary.walls.values()} == set(WALL_TYPES)
         shapes = {type(k.shape).__name__ for s in scenes for k in s.colliders}
         assert len(shapes) == len(COLLIDER_SHAPES) - 1 - (dim == 2)  # disk and sphere are one class
-    assert {c.stage for c in ALL_CASES} == set(STAGES)
+    assert {c.stage for c in ALL_CASES} == set(CONFORMANCE_STAGES)
     assert len({c.name for c in ALL_CASES}) == len(ALL_CASES) == 174
 
 
@@ -110,7 +110,7 @@ def conformance_runs():
     is most of what the default run could spare."""
     return [pytest.param(backend, dim, stage, marks=[pytest.mark.slow] if backend != "numpy" and dim == 3 else [],
                          id=f"{backend}-{dim}d-{stage}")
-            for backend in BACKENDS for dim in (2, 3) for stage in STAGES]
+            for backend in BACKENDS for dim in (2, 3) for stage in CONFORMANCE_STAGES]
 
 
 @pytest.mark.parametrize("backend, dim, stage", conformance_runs())
@@ -163,7 +163,7 @@ def test_mapping_candidate_skips_missing_stages_and_reports_exceptions():
 
     candidate = {"stress": lambda scene, particles: NumpyBackend(scene).stress(particles), "p2g": broken_p2g}
     report = check(candidate, ALL_CASES)
-    assert {c.stage for c in report.skipped} == set(STAGES) - {"stress", "p2g"}
+    assert {c.stage for c in report.skipped} == set(CONFORMANCE_STAGES) - {"stress", "p2g"}
     assert all(r.passed for r in report.results if r.case.stage == "stress")
     assert report.failed_stages() == {"p2g"}
     assert all("RuntimeError: not implemented" in r.note for r in report.failures())

@@ -11,10 +11,10 @@ from mpmref import Scene, Simulation
 from mpmref.backends.numba import backend as numba_backend
 from mpmref.backends.numpy import NumpyBackend
 from mpmref.cli import main
-from mpmref.conformance import CPIC_STAGES, check, make_cases
+from mpmref.conformance import CPIC_CONFORMANCE_STAGES, check, make_cases
 from mpmref.physics.cdf import update_tags
 
-CPIC_CASES = make_cases(dims=(2,), stages=CPIC_STAGES)
+CPIC_CASES = make_cases(dims=(2,), stages=CPIC_CONFORMANCE_STAGES)
 #: the default run checks every stage on three methods (one per kernel, affine and not, both forces); the
 #: slow run checks all of them (a fresh Numba cache compiles two kernels per method)
 QUICK_VARIANTS = {"bodies", "mls-mls-quadratic", "pic-classic-linear", "apic-classic-cubic", "pic-mls-quadratic",
@@ -25,13 +25,13 @@ QUICK_CASES = [c for c in CPIC_CASES if c.variant in QUICK_VARIANTS]
 def test_cpic_cases_cover_every_stage_and_cpic_method():
     from mpmref.conformance.cases import cpic_methods
 
-    assert {c.stage for c in CPIC_CASES} == set(CPIC_STAGES)
+    assert {c.stage for c in CPIC_CASES} == set(CPIC_CONFORMANCE_STAGES)
     labels = {f"{m['scheme']}-{m['force']}-{m['kernel']}" for m in cpic_methods()}
     for stage in ("cpic_p2g", "cpic_g2p", "cpic_step"):
         assert labels <= {c.variant for c in CPIC_CASES if c.stage == stage}
     assert {c.scene().kernel.name for c in CPIC_CASES if c.stage == "cpic_tags"} == {"linear", "quadratic", "cubic"}
-    assert {c.stage for c in QUICK_CASES} == set(CPIC_STAGES)
-    assert make_cases(stages=CPIC_STAGES, dtype="float32") == []
+    assert {c.stage for c in QUICK_CASES} == set(CPIC_CONFORMANCE_STAGES)
+    assert make_cases(stages=CPIC_CONFORMANCE_STAGES, dtype="float32") == []
 
 
 def _reference(stage, variant="pic-mls-quadratic"):
@@ -92,7 +92,7 @@ class AllCompatible(NumpyBackend):
         return particles, contact
 
 
-@pytest.mark.parametrize("candidate, failing", [(ForgetfulTags, set(CPIC_STAGES) - {"cpic_field"}),
+@pytest.mark.parametrize("candidate, failing", [(ForgetfulTags, set(CPIC_CONFORMANCE_STAGES) - {"cpic_field"}),
                                                 (AllCompatible, {"cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step"})])
 def test_broken_cpic_fails_at_the_stages_it_breaks(candidate, failing):
     report = check(candidate, QUICK_CASES)

@@ -8,11 +8,11 @@ import pytest
 
 from mpmref import Scene, Simulation
 from mpmref.backends.numba import backend as numba_backend
-from mpmref.conformance import CPIC_STAGES, check, make_cases
+from mpmref.conformance import CPIC_CONFORMANCE_STAGES, check, make_cases
 
 from test_cpic_numba import AllCompatible, ForgetfulTags, assert_state_follows
 
-CASES_3D = make_cases(dims=(3,), stages=CPIC_STAGES)
+CASES_3D = make_cases(dims=(3,), stages=CPIC_CONFORMANCE_STAGES)
 QUICK_3D = [c for c in CASES_3D if c.variant in ("bodies", "pic-mls-quadratic")]
 
 
@@ -25,7 +25,7 @@ def _reference(stage, variant="pic-mls-quadratic"):
 def test_3d_cpic_cases_cover_every_stage_and_method():
     from mpmref.conformance.cases import cpic_methods
 
-    assert {c.stage for c in CASES_3D} == set(CPIC_STAGES) and all(c.dim == 3 for c in CASES_3D)
+    assert {c.stage for c in CASES_3D} == set(CPIC_CONFORMANCE_STAGES) and all(c.dim == 3 for c in CASES_3D)
     labels = {f"{m['scheme']}-{m['force']}-{m['kernel']}" for m in cpic_methods()}
     for stage in ("cpic_p2g", "cpic_g2p", "cpic_step"):
         assert labels <= {c.variant for c in CASES_3D if c.stage == stage}
@@ -49,7 +49,7 @@ def test_3d_cpic_cases_exercise_every_branch():
     assert np.abs(g2p["penalty_J"]).max() > 1e-3
 
 
-@pytest.mark.parametrize("candidate, failing", [(ForgetfulTags, set(CPIC_STAGES) - {"cpic_field"}),
+@pytest.mark.parametrize("candidate, failing", [(ForgetfulTags, set(CPIC_CONFORMANCE_STAGES) - {"cpic_field"}),
                                                 (AllCompatible, {"cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step"})])
 def test_broken_3d_cpic_fails_at_the_stages_it_breaks(candidate, failing):
     report = check(candidate, QUICK_3D)

@@ -18,6 +18,7 @@ from mpmref.domain import apply_domain_exit
 from mpmref.io.checkpoint import load_checkpoint
 from mpmref.stability import MEASURED_LIMITS, StabilityWarning, first_unbounded, stable_cfl
 from mpmref.state import Particles
+from mpmref.steppers.pipeline import substep
 
 ROOT = Path(__file__).resolve().parent.parent
 JELLY = ROOT / "examples" / "jelly.toml"
@@ -250,7 +251,7 @@ def test_numba_warm_up_compiles_every_kernel_of_a_step_and_leaves_the_particles_
     pytest.importorskip("numba")
     sim = Simulation(Scene.from_toml(JELLY), backend="numba")
     before = {k: a.copy() for k, a in sim.particles.arrays().items()}
-    sim.backend.warm_up(sim.particles)
+    sim.backend.warm_up(sim.particles, substep)
     compiled = {"p2g": sim.backend._p2g, "g2p": sim.backend._g2p}
     counts = {k: len(d.signatures) for k, d in compiled.items()}
     assert all(n >= 1 for n in counts.values())

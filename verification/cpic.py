@@ -62,7 +62,7 @@ from mpmref.bodies import sample_particles
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.vtk import write_polylines_vtp
 from mpmref.bench.cpic import add_sand_wheel
-from mpmref.backends.numpy.cpic import PENALTY_WINDOW
+from mpmref.physics.cdf import PENALTY_WINDOW
 from mpmref.physics.rigid import SAND_WHEEL, distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.physics.rigid_dynamics import current_shapes
 from mpmref.physics.trimesh import TriMesh, triangle_frame, validate_trimesh

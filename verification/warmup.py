@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 from mpmref.backends import make_backend
 from mpmref.bodies import sample_particles
+from mpmref.steppers.pipeline import substep
 
 from . import registry
 
@@ -93,7 +94,7 @@ def compile_scenes(names, preset, backend, queue=None, from_back=False, done=Non
     queue = queue if queue is not None else multiprocessing.Array("i", [0, len(scenes)])
     while (index := claim(queue, from_back)) is not None:
         name, scene = scenes[index]
-        make_backend(name, scene).warm_up(sample_particles(scene))
+        make_backend(name, scene).warm_up(sample_particles(scene), substep)
         if done is not None:
             done[index] = 1
 

@@ -19,6 +19,23 @@ stepping), so the order P2G → grid update → G2P → return map is written on
 
 ``running(n_particles)`` is a context manager in which a step's stages run (the Numba backend picks its
 thread count there); it is not a stage.
+
+Asynchronous stepping (:mod:`mpmref.steppers.asynchronous`) adds two stages, :data:`ASYNC_BACKEND_STAGES`:
+
+``wave_speeds(particles, idx)``
+    the P-wave speed of particles ``idx`` (the blocks' step limits);
+``interface_kicks(grid_state, dt, kappa)``
+    the node kicks of conservative level interfaces (:mod:`mpmref.physics.interface`).
+
+A backend that couples rigid bodies by CPIC (:class:`CoupledBackend`, docs/cpic.md) has three more,
+:data:`CPIC_BACKEND_STAGES`: ``cpic_contact`` (the colored distance field, the particles' tags and the
+step's :class:`Contact`), ``cpic_impulses`` (what incompatible nodes did not receive, as impulses on the
+bodies) and ``cpic_g2p`` (G2P with ghost velocities and the penalty). Every backend of
+:data:`mpmref.backends.BACKENDS` is both; :func:`mpmref.backends.make_backend` checks it.
+
+These are the stages of a backend; the conformance harness has its own list of what it compares
+(:data:`mpmref.conformance.CONFORMANCE_STAGES`), and the benchmarks name what they time
+(:data:`mpmref.bench.table2.TABLE2_STAGES`, :data:`mpmref.bench.cpic.TIMED_CPIC_STAGES`).
 """
 
 from contextlib import nullcontext
@@ -28,7 +45,12 @@ import numpy as np
 
 from ..physics.materials import material_groups
 
-STAGES = ("prepare", "stress", "p2g", "grid_update", "g2p", "return_map")
+#: the stages of every backend, in the order of a step
+BACKEND_STAGES = ("prepare", "stress", "p2g", "grid_update", "g2p", "return_map")
+#: the stages asynchronous stepping adds
+ASYNC_BACKEND_STAGES = ("wave_speeds", "interface_kicks")
+#: the stages of CPIC coupling to rigid bodies
+CPIC_BACKEND_STAGES = ("cpic_contact", "cpic_impulses", "cpic_g2p")
 
 
 @runtime_checkable
@@ -42,15 +64,30 @@ class Backend(Protocol):
 
     def stress(self, particles): ...
 
-    def p2g(self, particles, prepared=None): ...
+    def p2g(self, particles, prepared=None, contact=None, classes=None): ...
 
     def grid_update(self, grid_state, dt, time=0.0): ...
 
-    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None): ...
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None): ...
 
     def return_map(self, particles): ...
 
     def running(self, n_particles): ...
+
+    def wave_speeds(self, particles, idx): ...
+
+    def interface_kicks(self, grid_state, dt, kappa): ...
+
+
+@runtime_checkable
+class CoupledBackend(Backend, Protocol):
+    """A backend that also couples rigid bodies by CPIC (see the module docstring)."""
+
+    def cpic_contact(self, particles, prepared, rigid, dt): ...
+
+    def cpic_impulses(self, grid_state, contact, rigid, dt): ...
+
+    def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid): ...
 
 
 def serial_context(n_particles):

@@ -14,7 +14,7 @@ only (the CPIC kernels keep the field and the fit in float64).
 import numpy as np
 
 from ..backends import make_backend
-from ..backends.base import STAGES
+from ..backends.base import BACKEND_STAGES
 from ..bodies import sample_particles
 from ..physics.rigid import SAND_WHEEL, inside_closed, validate_polyline, wheel
 from ..physics.rigid_dynamics import initial_state
@@ -28,7 +28,7 @@ from .timing import measure, set_threads, thread_counts
 CPIC_CELLS, CPIC_QUICK_CELLS = 256, 32
 #: the goal for a CPIC step over a step without bodies
 GOAL = 1.5
-CPIC_STAGES = ("prepare", "cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p", "return_map")
+TIMED_CPIC_STAGES = ("prepare", "cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p", "return_map")
 
 
 def add_sand_wheel(builder):
@@ -88,7 +88,7 @@ def time_pair(backend_name, cells, threads, repeats, steps):
                        setup=lambda: (tagged.copy(),), first=lambda p: coupled_steps(b_coupled, p, rigid, dt, 1))
     rec_p, _ = measure(lambda p: plain_steps(b_plain, p, dt, steps), repeats, setup=lambda: (particles.copy(),),
                        first=lambda p: plain_steps(b_plain, p, dt, 1))
-    timed = TimedStages(b_coupled, names=STAGES + CPIC_STAGES)
+    timed = TimedStages(b_coupled, names=BACKEND_STAGES + TIMED_CPIC_STAGES)
     coupled_steps(timed, tagged.copy(), rigid, dt, steps)
     return {"backend": backend_name, "threads": threads, "dtype": "float64", "particles": particles.n,
             "coupled": rec_c, "plain": rec_p, "ratio": rec_c["median_s"] / rec_p["median_s"],

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from ..backends import make_backend
-from ..backends.base import STAGES
+from ..backends.base import BACKEND_STAGES
 from ..bodies import sample_particles
 from ..steppers import substep
 from .scenes import fluid3d_scene, mpm88_scene, throughput_cases
@@ -38,7 +38,7 @@ class TimedStages:
     """A backend whose stage methods (``names``, default the standard stages) add their wall time to
     ``seconds[stage]`` (everything else passes through)."""
 
-    def __init__(self, backend, names=STAGES):
+    def __init__(self, backend, names=BACKEND_STAGES):
         self._backend = backend
         self._names = names
         self.seconds = {}
@@ -92,7 +92,7 @@ def run_stages(cases, backends, threads, dtypes, steps, log=print):
                 for k in thread_counts(backend, threads):
                     log(f"stages: {case.name} {backend} {dtype} {k} thread(s)")
                     records.append({"case": case.name, **stage_times(backend, case.scene(dtype), k, steps)})
-    return {"stages": list(STAGES), "results": records}
+    return {"stages": list(BACKEND_STAGES), "results": records}
 
 
 def scaling_scenes(full=False, quick=False):

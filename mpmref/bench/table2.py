@@ -13,7 +13,7 @@ from .memory import memory_probe
 from .scenes import TABLE2_MATERIAL, TABLE2_METHODS, TABLE2_PAD, table2_particles, table2_scene
 from .timing import measure, set_threads, thread_counts
 
-STAGES = ("prepare", "stress", "p2g", "g2p")
+TABLE2_STAGES = ("prepare", "stress", "p2g", "g2p")
 
 
 def run_table2(cells, backends, threads, dtypes, repeats, memory=True, log=print, dim=3):
@@ -60,7 +60,7 @@ def time_stages(backend_name, scene, particles, threads, repeats, method):
         v_grid, v_tilde = backend.grid_update(grid_state, dt)
         g2p, _ = measure(lambda: backend.g2p(particles, v_grid, v_tilde, dt, prepared), repeats)
         key = {"backend": backend_name, "threads": k, "dtype": str(scene.dtype), "method": method}
-        records += [{**key, "stage": stage, **rec} for stage, rec in zip(STAGES, (prep, stress, p2g, g2p))]
+        records += [{**key, "stage": stage, **rec} for stage, rec in zip(TABLE2_STAGES, (prep, stress, p2g, g2p))]
     return records
 
 

@@ -16,7 +16,8 @@ Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend
 
 Backends that couple rigid bodies by CPIC also have the stages ``cpic_field``, ``cpic_tags``, ``cpic_p2g``,
 ``cpic_g2p`` and ``cpic_step`` (2D and 3D, float64; :mod:`.cpic`), which run the backend from flat inputs to flat
-outputs; ``make_cases`` gives their cases when asked for them (``stages=ALL_STAGES`` or ``CPIC_STAGES``).
+outputs; ``make_cases`` gives their cases when asked for them (``stages=ALL_CONFORMANCE_STAGES`` or
+``CPIC_CONFORMANCE_STAGES``).
 
 Grid arrays have one row per node in C order (node ``(i_0, .., i_{d-1})`` is row ``sum_a i_a stride_a``,
 ``stride_a = prod_{b>a} (cells_b + 1)``, at ``origin + i dx``). Particle outputs are compared on the
@@ -67,8 +68,9 @@ float64). See :func:`.report.relative_error`.
 from .cases import Case, make_cases, valid_methods
 from .cli import add_parser
 from .report import CaseResult, Report, check, relative_error, stage_functions
-from .stages import ALL_STAGES, CPIC_STAGES, STAGES
+from .stages import ALL_CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, CONFORMANCE_STAGES
 from .vectors import export, load_vectors
 
-__all__ = ["ALL_STAGES", "CPIC_STAGES", "STAGES", "Case", "CaseResult", "Report", "add_parser", "check", "export",
-           "load_vectors", "make_cases", "relative_error", "stage_functions", "valid_methods"]
+__all__ = ["ALL_CONFORMANCE_STAGES", "CPIC_CONFORMANCE_STAGES", "CONFORMANCE_STAGES", "Case", "CaseResult", "Report",
+           "add_parser", "check", "export", "load_vectors", "make_cases", "relative_error", "stage_functions",
+           "valid_methods"]

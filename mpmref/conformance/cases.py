@@ -18,8 +18,8 @@ from ..errors import SceneError
 from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
-from .cpic import CPIC_STAGES, RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
-from .stages import ALL_STAGES, STAGES, composed_step, particles_from, run_stage
+from .cpic import CPIC_CONFORMANCE_STAGES, RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
+from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, composed_step, particles_from, run_stage
 
 CELLS = 8
 #: particles stay at least this many cells away from every face of the domain
@@ -219,7 +219,7 @@ class Case:
 
     Attributes
     ----------
-    stage : str        one of :data:`~mpmref.conformance.stages.STAGES`
+    stage : str        one of :data:`~mpmref.conformance.stages.CONFORMANCE_STAGES`
     dim : int          2 or 3
     variant : str      what the case varies: a material set, a method ``scheme-force-kernel``, a boundary
     scene_dict : dict  the scene, as :meth:`mpmref.scene.Scene.from_dict` takes it
@@ -253,7 +253,7 @@ class Case:
     def inputs(self):
         """The stage's inputs as a flat dict of arrays (same result on every call)."""
         scene, rng = self.scene(), np.random.default_rng(self.seed)
-        if self.stage in CPIC_STAGES:
+        if self.stage in CPIC_CONFORMANCE_STAGES:
             return _as_dtype(cpic_inputs(self.stage, scene, rng), self.dtype)
         if self.stage == "grid_update":
             flat = random_grid(scene, rng)
@@ -279,7 +279,7 @@ def backend_stage(backend, stage):
     their runners of :mod:`mpmref.conformance.cpic` bound to it)."""
     if stage == "step":
         return partial(composed_step, backend)
-    if stage in CPIC_STAGES:
+    if stage in CPIC_CONFORMANCE_STAGES:
         return partial(RUNNERS[stage], backend)
     return getattr(backend, stage)
 
@@ -361,19 +361,19 @@ _STAGE_CASES = {
     "grid_update": _grid_update_cases,
     "g2p": lambda dim, dtype: _method_cases("g2p", dim, dtype),
     "step": lambda dim, dtype: _method_cases("step", dim, dtype) + _material_cases("step", dim, dtype, MATERIAL_SETS),
-    **{stage: partial(_cpic_cases, stage) for stage in CPIC_STAGES},
+    **{stage: partial(_cpic_cases, stage) for stage in CPIC_CONFORMANCE_STAGES},
 }
 
 
-def make_cases(dims=(2, 3), stages=STAGES, dtype="float64"):
+def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64"):
     """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`).
 
-    The default is the six stages of every backend; the CPIC stages (:data:`.cpic.CPIC_STAGES`, 2D and
-    float64 only) are included when asked for, e.g. ``stages=ALL_STAGES``.
+    The default is the six stages of every backend; the CPIC stages (:data:`.cpic.CPIC_CONFORMANCE_STAGES`, 2D and
+    float64 only) are included when asked for, e.g. ``stages=ALL_CONFORMANCE_STAGES``.
     """
-    unknown = sorted(set(stages) - set(ALL_STAGES))
+    unknown = sorted(set(stages) - set(ALL_CONFORMANCE_STAGES))
     if unknown:
-        raise ValueError(f"unknown stages {unknown}: the stages are {list(ALL_STAGES)}")
+        raise ValueError(f"unknown stages {unknown}: the stages are {list(ALL_CONFORMANCE_STAGES)}")
     if dtype not in DEFAULT_RTOL:
         raise ValueError(f"unknown dtype {dtype!r}: use one of {list(DEFAULT_RTOL)}")
     return [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]

@@ -5,14 +5,14 @@ from pathlib import Path
 from ..backends import BACKENDS
 from .cases import DEFAULT_RTOL, make_cases
 from .report import check
-from .stages import ALL_STAGES
+from .stages import ALL_CONFORMANCE_STAGES
 from .vectors import export
 
 
 def _add_selection(parser):
     parser.add_argument("--dim", type=int, nargs="+", choices=(2, 3), default=[2, 3],
                         help="dimensions of the cases (default: 2 3)")
-    parser.add_argument("--stage", nargs="+", choices=ALL_STAGES, default=list(ALL_STAGES),
+    parser.add_argument("--stage", nargs="+", choices=ALL_CONFORMANCE_STAGES, default=list(ALL_CONFORMANCE_STAGES),
                         help="stages to include (default: all; the CPIC stages have 2D float64 cases only)")
     parser.add_argument("--dtype", choices=tuple(DEFAULT_RTOL), default="float64",
                         help="floating-point type of the states (default: float64)")

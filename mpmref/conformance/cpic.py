@@ -44,7 +44,7 @@ from ..physics.rigid_dynamics import RigidState
 from ..physics.rigid_dynamics3d import quaternion_from_rotation_vector
 from ..state import Particles
 
-CPIC_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
+CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
 #: the particle fields of a CPIC state besides the plain ones
 TAG_FIELDS = ("tag_A", "tag_T", "phi", "normal", "near")
 RIGID_FIELDS = ("position", "angle", "velocity", "angular_velocity", "impulse", "angular_impulse")

@@ -11,10 +11,10 @@ import numpy as np
 from tqdm import tqdm
 
 from ..backends import make_backend
-from ..backends.base import STAGES as BACKEND_STAGES
+from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
-from .cpic import CPIC_STAGES, RUNNERS, has_cpic
-from .stages import ALL_STAGES, STAGES, composed_step, run_stage
+from .cpic import CPIC_CONFORMANCE_STAGES, RUNNERS, has_cpic
+from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, composed_step, run_stage
 
 
 def relative_error(candidate, reference):
@@ -99,7 +99,7 @@ class Report:
     def stage_summary(self):
         """Per stage that ran: ``{stage: (cases, failed, worst CaseResult)}`` in stage order."""
         summary = {}
-        for stage in ALL_STAGES:
+        for stage in ALL_CONFORMANCE_STAGES:
             rows = [r for r in self.results if r.case.stage == stage]
             if rows:
                 worst = max(rows, key=lambda r: r.error / r.rtol)
@@ -112,7 +112,7 @@ class Report:
         for stage, (count, failed, worst) in self.stage_summary().items():
             lines.append(f"{stage:<12} {count:>5} {failed:>6} {worst.error:>14.3e} {worst.rtol:>8.0e}  "
                          f"{worst.case.name} ({worst.worst_output})")
-        skipped = sorted({c.stage for c in self.skipped}, key=ALL_STAGES.index)
+        skipped = sorted({c.stage for c in self.skipped}, key=ALL_CONFORMANCE_STAGES.index)
         if skipped:
             lines.append(f"not provided by the candidate (skipped): {', '.join(skipped)}")
         rows = self.results if verbose else self.failures()
@@ -132,9 +132,9 @@ def _case_line(result):
 
 # ------------------------------------------------------------------------------------------ candidates
 def _check_stage_names(mapping):
-    unknown = sorted(set(mapping) - set(ALL_STAGES))
+    unknown = sorted(set(mapping) - set(ALL_CONFORMANCE_STAGES))
     if unknown:
-        raise TypeError(f"unknown stage names {unknown}: the stages are {list(ALL_STAGES)}")
+        raise TypeError(f"unknown stage names {unknown}: the stages are {list(ALL_CONFORMANCE_STAGES)}")
 
 
 def _stage_callables(stages):
@@ -147,11 +147,11 @@ def _stage_callables(stages):
     if isinstance(stages, Mapping):
         _check_stage_names(stages)
         return dict(stages)
-    found = {s: getattr(stages, s) for s in STAGES if callable(getattr(stages, s, None))}
+    found = {s: getattr(stages, s) for s in CONFORMANCE_STAGES if callable(getattr(stages, s, None))}
     if "step" not in found and all(callable(getattr(stages, s, None)) for s in BACKEND_STAGES):
         found["step"] = partial(composed_step, stages)
     if has_cpic(stages):
-        found.update({stage: partial(RUNNERS[stage], stages) for stage in CPIC_STAGES})
+        found.update({stage: partial(RUNNERS[stage], stages) for stage in CPIC_CONFORMANCE_STAGES})
     return found
 
 

@@ -16,11 +16,12 @@ from contextlib import nullcontext
 import numpy as np
 
 from ..state import GridState, Particles
-from .cpic import CPIC_STAGES
+from .cpic import CPIC_CONFORMANCE_STAGES
 
-STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
-#: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies (:mod:`mpmref.conformance.cpic`)
-ALL_STAGES = STAGES + CPIC_STAGES
+CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
+#: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies
+#: (:mod:`mpmref.conformance.cpic`)
+ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
 PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
 #: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
 EVOLVING_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
@@ -70,7 +71,7 @@ def _flat_stage(fn, flat):
 
 
 _CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "grid_update": _grid_update,
-            "g2p": _g2p, "step": _step, **{stage: _flat_stage for stage in CPIC_STAGES}}
+            "g2p": _g2p, "step": _step, **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}
 
 
 def composed_step(stages, particles, dt, time):

@@ -35,6 +35,8 @@ from .rigid import segment_frame, surface_samples
 from .trimesh import TriMesh, triangle_frame
 from .trimesh import surface_samples as triangle_samples
 
+#: the penalty acts on near particles with -0.3 dx < phi < -0.05 dx (docs/cpic.md)
+PENALTY_WINDOW = (-0.3, -0.05)
 #: a node is rasterised only if its edge parameter lies in [-EDGE_MARGIN, 1 + EDGE_MARGIN] (docs/cpic.md)
 EDGE_MARGIN = 0.02
 #: a node is rasterised only if all barycentric coordinates of its projection are >= -this (docs/cpic.md, 3D:

@@ -320,19 +320,18 @@ class NumbaBackend:
         cpic_kernels = {(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set()
         return {self._p2g, self._g2p, dtype} | laws | cpic_kernels
 
-    def warm_up(self, particles, per_material=2):
+    def warm_up(self, particles, step, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.
 
-        Runs one full step (prepare, stress, P2G, grid update, G2P, return map) on a copy of the first
-        ``per_material`` particles of each material, with Δt = 0, so that compilation is not counted in
-        a run's timings, and with rigid bodies the CPIC stages too (:func:`mpmref.backends.numba.cpic.warm_up`). ``particles``
-        is not modified.
+        Runs ``step(backend, particles, dt, time)`` — the steppers' composition of the stages,
+        :func:`mpmref.steppers.pipeline.substep`, passed in by the caller so that backends do not import
+        the steppers built on them — on a copy of the first ``per_material`` particles of each material,
+        with Δt = 0, so that compilation is not counted in a run's timings, and with rigid bodies the CPIC
+        stages too (:func:`mpmref.backends.numba.cpic.warm_up`). ``particles`` is not modified.
         """
-        from ...steppers.pipeline import substep
-
         keep = np.zeros(particles.n, dtype=bool)
         for _, idx in material_groups(self.materials.materials, particles):
             keep[idx[:per_material]] = True
-        substep(self, particles.select(keep), 0.0, 0.0)
+        step(self, particles.select(keep), 0.0, 0.0)
         if self.scene.rigid_bodies:
             cpic.warm_up(self, particles.select(keep))

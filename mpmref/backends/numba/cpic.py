@@ -37,7 +37,7 @@ from ...physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, TAG_
 from ...physics.rigid import surface_samples
 from ...physics.rigid_dynamics import current_shapes, initial_state
 from ...state import GridState
-from ..numpy.cpic import PENALTY_WINDOW
+from ...physics.cdf import PENALTY_WINDOW
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
 

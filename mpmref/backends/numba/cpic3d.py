@@ -23,7 +23,7 @@ from numba import njit, prange
 from ...physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
 from ...physics.rigid_dynamics import current_shapes
 from ...physics.trimesh import surface_samples
-from ..numpy.cpic import PENALTY_WINDOW
+from ...physics.cdf import PENALTY_WINDOW
 from .cpic import fit_target, settle_body, sticky_tag
 from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST

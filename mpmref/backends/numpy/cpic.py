@@ -21,13 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...physics.cdf import build_cdf, compatible, reconstruct, reconstruct_per_body, update_tags
+from ...physics.cdf import PENALTY_WINDOW, build_cdf, compatible, reconstruct, reconstruct_per_body, update_tags
 from ...physics.rigid_dynamics import body_impulses, current_shapes, friction_projection, point_velocity
 from .transfers import g2p as plain_g2p
 from .transfers import node_index
-
-#: the penalty acts on near particles with -0.3 dx < phi < -0.05 dx (docs/cpic.md)
-PENALTY_WINDOW = (-0.3, -0.05)
 
 
 @dataclass
