@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 from hypothesis import settings
 
+from mpmref.backends import BACKENDS
+
 # the repository root, for the exercises' worked solutions (exercises/, not an installed package)
 sys.path.append(os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")))
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".numba_cache"))
@@ -17,3 +19,15 @@ settings.load_profile("mpmref")
 @pytest.fixture
 def rng():
     return np.random.default_rng(20181101)
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request):
+    """Every backend of ``mpmref.backends.BACKENDS`` in turn: a test taking it runs on each, and on any added."""
+    return request.param
+
+
+@pytest.fixture(params=[b for b in BACKENDS if b != "numpy"])
+def candidate(request):
+    """Every backend but the NumPy reference, each to be compared with it."""
+    return request.param

@@ -97,7 +97,6 @@ def test_every_method_steps_asynchronously_on_two_levels(dim, method):
     assert np.array_equal(np.sort(sim.id), np.arange(sim.n_particles))
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
 @pytest.mark.parametrize("material", ["neo_hookean", "fluid", "snow", "sand"])
 def test_every_material_steps_asynchronously_on_both_backends(material, backend):
     sim = Simulation(_two_level_scene(2, {"scheme": "mls"}, material), backend=backend)

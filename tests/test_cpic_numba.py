@@ -151,14 +151,14 @@ def test_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch):
         assert np.array_equal(array, two.rigid.arrays()[name]), name
 
 
-def test_numba_trajectory_with_bodies_follows_the_reference():
+def test_numba_trajectory_with_bodies_follows_the_reference(candidate):
     """40 coupled steps: every particle and body field within 1e-12 of the reference (relative to its
     largest entry), tags identical."""
     scene = plate_scene(cells=32)
-    sims = {b: Simulation(scene, backend=b) for b in ("numpy", "numba")}
+    sims = {b: Simulation(scene, backend=b) for b in ("numpy", candidate)}
     for sim in sims.values():
         sim.run(steps=40)
-    ref, got = sims["numpy"].state, sims["numba"].state
+    ref, got = sims["numpy"].state, sims[candidate].state
     assert ref.particles.near.sum() > 5
     assert_state_follows(ref, got)
 
@@ -238,7 +238,6 @@ def test_exported_cpic_vectors_are_the_references(tmp_path):
         assert bodies[1]["mass"] == "inf" and bodies[1]["friction"] == [-1.0, -1.0]
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_impulses_go_to_each_node_s_nearest_body(backend):
     """Momentum accounting (docs/cpic.md), reference and compiled reduction: with two bodies near, an
     incompatible node's impulse goes to the nearer one, with its torque about that body's reference point."""
@@ -265,7 +264,7 @@ def test_impulses_go_to_each_node_s_nearest_body(backend):
 
 
 @pytest.mark.slow
-def test_cut2d_example_on_numba_ends_in_two_pieces_like_the_reference():
+def test_cut2d_example_on_numba_ends_in_two_pieces_like_the_reference(candidate):
     """examples/cut2d.toml (2510 steps) on Numba: the blade cuts the jelly into 2 pieces, and every particle ends
     where the reference puts it. Measured: 1.8e-12 dx apart; the bound 1e-9 dx leaves room for another
     machine's rounding over the 2510 steps while still catching any difference in the coupling."""
@@ -275,11 +274,11 @@ def test_cut2d_example_on_numba_ends_in_two_pieces_like_the_reference():
 
     scene = Scene.from_toml(Path(__file__).resolve().parent.parent / "examples" / "cut2d.toml")
     states = {}
-    for backend in ("numpy", "numba"):
+    for backend in ("numpy", candidate):
         sim = Simulation(scene, backend=backend)
         sim.run(t_end=0.8)
         states[backend] = sim.particles
-    ref, got = states["numpy"], states["numba"]
+    ref, got = states["numpy"], states[candidate]
     assert components(got.x, scene.grid.dx) == 2
     assert np.array_equal(ref.id, got.id) and np.array_equal(ref.tag_T, got.tag_T)
     assert np.abs(got.x - ref.x).max() <= 1e-9 * scene.grid.dx

@@ -103,13 +103,13 @@ def box_scene(steps=30):
 
 
 @pytest.mark.slow
-def test_numba_3d_trajectory_with_bodies_follows_the_reference():
+def test_numba_3d_trajectory_with_bodies_follows_the_reference(candidate):
     """30 coupled 3D steps: every particle and body field within 1e-12 of the reference, tags identical."""
     scene = box_scene()
-    sims = {b: Simulation(scene, backend=b) for b in ("numpy", "numba")}
+    sims = {b: Simulation(scene, backend=b) for b in ("numpy", candidate)}
     for sim in sims.values():
         sim.run()
-    ref, got = sims["numpy"].state, sims["numba"].state
+    ref, got = sims["numpy"].state, sims[candidate].state
     assert ref.particles.near.sum() > 20 and np.abs(ref.rigid.impulse).max() > 0
     assert_state_follows(ref, got)
 

@@ -119,7 +119,6 @@ def test_hooks_see_dense_arrays_and_their_changes_reach_the_sparse_step():
     assert np.abs(plain.v - reference.v).max() > 1e-3  # the hooks did change the step
 
 
-@pytest.mark.parametrize("backend", ["numpy", "numba"])
 def test_grid_output_region_is_the_block_box_of_the_massive_nodes(backend):
     """``output.grid_region = "active"``: the smallest box of whole blocks around the nodes with mass, holding all
     the mass; ``"all"``: every node, the same values."""
