@@ -445,9 +445,9 @@ def _check_combination(spec):
     if spec.kernel == "linear" and spec.scheme in ("apic", "polypic", "mls"):
         _fail("method.kernel", "linear", f"'quadratic' or 'cubic' with method.scheme = '{spec.scheme}' (an affine "
               "scheme needs a constant inertia D_p, which the linear hat does not have)")
-    for field in ("force", "velocity_gradient"):
-        if spec.kernel == "linear" and getattr(spec, field) == "mls":
-            _fail(f"method.{field}", "mls", "'classic' with method.kernel = 'linear' (the MLS force and velocity "
+    for key in ("force", "velocity_gradient"):
+        if spec.kernel == "linear" and getattr(spec, key) == "mls":
+            _fail(f"method.{key}", "mls", "'classic' with method.kernel = 'linear' (the MLS force and velocity "
                   "gradient need a constant D_p = k dx^2 I; the linear hat's D_p varies with position and is "
                   "singular on nodes)")
 

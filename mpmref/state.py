@@ -5,7 +5,7 @@ for PolyPIC, ``F`` for materials that track the deformation gradient, ``J`` for 
 the volume ratio, ``Jp`` for plastic materials.
 """
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from functools import cached_property
 
 import numpy as np

@@ -9,7 +9,7 @@ import pytest
 
 from mpmref import SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
-from mpmref.errors import SceneError, TickTooLongError
+from mpmref.errors import TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
 from verification.sync_vs_async import two_bodies
 

@@ -1,6 +1,5 @@
 """The sync_vs_async verification case: its quick preset passes, and a broken stepper makes a check fail."""
 
-from dataclasses import replace
 
 import pytest
 

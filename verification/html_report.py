@@ -159,7 +159,7 @@ def case_html(record, series, tables):
     o = record.outcome
     params = ("".join(f"<tr><td>{e(k)}</td><td>{e(str(v))}</td></tr>" for k, v in asdict(o.params).items())
               if o.params is not None else "")
-    parts = [f"<p class='meta'><a href='../index.html'>← the whole report</a></p>",
+    parts = ["<p class='meta'><a href='../index.html'>← the whole report</a></p>",
              f"<h1>{e(o.name)} <span class='chip {_status(o.passed)}'>{e(o.verdict)}</span></h1>",
              f"<p>{e(o.title)}</p><p class='meta'>Preset <code>{e(o.preset)}</code>, backends run: "
              f"{e(', '.join(record.backends))}, wall time {o.wall_s:.1f} s. Also as <a href='report.md'>report.md</a>.</p>"]

@@ -38,7 +38,7 @@ finding too, not a check: synchronous MPM on contact does not converge as Δt sh
 dissipate per step, measured in the case), so no rate against it can be derived.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from time import perf_counter
 
@@ -725,7 +725,6 @@ def report(result, out_dir):
         + f" | {r.get('sync_vs_sync4', float('nan')):.3g} |" for r in result["series"])
     trade_rows = "\n".join(f"| {r['label']} | {r['wall']:.3f} | {r['error_dx']:.3g} | {'yes' if r['pareto'] else ''} |"
                            for r in result["trade"])
-    itfs = result["params"].interfaces
     text = (f"# Sync vs async (backend {result['backend']}; the one-level part on numpy and numba)\n\n"
             f"One level: {ol}.\n\nFree fall: max relative error of v_com {result['free_fall']['max_rel']:.2e} on "
             f"levels {result['free_fall']['levels']}.\n\nSchedule: worked example reproduced: {sc['matches']}; census "
@@ -736,7 +735,7 @@ def report(result, out_dir):
             f"moves, ghosts included (own: the particles' own steps). Wall times include compilation on a "
             f"first run and are from this machine, not a benchmark (see `mpmref bench --only async`).\n\n"
             f"{table(result)}\n\n" + "\n".join(f"![{k}](energy_{k}.png)" for k in PAIRS)
-            + f"\n\n## Bonded bodies at every CFL number (stork2d, max |E_async - E_sync| / E_0)\n\n| CFL | "
+            + "\n\n## Bonded bodies at every CFL number (stork2d, max |E_async - E_sync| / E_0)\n\n| CFL | "
             + " | ".join(bonded_itfs) + " |\n|---|" + "---|" * len(bonded_itfs) + f"\n{bonded}\n\n"
             + "## Balls over shrinking steps (end velocity difference / impact speed: vs sync at the same step / "
             "vs sync at a 4x finer step)\n\n| CFL | finest step [ticks] | " + " | ".join(series_itfs)

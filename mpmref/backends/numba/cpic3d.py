@@ -25,7 +25,7 @@ from ...physics.rigid_dynamics import current_shapes
 from ...physics.trimesh import surface_samples
 from ...physics.cdf import PENALTY_WINDOW
 from .cpic import fit_target, settle_body, sticky_tag
-from .stencil import KERNEL_CODES, kernel_axis, quadratic_axis
+from .stencil import kernel_axis, quadratic_axis
 from .transfers import SOURCE_DIGEST
 
 
