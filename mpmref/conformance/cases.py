@@ -18,8 +18,9 @@ from ..errors import SceneError
 from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
-from .cpic import CPIC_CONFORMANCE_STAGES, RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
-from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, composed_step, particles_from, run_stage
+from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
+from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, particles_from,
+                     run_stage)
 
 CELLS = 8
 #: particles stay at least this many cells away from every face of the domain
@@ -368,7 +369,7 @@ _STAGE_CASES = {
 def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64"):
     """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`).
 
-    The default is the six stages of every backend; the CPIC stages (:data:`.cpic.CPIC_CONFORMANCE_STAGES`, 2D and
+    The default is the six stages of every backend; the CPIC stages (:data:`.stages.CPIC_CONFORMANCE_STAGES`, 2D and
     float64 only) are included when asked for, e.g. ``stages=ALL_CONFORMANCE_STAGES``.
     """
     unknown = sorted(set(stages) - set(ALL_CONFORMANCE_STAGES))

@@ -43,8 +43,7 @@ import numpy as np
 from ..physics.rigid_dynamics import RigidState
 from ..physics.rigid_dynamics3d import quaternion_from_rotation_vector
 from ..state import Particles
-
-CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
+from .stages import with_running
 #: the particle fields of a CPIC state besides the plain ones
 TAG_FIELDS = ("tag_A", "tag_T", "phi", "normal", "near")
 RIGID_FIELDS = ("position", "angle", "velocity", "angular_velocity", "impulse", "angular_impulse")
@@ -166,7 +165,6 @@ def g2p_stage(backend, flat):
 
 
 def step_stage(backend, flat):
-    from .stages import with_running
     from ..steppers.pipeline import substep
 
     new, rigid = substep(with_running(backend), cpic_particles(flat), float(flat["dt"]), float(flat["time"]),

@@ -13,8 +13,8 @@ from tqdm import tqdm
 from ..backends import make_backend
 from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
-from .cpic import CPIC_CONFORMANCE_STAGES, RUNNERS, has_cpic
-from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, composed_step, run_stage
+from .cpic import RUNNERS, has_cpic
+from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, run_stage
 
 
 def relative_error(candidate, reference):

@@ -16,9 +16,10 @@ from contextlib import nullcontext
 import numpy as np
 
 from ..state import GridState, Particles
-from .cpic import CPIC_CONFORMANCE_STAGES
 
 CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
+#: the stages of backends that couple rigid bodies by CPIC (run through :mod:`mpmref.conformance.cpic`)
+CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
 #: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies
 #: (:mod:`mpmref.conformance.cpic`)
 ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
