@@ -129,7 +129,7 @@ def test_scripted_rotation_velocity_and_keyframes():
 def test_impulses_give_linear_and_angular_impulse():
     x = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
     J = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 3.0]])
-    lin, ang = rigid_dynamics.body_impulses(2, np.array([0, 1]), x, J, np.zeros((2, 3)))
+    lin, ang = rigid_dynamics3d.body_impulses(2, np.array([0, 1]), x, J, np.zeros((2, 3)))
     assert np.allclose(lin, J) and np.allclose(ang, [[0.0, 0.0, 1.0], [6.0, 0.0, 0.0]])
 
 

@@ -104,7 +104,7 @@ def test_forgetful_tags_differ_from_sticky_ones():
     """Sanity of the broken variant above: clearing the tags changes some particle's side."""
     inputs, tags = _reference("cpic_tags")
     case = next(c for c in CPIC_CASES if c.stage == "cpic_tags")
-    from mpmref.backends.numba.cpic import build_cdf
+    from mpmref.backends.numba.cpic.field2d import build_cdf
     from mpmref.conformance.cpic import rigid_from
 
     scene = case.scene()
@@ -257,8 +257,11 @@ def test_impulses_go_to_each_node_s_nearest_body(backend):
     grid_state = SimpleNamespace(rejected_momentum=rejected, rejected_force=np.zeros_like(rejected))
     rigid = RigidState(position=np.array([[0.5, 0.49], [0.5, 0.52]]), angle=np.zeros(2), velocity=np.zeros((2, 2)),
                        angular_velocity=np.zeros(2), impulse=np.zeros((2, 2)), angular_impulse=np.zeros(2))
+    from mpmref.backends.numba.cpic.stages import KERNELS
+
     impulses = importlib.import_module(f"mpmref.backends.{backend}.cpic").impulses
-    J, L = impulses(grid_state, SimpleNamespace(cdf=cdf), rigid, dt=1e-3)
+    contact = SimpleNamespace(cdf=cdf, kernels=KERNELS[2])  # the Numba stages call the kernels the contact chose
+    J, L = impulses(grid_state, contact, rigid, dt=1e-3)
     assert np.array_equal(J, [[1.0, -2.0], [0.0, 0.0]])
     assert L[0] == pytest.approx(-0.01 * 1.0) and L[1] == 0.0  # (x - c) = (0, 0.01): L = -0.01 * J_x
 

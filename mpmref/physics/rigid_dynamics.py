@@ -24,12 +24,17 @@ Discontinuity and Two-Way Rigid Body Coupling", §5 (two-way coupling: the rigid
 the material could not give to the grid); the integration order is the authors' reference implementation's (docs/cpic.md).
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from . import rigid_dynamics3d
+from . import rigid_dynamics2d, rigid_dynamics3d
 from .rigid import Polyline
+
+#: The rigid-body mechanics of each dimension (a module with ``initial_arrays``, ``posed_shape``, ``begin_step``,
+#: ``point_velocity``, ``body_impulses``, ``apply_impulses``, ``end_step`` and ``diagnostics``), chosen once
+#: per :class:`RigidState` from its arrays' shapes.
+MECHANICS = {2: rigid_dynamics2d, 3: rigid_dynamics3d}
 
 MOTIONS = ("fixed", "scripted", "dynamic")
 CONTACT_TYPES = ("sticky", "slip", "separate")
@@ -89,6 +94,8 @@ class RigidState:
     angular_velocity : (nb,)    :math:`\\omega`
     impulse : (nb, 2)           linear impulse received from the material since time 0
     angular_impulse : (nb,)     angular impulse about the reference point received since time 0
+    mechanics : module          the dimension's motion (:data:`MECHANICS`: :mod:`.rigid_dynamics2d` or
+                                :mod:`.rigid_dynamics3d`), chosen when the state is made; not an array
 
     Notes
     -----
@@ -103,10 +110,14 @@ class RigidState:
     angular_velocity: np.ndarray
     impulse: np.ndarray
     angular_impulse: np.ndarray
+    mechanics: object = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        self.mechanics = MECHANICS[np.shape(self.position)[1]]
 
     def arrays(self):
         """Mapping of field name to array (what a checkpoint stores)."""
-        return dict(self.__dict__)
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.init}
 
     def with_(self, **changes):
         return replace(self, **changes)
@@ -199,156 +210,58 @@ def area_mass_properties(shape, density):
     return float(mass), center, float(abs(i0) - mass * center @ center)
 
 
-# ------------------------------------------------------------------------------------------ state
+# ------------------------------------------------------------------------ state and motion, any dimension
 def initial_state(bodies):
-    """The :class:`RigidState` at time 0 of the declared ``bodies``."""
-    if _in_3d(bodies):
-        return rigid_dynamics3d.initial_state(bodies, RigidState)
-    nb = len(bodies)
-    return RigidState(position=np.array([b.center for b in bodies], dtype=np.float64).reshape(nb, 2),
-                      angle=np.zeros(nb),
-                      velocity=np.array([b.velocity if b.motion != "fixed" else np.zeros(2) for b in bodies],
-                                        dtype=np.float64).reshape(nb, 2),
-                      angular_velocity=np.array([b.angular_velocity if b.motion != "fixed" else 0.0
-                                                 for b in bodies], dtype=np.float64),
-                      impulse=np.zeros((nb, 2)), angular_impulse=np.zeros(nb))
-
-
-def rotation(theta):
-    """The 2D rotation matrix :math:`R(\\theta)`."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s], [s, c]])
-
-
-def posed_shape(body, position, angle):
-    r"""The body's polyline at pose (``position``, ``angle``): :math:`\mathbf x = \mathbf c + R(\theta)(\mathbf x^0 - \mathbf c_0)`."""
-    vertices = position + (body.shape.vertices - body.center) @ rotation(angle).T
-    return Polyline(vertices=vertices, segments=body.shape.segments, closed=body.shape.closed)
+    """The :class:`RigidState` at time 0 of the declared ``bodies``: 3D if they are triangle meshes, 2D
+    (polylines, or no body) otherwise; the state's ``mechanics`` are that dimension's from then on."""
+    mechanics = rigid_dynamics3d if bodies and not isinstance(bodies[0].shape, Polyline) else rigid_dynamics2d
+    return RigidState(**mechanics.initial_arrays(bodies))
 
 
 def current_shapes(bodies, state):
-    """Every body's polyline where the state puts it."""
-    if _in_3d(bodies):
-        return [rigid_dynamics3d.posed_mesh(b, state.position[r], state.angle[r]) for r, b in enumerate(bodies)]
-    return [posed_shape(b, state.position[r], state.angle[r]) for r, b in enumerate(bodies)]
-
-
-def scripted_pose(body, t):
-    r"""Offset of the reference point from :math:`\mathbf c_0` and angle of a scripted body at time ``t``.
-
-    Constant rates: :math:`(\mathbf v t,\ \omega t)`. Keyframes :math:`(t_k, \mathbf o_k, \theta_k)`:
-    linear interpolation between them, held constant before the first and after the last.
-    """
-    if not body.keyframes:
-        return body.velocity * t, body.angular_velocity * t
-    times = np.array([k[0] for k in body.keyframes])
-    offsets = np.array([k[1] for k in body.keyframes])
-    angles = np.array([k[2] for k in body.keyframes])
-    offset = np.array([np.interp(t, times, offsets[:, a]) for a in range(2)])
-    return offset, float(np.interp(t, times, angles))
+    """Every body's shape (polyline or triangle mesh) where the state puts it (``posed_shape``)."""
+    return [state.mechanics.posed_shape(b, state.position[r], state.angle[r]) for r, b in enumerate(bodies)]
 
 
 def begin_step(bodies, state, time, dt):
-    """The state with each scripted body's velocity over the step ``[time, time + dt]`` (finite difference)."""
-    if _in_3d(bodies):
-        return rigid_dynamics3d.begin_step(bodies, state, time, dt)
-    velocity, omega = state.velocity.copy(), state.angular_velocity.copy()
-    for r, body in enumerate(bodies):
-        if body.motion == "scripted":
-            (o0, a0), (o1, a1) = scripted_pose(body, time), scripted_pose(body, time + dt)
-            velocity[r], omega[r] = (o1 - o0) / dt, (a1 - a0) / dt
-    return state.with_(velocity=velocity, angular_velocity=omega)
+    """The state with each scripted body's velocity over the step ``[time, time + dt]`` (finite difference of
+    its script; :func:`mpmref.physics.rigid_dynamics2d.begin_step`, :func:`~.rigid_dynamics3d.begin_step`)."""
+    return state.mechanics.begin_step(bodies, state, time, dt)
 
 
 def point_velocity(state, body_ids, x):
-    r"""Velocity :math:`\mathbf v_r + \omega_r \hat{\mathbf z}\times(\mathbf x - \mathbf c_r)` of body ``body_ids`` at ``x`` (..., 2)."""
-    if state.position.shape[1] == 3:
-        return rigid_dynamics3d.point_velocity(state, body_ids, x)
-    r = state.position[body_ids]
-    w = state.angular_velocity[body_ids][..., None]
-    rel = x - r
-    return state.velocity[body_ids] + w * np.stack([-rel[..., 1], rel[..., 0]], axis=-1)
+    r"""Velocity :math:`\mathbf v_r + \boldsymbol\omega_r \times (\mathbf x - \mathbf c_r)` of body ``body_ids``
+    at ``x`` (..., d) (in 2D :math:`\boldsymbol\omega_r = \omega_r\hat{\mathbf z}`)."""
+    return state.mechanics.point_velocity(state, body_ids, x)
 
 
-def body_impulses(n_bodies, body_ids, x, impulse, position):
-    r"""Sum impulses :math:`\mathbf J` applied at points ``x`` to bodies ``body_ids``: linear and angular.
-
-    Returns ``(J, L)``: :math:`\mathbf J_r = \sum \mathbf J` and :math:`L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J`
-    about each body's reference point (docs/cpic.md, "after all particles").
-    """
-    if x.shape[-1] == 3:
-        return rigid_dynamics3d.body_impulses(n_bodies, body_ids, x, impulse, position)
-    rel = x - position[body_ids]
-    torque = rel[:, 0] * impulse[:, 1] - rel[:, 1] * impulse[:, 0]
-    J = np.stack([np.bincount(body_ids, weights=impulse[:, a], minlength=n_bodies) for a in range(2)], axis=1)
-    return J, np.bincount(body_ids, weights=torque, minlength=n_bodies)
+def body_impulses(state, body_ids, x, impulse):
+    r"""Impulses :math:`\mathbf J` applied at points ``x`` to bodies ``body_ids``, summed per body: ``(J, L)``,
+    :math:`\mathbf J_r = \sum \mathbf J` and :math:`\mathbf L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J`
+    about each body's reference point (docs/cpic.md, "after all particles")."""
+    return state.mechanics.body_impulses(len(state.angle), body_ids, x, impulse, state.position)
 
 
 def apply_impulses(bodies, state, J, L):
-    r"""Record impulses ``J`` (nb, 2) and angular impulses ``L`` (nb,) and change the dynamic bodies' velocities.
-
-    .. math:: \mathbf v_r \mathrel{+}= \mathbf J_r / M_r, \qquad \omega_r \mathrel{+}= L_r / I_r
-
-    (docs/cpic.md). Fixed and scripted bodies have infinite mass: they only record what they received. A
-    pinned body's linear impulse goes to its pin (:math:`1/M_r = 0`); welded bodies then share one angular
-    velocity (:func:`weld`).
-    """
-    if _in_3d(bodies):
-        return rigid_dynamics3d.apply_impulses(bodies, state, J, L)
-    inv_m = np.array([0.0 if b.pinned else 1.0 / b.mass for b in bodies])
-    inv_i = np.array([1.0 / b.inertia for b in bodies])
-    return state.with_(velocity=state.velocity + J * inv_m[:, None],
-                       angular_velocity=weld(bodies, state.angular_velocity + L * inv_i),
-                       impulse=state.impulse + J, angular_impulse=state.angular_impulse + L)
-
-
-def weld(bodies, omega):
-    r"""The angular velocities ``omega`` (nb,) with every group of welded bodies turning as one.
-
-    Pinned bodies welded at a common centre form one rigid body of inertia :math:`\sum_r I_r`; its angular
-    velocity keeps their total angular momentum about the centre,
-
-    .. math:: \omega_G = \frac{\sum_{r \in G} I_r \omega_r}{\sum_{r \in G} I_r}.
-
-    This is the reference implementation's rotation articulation (Hu et al. 2018's sand wheel joins its
-    blades to its ring so; docs/cpic.md), which for two bodies pinned at one point is a weld.
-    """
-    roots = np.array([r if b.welded_to < 0 else b.welded_to for r, b in enumerate(bodies)], dtype=np.int64)
-    out = omega
-    for root in np.unique(roots[roots != np.arange(len(bodies))]):
-        group = np.nonzero(roots == root)[0]
-        inertia = np.array([bodies[r].inertia for r in group])
-        out = out.copy()
-        out[group] = np.sum(inertia * omega[group]) / np.sum(inertia)
-    return out
+    r"""Record impulses ``J`` and angular impulses ``L`` and change the dynamic bodies' velocities,
+    :math:`\mathbf v_r \mathrel{+}= \mathbf J_r / M_r`, :math:`\boldsymbol\omega_r \mathrel{+}= I_r^{-1}\mathbf L_r`
+    (docs/cpic.md; :func:`mpmref.physics.rigid_dynamics2d.apply_impulses`, :func:`~.rigid_dynamics3d.apply_impulses`)."""
+    return state.mechanics.apply_impulses(bodies, state, J, L)
 
 
 def end_step(bodies, state, time, dt, gravity):
-    r"""Move every body to ``time + dt`` (docs/cpic.md, the rigid step after G2P).
+    """Move every body to ``time + dt`` (docs/cpic.md, the rigid step after G2P;
+    :func:`mpmref.physics.rigid_dynamics2d.end_step`, :func:`~.rigid_dynamics3d.end_step`)."""
+    return state.mechanics.end_step(bodies, state, time, dt, gravity)
 
-    Dynamic: :math:`\mathbf c \mathrel{+}= \Delta t\,\mathbf v`, :math:`\theta \mathrel{+}= \Delta t\,\omega`,
-    then the gravity impulse :math:`\mathbf v \mathrel{+}= \mathbf g \Delta t` (if the body feels gravity; a
-    pinned body's centre stays), then the angular damping :math:`\omega \mathrel{*}= e^{-c\Delta t}` (the exact
-    decay of :math:`\dot\omega = -c\,\omega` over the step) and the welds (:func:`weld`).
-    Scripted: the script's pose at ``time + dt``. Fixed: unchanged.
-    """
-    if _in_3d(bodies):
-        return rigid_dynamics3d.end_step(bodies, state, time, dt, gravity)
-    position, angle, velocity = state.position.copy(), state.angle.copy(), state.velocity.copy()
-    omega = state.angular_velocity.copy()
-    for r, body in enumerate(bodies):
-        if body.motion == "dynamic":
-            angle[r] += dt * omega[r]
-            omega[r] *= np.exp(-body.angular_damping * dt)
-            if body.pinned:
-                continue
-            position[r] += dt * velocity[r]
-            if body.gravity:
-                velocity[r] += dt * gravity
-        elif body.motion == "scripted":
-            offset, angle[r] = scripted_pose(body, time + dt)
-            position[r] = body.center + offset
-    return state.with_(position=position, angle=angle, velocity=velocity, angular_velocity=weld(bodies, omega))
+
+def diagnostics(bodies, state):
+    """Per body ``r``: ``rigid{r}_`` pose, velocity, angular velocity and impulses received, then the dynamic
+    bodies' linear momentum ``rigid_momentum_x``, ``_y`` (and ``_z``) (a dict)."""
+    p = momentum(bodies, state)
+    return state.mechanics.diagnostics(bodies, state) | {f"rigid_momentum_{a}": v for a, v in zip("xyz", p)}
+
+
 
 
 def momentum(bodies, state):
@@ -357,27 +270,3 @@ def momentum(bodies, state):
                np.zeros(state.velocity.shape[1]))
 
 
-def diagnostics(bodies, state):
-    """Per body ``r``: ``rigid{r}_`` position, angle, velocity, angular velocity and impulse received (dict)."""
-    if _in_3d(bodies):
-        return rigid_dynamics3d.diagnostics(bodies, state) | _momentum_columns(bodies, state)
-    out = {}
-    for r in range(len(bodies)):
-        out.update({f"rigid{r}_x": state.position[r, 0], f"rigid{r}_y": state.position[r, 1],
-                    f"rigid{r}_angle": state.angle[r], f"rigid{r}_vx": state.velocity[r, 0],
-                    f"rigid{r}_vy": state.velocity[r, 1], f"rigid{r}_omega": state.angular_velocity[r],
-                    f"rigid{r}_impulse_x": state.impulse[r, 0], f"rigid{r}_impulse_y": state.impulse[r, 1],
-                    f"rigid{r}_angular_impulse": state.angular_impulse[r]})
-    p = momentum(bodies, state)
-    out.update({"rigid_momentum_x": p[0], "rigid_momentum_y": p[1]})
-    return out
-
-
-def _in_3d(bodies):
-    """Whether the declared bodies are 3D triangle meshes (:mod:`mpmref.physics.rigid_dynamics3d` moves them)."""
-    return bool(bodies) and not isinstance(bodies[0].shape, Polyline)
-
-
-def _momentum_columns(bodies, state):
-    """``rigid_momentum_x``, ``_y`` (and ``_z`` in 3D) of :func:`momentum`."""
-    return {f"rigid_momentum_{a}": v for a, v in zip("xyz", momentum(bodies, state))}

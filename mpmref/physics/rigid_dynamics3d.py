@@ -1,7 +1,8 @@
 r"""Rigid-body motion for CPIC in 3D: orientation, scripts, impulses and integration of triangle-mesh bodies.
 
-The 3D counterpart of :mod:`mpmref.physics.rigid_dynamics` (whose generic functions call these when the
-bodies are :class:`~mpmref.physics.trimesh.TriMesh` meshes). A body is declared at time 0 with a reference
+The 3D motion behind :mod:`mpmref.physics.rigid_dynamics` (chosen once, when a
+:class:`~mpmref.physics.rigid_dynamics.RigidState` of :class:`~mpmref.physics.trimesh.TriMesh` bodies is made);
+its functions have the same names and arguments as those of :mod:`mpmref.physics.rigid_dynamics2d`. A body is declared at time 0 with a reference
 point :math:`\mathbf c_0` (its centre of mass for a dynamic body, the declared ``center`` or the vertex
 centroid otherwise). Its pose at a later time is a translation of the reference point to :math:`\mathbf c`
 and a rotation :math:`R(\mathbf q)` about it, given by a unit quaternion :math:`\mathbf q = (w, x, y, z)`:
@@ -102,21 +103,21 @@ def rotate(q, dt_omega):
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def initial_state(bodies, state_class):
-    """The state (``state_class``, :class:`~mpmref.physics.rigid_dynamics.RigidState`) at time 0 of 3D ``bodies``."""
+def initial_arrays(bodies):
+    """The :class:`~mpmref.physics.rigid_dynamics.RigidState` arrays at time 0 of 3D ``bodies`` (a dict)."""
     nb = len(bodies)
 
     def moving(b, value):
         return np.zeros(3) if b.motion == "fixed" else np.asarray(value, dtype=np.float64)
 
-    return state_class(position=np.array([b.center for b in bodies], dtype=np.float64).reshape(nb, 3),
-                       angle=np.tile(IDENTITY, (nb, 1)),
-                       velocity=np.array([moving(b, b.velocity) for b in bodies]).reshape(nb, 3),
-                       angular_velocity=np.array([moving(b, b.angular_velocity) for b in bodies]).reshape(nb, 3),
-                       impulse=np.zeros((nb, 3)), angular_impulse=np.zeros((nb, 3)))
+    return dict(position=np.array([b.center for b in bodies], dtype=np.float64).reshape(nb, 3),
+                angle=np.tile(IDENTITY, (nb, 1)),
+                velocity=np.array([moving(b, b.velocity) for b in bodies]).reshape(nb, 3),
+                angular_velocity=np.array([moving(b, b.angular_velocity) for b in bodies]).reshape(nb, 3),
+                impulse=np.zeros((nb, 3)), angular_impulse=np.zeros((nb, 3)))
 
 
-def posed_mesh(body, position, q):
+def posed_shape(body, position, q):
     r"""The body's mesh at pose (``position``, ``q``): :math:`\mathbf x = \mathbf c + R(\mathbf q)(\mathbf x^0 - \mathbf c_0)`."""
     vertices = position + (body.shape.vertices - body.center) @ rotation_matrix(q).T
     return TriMesh(vertices=vertices, triangles=body.shape.triangles, closed=body.shape.closed)

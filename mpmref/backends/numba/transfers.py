@@ -39,7 +39,7 @@ def _source_digest():
     constant, which Numba's cache key includes, so editing any file of the backend recompiles them.
     """
     h = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*.py")):
+    for path in sorted(Path(__file__).parent.rglob("*.py")):
         h.update(path.read_bytes())
     return h.hexdigest()
 

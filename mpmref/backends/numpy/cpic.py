@@ -193,7 +193,7 @@ def impulses(grid_state, contact, rigid, dt):
     nodes = np.nonzero(np.any(J_node != 0.0, axis=1))[0]
     cdf = contact.cdf
     x_node = cdf.origin + np.stack(np.unravel_index(nodes, cdf.shape), axis=1) * cdf.dx
-    return body_impulses(len(rigid.angle), cdf.body[nodes], x_node, J_node[nodes], rigid.position)
+    return body_impulses(rigid, cdf.body[nodes], x_node, J_node[nodes])
 
 
 def g2p(particles, v_grid, grid, kernel, spec, dt, prepared, contact, rigid, pushing_force, penalty):
@@ -229,7 +229,7 @@ def g2p(particles, v_grid, grid, kernel, spec, dt, prepared, contact, rigid, pus
         body, at = np.concatenate([body, r]), np.concatenate([at, new.x[p]])
         impulse = np.concatenate([impulse, particles.mass[p, None] * dv_r[p, r]])
     new = new.with_(v=(new.v - dv).astype(new.v.dtype))
-    J, L = body_impulses(len(rigid.angle), body, at, impulse, rigid.position)
+    J, L = body_impulses(rigid, body, at, impulse)
     return new, (J, L)
 
 

@@ -1,0 +1,202 @@
+r"""The CPIC stages of the Numba backend (``cpic_contact``, P2G with a contact, ``cpic_impulses``,
+``cpic_g2p``), one code path for 2D and 3D over the dimension's kernels, chosen once per step when the
+contact is formed (:data:`KERNELS`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`, :mod:`.transfer3d`)."""
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ....physics.cdf import ColoredDistanceField
+from ....physics.rigid_dynamics import initial_state
+from ....state import GridState
+from ..stencil import KERNEL_CODES
+from . import field2d, field3d, transfer2d, transfer3d
+
+
+@dataclass(frozen=True)
+class DimensionKernels:
+    """The kernels of one dimension that the stages call: the field (``build_cdf``, ``tag_kernel``) and the
+    transfers (``p2g_kernel``, ``node_impulses``, ``g2p_kernel``)."""
+
+    build_cdf: object
+    tag_kernel: object
+    p2g_kernel: object
+    node_impulses: object
+    g2p_kernel: object
+
+
+#: The kernels of each dimension, chosen once per step by :func:`contact` (``Contact.kernels``).
+KERNELS = {d: DimensionKernels(field.build_cdf, field.tag_kernel, transfer.p2g_kernel, transfer.node_impulses,
+                               transfer.g2p_kernel)
+           for d, field, transfer in ((2, field2d, transfer2d), (3, field3d, transfer3d))}
+
+
+@dataclass
+class Contact:
+    r"""What the Numba CPIC transfers of one step need.
+
+    Attributes
+    ----------
+    cdf : ColoredDistanceField  the field of the bodies at the start of the step
+    incompatible : (n,) int64   bit ``k`` set iff node ``base + offset_k`` of the transfer stencil is incompatible
+                                with the particle (0 for most particles: those far from every body)
+    support : int               nodes per axis of the transfer stencil (``K = support**2`` offsets)
+    friction : (nb, 2)          encoded friction of each body's side 0 and side 1
+    gravity_dv : (2,)           this step's gravity velocity :math:`\mathbf g\Delta t` (a particle's
+                                :math:`\mathbf v^*_p = \mathbf v_p + \mathbf g\Delta t` is formed where needed)
+    rigid : RigidState          the bodies as P2G sees them (their velocities give P2G's ghost velocities)
+    tau : (n, 2, 2)             the particles' Kirchhoff stress (computed once for the step)
+    dt : float                  the step
+    ghost_force : bool          ghost velocities include the particle's own internal force (``method.ghost_force``)
+    dim : int                   2, or 3 (vectors then have 3 components)
+    kernels : DimensionKernels  the kernels of ``dim`` (:data:`KERNELS`), which the step's stages call
+    fits : tuple                2D: ``(per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, what
+                                :func:`ghost_frame` needs for the per-body fit (``method.cpic_fit``; empty
+                                ``fit_*`` arrays with the single fit)
+    fit_phi : (n, nb) or (0, nb) the per-body distances :math:`\phi_{pr}` (:func:`per_body_fits`)
+    """
+
+    cdf: ColoredDistanceField
+    incompatible: np.ndarray
+    support: int
+    friction: np.ndarray
+    gravity_dv: np.ndarray
+    rigid: object
+    tau: np.ndarray
+    dt: float
+    ghost_force: bool
+    dim: int = 2
+    kernels: DimensionKernels = KERNELS[2]
+    fits: tuple = None
+    fit_phi: np.ndarray = None
+
+    @property
+    def per_body_fit(self):
+        """The per-body fit ``(phi, normal, near)``, each ``(n, nb, ...)``, or None with the single fit."""
+        return (self.fit_phi, self.fits[5], self.fits[6]) if self.fits is not None and self.fits[0] else None
+
+    @property
+    def compatible(self):
+        """``(K, n)`` bool: node ``k`` of particle ``p``'s stencil is compatible (the reference's layout)."""
+        k = np.arange(self.support**self.dim, dtype=np.int64)
+        return ((self.incompatible[None, :] >> k[:, None]) & 1) == 0
+
+
+def contact(backend, particles, blocks, rigid, dt):
+    """The step's :class:`Contact` and the particles with their new tags, distance, normal and ``near`` flag
+    (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
+    scene, spec = backend.scene, backend.cfg
+    bodies, d = scene.rigid_bodies, particles.dim
+    k = KERNELS[d]
+    cdf = k.build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
+    x = np.ascontiguousarray(particles.x, dtype=np.float64)
+    n, nb = particles.n, len(bodies)
+    A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
+    phi, normal, near = np.zeros(n), np.zeros((n, d)), np.zeros(n, dtype=np.bool_)
+    incompatible = np.zeros(n, dtype=np.int64)
+    args = (x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
+            np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
+            incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block,
+            backend.blocks_per_axis)
+    fits = fit_phi = None
+    if d == 2:
+        per_body = scene.method.cpic_fit == "per_body"
+        m = n if per_body else 0
+        fit_phi, fit_normal, fit_near = np.zeros((m, nb)), np.zeros((m, nb, 2)), np.zeros((m, nb), dtype=np.bool_)
+        args += (per_body, cdf.d_body, fit_phi, fit_normal, fit_near)
+        fits = (per_body, cdf.A, cdf.T, cdf.d_body, A, fit_normal, fit_near)
+    k.tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(*args)
+    friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
+    c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
+                gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
+                dt=float(dt), ghost_force=bool(scene.method.ghost_force), dim=d, kernels=k, fits=fits,
+                fit_phi=fit_phi)
+    return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
+
+
+def p2g(backend, particles, blocks, contact):
+    """CPIC P2G (:func:`p2g_kernel`): a :class:`~mpmref.state.GridState` with ``rejected_momentum`` and
+    ``rejected_force``."""
+    spec, N = backend.cfg, backend.scene.grid.n_nodes
+    d = particles.dim
+    gs = GridState(mass=np.zeros(N, dtype=backend.dtype), momentum=np.zeros((N, d), dtype=backend.dtype),
+                   force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
+                   rejected_force=np.zeros((N, d)))
+    rigid, cdf = contact.rigid, contact.cdf
+    kernel = contact.kernels.p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
+    kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
+           contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
+           blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
+           cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
+           rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
+           gs.rejected_momentum, gs.rejected_force, *(() if d == 3 else (contact.fits,)))
+    return gs
+
+
+def impulses(grid_state, contact, rigid, dt):
+    """Impulses ``(J (nb, 2), L (nb,))`` (3D: ``(nb, 3)`` both) of the incompatible nodes on the bodies
+    (:func:`node_impulses`)."""
+    nb, d = rigid.position.shape
+    J, L = np.zeros((nb, d)), np.zeros((nb,) if d == 2 else (nb, 3))
+    cdf = contact.cdf
+    contact.kernels.node_impulses(grid_state.rejected_momentum, grid_state.rejected_force, dt, cdf.body,
+                  np.array(cdf.shape, dtype=np.int64), cdf.origin, cdf.dx, rigid.position, J, L)
+    return J, L
+
+
+def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
+    """CPIC G2P (:func:`g2p_kernel`) with the bodies ``rigid`` as G2P sees them; returns ``(new particles,
+    (J, L))``, the penalty's impulses on the bodies, summed per block by the kernel, then over blocks in order."""
+    spec, method = backend.cfg, backend.scene.method
+    n, d = particles.x.shape
+
+    def empty(*shape):
+        return np.empty(shape, dtype=backend.dtype)
+
+    x_new, v_new = empty(n, d), empty(n, d)
+    C_new = empty(n, d, d) if particles.C is not None else empty(0, d, d)
+    F_new = empty(n, d, d) if particles.F is not None else empty(0, d, d)
+    J_new = empty(n) if particles.J is not None else empty(0)
+    nb = len(rigid.angle)
+    block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3 if d == 2 else 6))  # J, then L
+    kernel = contact.kernels.g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
+                        spec.tracks_F, spec.tracks_J)
+    cdf = contact.cdf
+    kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
+           backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
+           backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
+           blocks.block_start, blocks.block_colours[0], v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
+           particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
+           rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
+           J_new, block_impulse, *(() if d == 3 else (contact.fits, contact.fit_phi)))
+    total = sum_in_order(block_impulse)
+    J, L = total[:, :d], (total[:, d] if d == 2 else total[:, d:])
+    changes = {"x": x_new, "v": v_new}
+    for name, array in (("C", C_new), ("F", F_new), ("J", J_new)):
+        if getattr(particles, name) is not None:
+            changes[name] = array
+    return particles.with_(**changes), (J, L)
+
+
+@njit(cache=True)
+def sum_in_order(per_block):
+    """``per_block`` (k, nb, 3) summed over its first axis, block after block (a fixed order)."""
+    total = np.zeros(per_block.shape[1:])
+    for b in range(per_block.shape[0]):
+        total += per_block[b]
+    return total
+
+
+def warm_up(backend, particles):
+    """Compile (or load) the CPIC kernels by running the contact, P2G, impulse and G2P stages once on
+    ``particles`` with Δt = 0, the bodies where they were declared; nothing is returned or kept."""
+    n, nb = particles.n, len(backend.scene.rigid_bodies)
+    if particles.tag_A is None:
+        particles = particles.with_(tag_A=np.zeros((n, nb), dtype=np.bool_), tag_T=np.zeros((n, nb), dtype=np.bool_))
+    rigid = initial_state(backend.scene.rigid_bodies)
+    blocks = backend.prepare(particles)
+    particles, c = contact(backend, particles, blocks, rigid, 0.0)
+    gs = p2g(backend, particles, blocks, c)
+    impulses(gs, c, rigid, 0.0)
+    g2p(backend, particles, np.zeros_like(gs.momentum), 0.0, blocks, c, rigid)
