@@ -33,7 +33,7 @@ from .physics.polypic import higher_modes
 MEMORY_FRACTION = 0.5
 #: assumed available memory when neither /proc/meminfo nor os.sysconf can tell (4 GiB)
 FALLBACK_AVAILABLE = 4 * 2**30
-#: the smallest number of cells along an axis (see ``mpmref.scene._parse_grid``)
+#: the smallest number of cells along an axis (see ``mpmref.scene.parsers.parse_grid``)
 MIN_CELLS = 4
 
 

@@ -67,6 +67,22 @@ def test_method_refusals_say_why():
     assert_refused(builder("pic", {"penalty": 1.0}).as_dict(), "method.penalty", "only with method.coupling")
 
 
+def test_cpic_settings_are_the_scene_s_cpic_spec():
+    """The ``[method]`` CPIC keys stay where they are in the file and land in ``Scene.cpic`` (None without)."""
+    from mpmref.scene import CpicSpec
+
+    assert builder().build().cpic == CpicSpec(pushing_force=2e4, penalty=0.0, momentum_exact=False,
+                                              ghost_force=True, fit="single")
+    exact = builder("pic", {"coupling": "cpic", "momentum_exact": True, "penalty": 5.0, "ghost_force": False,
+                            "cpic_fit": "per_body"}).build()
+    assert exact.cpic == CpicSpec(pushing_force=0.0, penalty=5.0, momentum_exact=True, ghost_force=False,
+                                  fit="per_body")
+    plain = builder("pic", {}).as_dict()
+    del plain["rigid_bodies"]
+    scene = Scene.from_dict(plain)
+    assert scene.cpic is None and not hasattr(scene.method, "coupling")
+
+
 def test_no_cpic_state_without_bodies():
     plain = builder("pic", {}).as_dict()
     del plain["rigid_bodies"]

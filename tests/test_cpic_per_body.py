@@ -81,12 +81,6 @@ def test_with_one_body_the_per_body_fit_changes_nothing_bitwise():
     assert np.array_equal(a.state.rigid.impulse, b.state.rigid.impulse)
 
 
-def test_cpic_fit_is_validated_and_refused_in_3d():
+def test_cpic_fit_is_validated():
     with pytest.raises(SceneError, match="method.cpic_fit.*'single', 'per_body'"):
         _wedge_scene("both")
-    b = (SceneBuilder(dim=3).grid(size=1.0, cells=8).method("pic", coupling="cpic", cpic_fit="per_body")
-         .material("j", "fixed_corotated", E=1e3, rho=1.0).ball("j", center=[0.5, 0.6, 0.5], radius=0.1)
-         .walls("open").time(dt=1e-3, steps=1))
-    b.rigid_body([[0.2, 0.4, 0.2], [0.8, 0.4, 0.2], [0.5, 0.4, 0.8]], [[0, 1, 2]])
-    with pytest.raises(SceneError, match="method.cpic_fit.*3D"):
-        b.build()

@@ -76,8 +76,8 @@ def test_example_is_the_reference_wheel_pinned_welded_and_fed():
     np.testing.assert_allclose(radii, 0.16, rtol=1e-10)
     (emitter,) = scene.emitters
     assert emitter.interval == pytest.approx(0.1) and emitter.until == 2.5
-    assert scene.time.dt * scene.method.penalty == pytest.approx(1.0, rel=1e-3)
-    assert scene.method.cpic_fit == "per_body"  # sand in the blade–ring corners is near two bodies
+    assert scene.time.dt * scene.cpic.penalty == pytest.approx(1.0, rel=1e-3)
+    assert scene.cpic.fit == "per_body"  # sand in the blade–ring corners is near two bodies
 
 
 def test_a_pinned_body_turns_in_place_and_its_spin_decays_exactly():

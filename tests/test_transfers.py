@@ -203,7 +203,7 @@ def test_velocity_gradient_is_chosen_apart_from_the_force(dim, force, rng):
     crossed = box_scene(dim, "apic", force=force)
     crossed = replace(crossed, method=replace(crossed.method, velocity_gradient=other))
     plain, donor = box_scene(dim, "apic", force=force), box_scene(dim, "apic", force=other)
-    assert crossed.transfer.gradient == other and crossed.transfer.mls == (force == "mls")
+    assert crossed.transfer.gradient == other and crossed.transfer.mls_force == (force == "mls")
     p = random_particles(plain, 40, rng)
     dt = 1e-3
     results = {}

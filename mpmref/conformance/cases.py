@@ -307,7 +307,7 @@ def _cpic_case(stage, label, method, dim=2):
 def _cpic_cases(stage, dim, dtype):
     """The CPIC cases of ``stage`` (2D and 3D, float64; none in float32): the field once; the tags on each kernel
     (the compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
-    variants of the step: momentum-exact, and ghost velocities without the particle's internal force; in 2D the tags,
+    variants of the step: momentum-exact, and ghost velocities without the particle's internal force; the tags,
     P2G, G2P and the step with the per-body fit (``method.cpic_fit = "per_body"``)."""
     if dtype != "float64":
         return []
@@ -330,9 +330,7 @@ def _cpic_cases(stage, dim, dtype):
 
 
 def _per_body_cases(stage, dim):
-    """The per-body fit's case of ``stage`` (2D only; many particles of the cases are tagged by two or three bodies)."""
-    if dim != 2:
-        return []
+    """The per-body fit's case of ``stage`` (many particles of the cases are tagged by two or three bodies)."""
     per_body = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "cpic_fit": "per_body"}
     return [_cpic_case(stage, "mls-mls-quadratic-per-body", per_body, dim)]
 

@@ -67,6 +67,7 @@ def resolved_scene(case):
         "grid": {"origin": grid.origin.tolist(), "dx": grid.dx, "cells": list(grid.cells),
                  "node_shape": list(grid.node_shape), "n_nodes": grid.n_nodes},
         "method": asdict(scene.method),
+        "cpic": None if scene.cpic is None else asdict(scene.cpic),
         "kernel": {"name": kernel.name, "support": kernel.support, "inertia_factor": kernel.inertia_factor},
         "materials": [_material_entry(name, declared[name], m) for name, m in scene.materials.items()],
         "gravity": scene.gravity.tolist(),

@@ -11,6 +11,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from .parameters import parameter
+
 
 def lame_parameters(E, nu):
     r"""Lamé parameters from Young's modulus and Poisson's ratio.
@@ -58,8 +60,23 @@ def polar_rotation(F):
     return U @ Vt, sigma
 
 
-class LameParameters:
-    """Mixin for materials with fields ``E`` and ``nu``: the Lamé parameters ``mu`` and ``lam``."""
+@dataclass(frozen=True)
+class Material:
+    """What every material declares: its rest density ``rho`` (:math:`\\rho`, so that :math:`m_p = \\rho V_p^0`).
+
+    Parameters are declared with :func:`~mpmref.physics.parameters.parameter` (default and allowed range);
+    the scene validator reads them from there.
+    """
+
+    rho: float = parameter(default=1000.0, lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class LameParameters(Material):
+    """Materials with Young's modulus ``E`` and Poisson's ratio ``nu``: the Lamé parameters ``mu`` and ``lam``."""
+
+    E: float = parameter(lo=0.0, lo_open=True)
+    nu: float = parameter(default=0.3, lo=0.0, hi=0.5, hi_open=True)
 
     @property
     def mu(self):
@@ -74,9 +91,6 @@ class LameParameters:
 class ElasticSolid(LameParameters):
     """Shared parameters of the hyperelastic solids: Young's modulus ``E``, Poisson ratio ``nu``, density ``rho``."""
 
-    E: float
-    nu: float
-    rho: float
     tracks = "F"
 
     def wave_speed(self):
@@ -150,7 +164,7 @@ class NeoHookean(ElasticSolid):
 
 
 @dataclass(frozen=True)
-class WeaklyCompressibleFluid:
+class WeaklyCompressibleFluid(Material):
     r"""Weakly compressible fluid with a Tait-type equation of state, tracking only :math:`J`.
 
     .. math::
@@ -166,9 +180,8 @@ class WeaklyCompressibleFluid:
     "88-line" program). :math:`K` is the bulk stiffness, :math:`\gamma` the exponent, :math:`\rho` density.
     """
 
-    K: float
-    gamma: float
-    rho: float
+    K: float = parameter(lo=0.0, lo_open=True)
+    gamma: float = parameter(default=7.0, lo=1.0, hi=20.0)
     tracks = "J"
 
     def pressure(self, J):

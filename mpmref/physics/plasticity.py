@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .materials import FixedCorotated, LameParameters, determinant, elastic_wave_speeds, signed_svd
+from .parameters import parameter
 
 SIGMA_FLOOR = 1.0e-6
 """Smallest singular value the Hencky strain :math:`\\ln\\sigma` is taken of (sand): a compression of a
@@ -66,21 +67,17 @@ class SnowPlasticity(LameParameters):
     trial :math:`F_E` (signed :math:`\sigma_d < 0`) comes back un-inverted with
     :math:`\hat\sigma_d = 1-\theta_c`; its volume ratio is negative, so :math:`J_P` clamps to ``Jp_min``.
 
-    Allowed ranges (checked by the scene validator): ``E > 0``, ``0 <= nu < 0.5``, ``rho > 0``,
-    ``0 < theta_c < 1``, ``theta_s >= 0``, ``0 <= hardening <= 100``, ``0 < Jp_min <= 1 <= Jp_max``.
+    Defaults and allowed ranges are declared on the fields (:func:`~mpmref.physics.parameters.parameter`);
+    ``E``, ``nu`` and ``rho`` come from :class:`~mpmref.physics.materials.LameParameters`.
     """
 
-    E: float
-    nu: float
-    rho: float
-    theta_c: float = 2.5e-2
-    theta_s: float = 7.5e-3
-    hardening: float = 10.0
-    Jp_min: float = 0.6
-    Jp_max: float = 20.0
+    theta_c: float = parameter(default=2.5e-2, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    theta_s: float = parameter(default=7.5e-3, lo=0.0)
+    hardening: float = parameter(default=10.0, lo=0.0, hi=100.0)
+    Jp_min: float = parameter(default=0.6, lo=0.0, hi=1.0, lo_open=True)
+    Jp_max: float = parameter(default=20.0, lo=1.0)
     tracks = "F"
     plastic = True
-
 
     def hardening_factor(self, Jp):
         r"""Stiffness multiplier :math:`e^{\xi(1 - J_P)}` of both Lamé parameters."""
@@ -170,18 +167,14 @@ class DruckerPragerSand(LameParameters):
     :math:`\phi` is ``friction_angle`` in degrees, :math:`\mu, \lambda` the Lamé parameters, :math:`d` the
     dimension. ``Jp`` is only bookkeeping here; the stress does not depend on it.
 
-    Allowed ranges (checked by the scene validator): ``E > 0``, ``0 <= nu < 0.5``, ``rho > 0``,
-    ``0 <= friction_angle < 90``, ``0 <= cohesion <= 1``.
+    Defaults and allowed ranges are declared on the fields (:func:`~mpmref.physics.parameters.parameter`);
+    ``E``, ``nu`` and ``rho`` come from :class:`~mpmref.physics.materials.LameParameters`.
     """
 
-    E: float
-    nu: float
-    rho: float
-    friction_angle: float = 30.0
-    cohesion: float = 0.0
+    friction_angle: float = parameter(default=30.0, lo=0.0, hi=90.0, hi_open=True)
+    cohesion: float = parameter(default=0.0, lo=0.0, hi=1.0)
     tracks = "F"
     plastic = True
-
 
     @property
     def alpha(self):

@@ -44,8 +44,8 @@ class TransferSpec(NamedTuple):
         G2P blends the FLIP increment.
     flip_alpha : float
         The FLIP fraction (0 unless ``flip``).
-    mls : bool
-        The MLS force (P2G).
+    mls_force : bool
+        The MLS force (P2G): ``force == "mls"``.
     gradient : str
         The velocity gradient of the ``F``/``J`` update: ``mls`` (:math:`C_p`) or ``classic``
         (:math:`\sum_i v_i \nabla w_{ip}^T`); declared as ``method.velocity_gradient``, which follows
@@ -66,7 +66,7 @@ class TransferSpec(NamedTuple):
     polypic: bool
     flip: bool
     flip_alpha: float
-    mls: bool
+    mls_force: bool
     gradient: str
     mls_gradient: bool
     tracks_F: bool
@@ -81,7 +81,7 @@ def resolve(method, dim, materials):
         scheme=method.scheme, transfer=transfer, force=method.force, kernel=method.kernel,
         support=get_kernel(method.kernel).support, dim=dim,
         affine=transfer in ("apic", "polypic"), polypic=transfer == "polypic", flip=transfer == "flip",
-        flip_alpha=float(method.flip_alpha) if transfer == "flip" else 0.0, mls=method.force == "mls",
+        flip_alpha=float(method.flip_alpha) if transfer == "flip" else 0.0, mls_force=method.force == "mls",
         gradient=method.velocity_gradient, mls_gradient=method.velocity_gradient == "mls",
         tracks_F=any(m.tracks == "F" for m in materials), tracks_J=any(m.tracks == "J" for m in materials),
         tracks_Jp=any(getattr(m, "plastic", False) for m in materials))

@@ -128,13 +128,13 @@ def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigi
     r"""The CPIC end of :func:`substep`: impulses, G2P with ghosts, the rigid step; returns ``(particles, rigid)``.
 
     The impulses that incompatible nodes did not take in P2G change the dynamic bodies' velocities before
-    G2P (the reference's order), or, with ``method.momentum_exact``, after it: then the bodies' velocity
+    G2P (the reference's order), or, with ``scene.cpic.momentum_exact``, after it: then the bodies' velocity
     is the same in P2G and G2P, and particles plus bodies keep their total linear momentum exactly
     (docs/cpic.md). The penalty's impulses are applied after G2P; then every body moves to ``time + dt``.
     """
     bodies, scene = backend.scene.rigid_bodies, backend.scene
     J, L = backend.cpic_impulses(grid_state, contact, rigid, dt)
-    exact = scene.method.momentum_exact
+    exact = scene.cpic.momentum_exact
     seen = rigid if exact else apply_impulses(bodies, rigid, J, L)  # the bodies G2P sees
     new, (J_pen, L_pen) = backend.cpic_g2p(particles, v_grid, dt, prepared, contact, seen)
     new = backend.return_map(new)

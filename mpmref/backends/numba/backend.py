@@ -14,6 +14,7 @@ from ..base import MaterialTable
 from . import cpic, materials, transfers
 from .blocks import colour_classes, slab_colours, sort_into_blocks
 from .buffers import BufferPool
+from .kernel_args import Groups, SparseLayout
 from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 
@@ -120,16 +121,16 @@ class NumbaBackend:
         self.scene = scene
         grid = scene.grid
         self.dtype = scene.dtype
-        self.cfg = scene.transfer
+        self.transfer = scene.transfer
         self.fluids_only = all(isinstance(m, WeaklyCompressibleFluid) for m in scene.material_list)
-        self._p2g = transfers.make_p2g(self.cfg, grid.block, self.fluids_only)
-        self._g2p = transfers.make_g2p(self.cfg, grid.block)
+        self._p2g = transfers.make_p2g(self.transfer, grid.block, self.fluids_only)
+        self._g2p = transfers.make_g2p(self.transfer, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
         self.inertia = 0.0 if scene.kernel.inertia_factor is None else scene.kernel.inertia_factor * self.dx**2
         self.strides = grid.strides
         self.node_shape = np.array(grid.node_shape, dtype=np.int64)
-        modes = higher_modes(scene.dim, scene.kernel.support) if self.cfg.polypic else np.zeros((0, scene.dim))
+        modes = higher_modes(scene.dim, scene.kernel.support) if self.transfer.polypic else np.zeros((0, scene.dim))
         self.mode_index = np.ascontiguousarray(modes, dtype=np.int64)
         self.shift = BASE_SHIFT[scene.kernel.name]
         self.block = grid.block
@@ -209,9 +210,9 @@ class NumbaBackend:
         try:
             self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
                       self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, stress,
-                      self._or_empty(particles.J, 0), particles.material, self.fluid_params, self.origin,
-                      self.dx, self.inertia, layout.slot_of, layout.table_strides,
-                      self.mode_index, blocks.order, *blocks.p2g_groups, class_rows, grid)
+                      self._or_empty(particles.J, 0), particles.material, self.fluid_params,
+                      self.sparse_layout(layout), self.mode_index, Groups(blocks.order, *blocks.p2g_groups),
+                      class_rows, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
         class_sums = None
@@ -223,10 +224,15 @@ class NumbaBackend:
                           class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
 
+    def sparse_layout(self, layout):
+        """The grid's layout as the transfer kernels read it (:class:`.kernel_args.SparseLayout`), for the
+        block layout ``layout`` of this step's particles."""
+        return SparseLayout(self.origin, self.dx, self.inertia, layout.slot_of, layout.table_strides)
+
     @cached_property
     def _kick_gather(self):
         """The kick gather of conservative level interfaces (compiled on first use)."""
-        return transfers.make_kick_gather(self.cfg, self.block)
+        return transfers.make_kick_gather(self.transfer, self.block)
 
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
@@ -283,8 +289,8 @@ class NumbaBackend:
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.origin, self.dx, self.inertia, dt, self.cfg.flip_alpha, layout.slot_of, layout.table_strides,
-                  self.mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)
+                  self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde, x_new,
+                  v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
@@ -295,7 +301,7 @@ class NumbaBackend:
         row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
         first = row_of_class[kicks[0]]
         impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
-        self._kick_gather(particles.x, particles.mass, self.origin, self.dx, layout.slot_of, layout.table_strides,
+        self._kick_gather(particles.x, particles.mass, self.sparse_layout(layout),
                           np.where(first >= 0, first * layout.n_rows, -1), kicks[1].reshape(-1, d), impulse, moment)
         return new, (impulse, moment)
 

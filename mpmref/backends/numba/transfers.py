@@ -47,38 +47,39 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def make_p2g(spec, block, fluids_only):
+def make_p2g(transfer, block, fluids_only):
     """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, for a scene
     of ``fluids_only`` or one with solids (FLIP, the tracked deformation and which solids are invisible to
     P2G, so those variants share one compiled kernel); see :func:`p2g_kernel`."""
-    return p2g_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.mls, block,
-                      fluids_only)
+    return p2g_kernel(transfer.dim, KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine, transfer.polypic,
+                      transfer.mls_force, block, fluids_only)
 
 
-def make_g2p(spec, block):
+def make_g2p(transfer, block):
     """G2P kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks (the tracked
     deformation, F or J, is a run-time choice, so those variants share one compiled kernel); see
     :func:`g2p_kernel`."""
-    return g2p_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.polypic, spec.flip,
-                      spec.mls_gradient, block)
+    return g2p_kernel(transfer.dim, KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine, transfer.polypic,
+                      transfer.flip, transfer.mls_gradient, block)
 
 
-def make_kick_gather(spec, block):
+def make_kick_gather(transfer, block):
     """The kick gather of conservative level interfaces for a configuration; see :func:`kick_gather_kernel`."""
-    return kick_gather_kernel(spec.dim, KERNEL_CODES[spec.kernel], spec.support, block)
+    return kick_gather_kernel(transfer.dim, KERNEL_CODES[transfer.kernel], transfer.support, block)
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
-    The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, origin, dx,
-    inertia, slot_of, table_strides, mode_index, order, group_start, groups, colour_start, class_rows, grid)``
-    adds into the zeroed ``grid`` (rows, 1 + 2d), one row per node of the active blocks of a
-    :class:`~.sparse.BlockLayout` (``slot_of`` its block-pointer table, ``table_strides`` the table's strides;
-    rows located by :func:`block_rows_2d` and :func:`block_rows_3d`): mass, momentum, internal force, group
-    by group (slabs or blocks, ``order[group_start[g]:group_start[g + 1]]`` the particles of group ``g``) in
+    The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout,
+    mode_index, particle_groups, class_rows, grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per
+    node of the active blocks of a :class:`~.sparse.BlockLayout` (``layout`` a
+    :class:`~.kernel_args.SparseLayout`: ``origin``, ``dx``, ``inertia``, ``slot_of`` the block-pointer table,
+    ``table_strides`` the table's strides; rows located by :func:`block_rows_2d` and :func:`block_rows_3d`):
+    mass, momentum, internal force, group by group (``particle_groups`` a :class:`~.kernel_args.Groups`: slabs
+    or blocks, ``order[group_start[g]:group_start[g + 1]]`` the particles of group ``g``) in
     the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first computes what every
     node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (read from ``stress``, the stress
@@ -101,11 +102,13 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
     N = BLOCK**DIM  # nodes (rows) per block
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, origin, dx, inertia, slot_of,
-            table_strides, mode_index, order, group_start, groups, colour_start, class_rows, grid):
+    def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout, mode_index, particle_groups,
+            class_rows, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
+        origin, dx, inertia, slot_of, table_strides = layout
+        order, group_start, groups, colour_start = particle_groups
         inv_dx = 1.0 / dx
-        T = grid.dtype.type
+        real = grid.dtype.type
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
             for si in prange(colour_start[colour + 1] - first):
@@ -125,17 +128,14 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
                     else:
                         tau = stress[p]
                     m = mass[p]
-                    Q = matrix(tau, T(-vol0[p] / inertia if MLS else -vol0[p]), DIM)
+                    Q = matrix(tau, real(-vol0[p] / inertia if MLS_FORCE else -vol0[p]), DIM)
                     mv = scaled_row(v, p, m, DIM)
                     if AFFINE:
                         mC = matrix(C[p], m, DIM)
                     else:
                         mC = Q  # unused
-                    b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                    b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-                    d0, d1 = cast(offsets(f0, dx, S), T, S), cast(offsets(f1, dx, S), T, S)
-                    g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
-                    v0, v1 = cast(w0, T, S), cast(w1, T, S)
+                    b0, f0, w0, d0, g0, wt0 = axis_stencil(KERNEL, x[p, 0], origin[0], dx, inv_dx, real, S)
+                    b1, f1, w1, d1, g1, wt1 = axis_stencil(KERNEL, x[p, 1], origin[1], dx, inv_dx, real, S)
                     if DIM == 2:
                         k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
                         l0, l1 = b0 % BLOCK, b1 % BLOCK
@@ -149,14 +149,13 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
                         for i in range(S):
                             row_i = (k1 if c0[i] else k0) + r0[i] + shift
                             for j in range(S):
-                                w = v0[i] * v1[j]
+                                w = wt0[i] * wt1[j]
                                 d = (d0[i], d1[j])
-                                fw = (w * d[0], w * d[1]) if MLS else (g0[i] * v1[j], g1[j] * v0[i])
+                                fw = (w * d[0], w * d[1]) if MLS_FORCE else (g0[i] * wt1[j], g1[j] * wt0[i])
                                 p2g_node(grid, row_i + r1[j], w, d, fw, (i, j), m, mv, mC, Q, p, modes, q, mode_index,
                                          AFFINE, POLY)
                     else:
-                        b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
-                        d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
+                        b2, f2, w2, d2, g2, wt2 = axis_stencil(KERNEL, x[p, 2], origin[2], dx, inv_dx, real, S)
                         k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
                         l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
                         c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
@@ -170,15 +169,15 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS, BLOCK, FLUIDS_ONLY):
                         for i in range(S):
                             ka, kb = (k10, k11) if c0[i] else (k00, k01)
                             for j in range(S):
-                                w01 = v0[i] * v1[j]
+                                w01 = wt0[i] * wt1[j]
                                 row_ij = (kb if c1[j] else ka) + r0[i] + r1[j] + shift
                                 for l in range(S):
-                                    w = w01 * v2[l]
+                                    w = w01 * wt2[l]
                                     d = (d0[i], d1[j], d2[l])
-                                    if MLS:
+                                    if MLS_FORCE:
                                         fw = (w * d[0], w * d[1], w * d[2])
                                     else:
-                                        fw = (g0[i] * v1[j] * v2[l], g1[j] * v0[i] * v2[l], g2[l] * w01)
+                                        fw = (g0[i] * wt1[j] * wt2[l], g1[j] * wt0[i] * wt2[l], g2[l] * w01)
                                     p2g_node(grid, row_ij + r2[l], w, d, fw, (i, j, l), m, mv, mC, Q, p, modes, q,
                                              mode_index, AFFINE, POLY)
 
@@ -275,14 +274,24 @@ def scaled(t, s, S):
 
 
 @njit(cache=True, inline="always")
-def cast(t, T, S):
-    """A tuple ``t`` of ``S`` = 2 to 4 values converted to the scalar type ``T`` (so a float32 run's
+def cast(t, real, S):
+    """A tuple ``t`` of ``S`` = 2 to 4 values converted to the scalar type ``real`` (so a float32 run's
     per-node arithmetic stays in float32)."""
     if S == 2:
-        return (T(t[0]), T(t[1]))
+        return (real(t[0]), real(t[1]))
     if S == 3:
-        return (T(t[0]), T(t[1]), T(t[2]))
-    return (T(t[0]), T(t[1]), T(t[2]), T(t[3]))
+        return (real(t[0]), real(t[1]), real(t[2]))
+    return (real(t[0]), real(t[1]), real(t[2]), real(t[3]))
+
+
+@njit(cache=True, inline="always")
+def axis_stencil(KERNEL, x_a, origin_a, dx, inv_dx, real, S):
+    r"""One axis ``a`` of a particle's transfer stencil, the set-up that P2G and G2P share: the base node
+    :math:`b`, the fraction :math:`f = (x_a - o_a)/\Delta x - b`, the weights :math:`N_k` (as the kernel gives
+    them), and cast to the run's scalar type ``real`` the node offsets :math:`(k - f)\Delta x`, the weight
+    derivatives :math:`N'_k/\Delta x` and the weights (:func:`mpmref.backends.numba.stencil.kernel_axis`)."""
+    b, f, w, dw = kernel_axis(KERNEL, (x_a - origin_a) / dx)
+    return b, f, w, cast(offsets(f, dx, S), real, S), cast(scaled(dw, inv_dx, S), real, S), cast(w, real, S)
 
 
 @njit(cache=True, inline="always")
@@ -340,32 +349,33 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
+def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index,
-    v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new)`` writes the new particle arrays from the
+    The returned ``g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new,
+    F_new, J_new, modes_new)`` (``layout`` a :class:`~.kernel_args.SparseLayout`) writes the new particle arrays from the
     node velocities on the rows of a :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes
     only its own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
     are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
     :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
     (:func:`gather_modes`).
-    ``MLS`` here is the MLS velocity gradient :math:`\nabla v_p = C_p` (``spec.mls_gradient``), chosen apart
-    from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
+    ``MLS_GRADIENT``: the velocity gradient is MLS's, :math:`\nabla v_p = C_p` (``transfer.mls_gradient``), chosen
+    apart from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
     test per particle, so one compiled kernel serves scenes that track F, J or both.
     """
-    NEED_B = AFFINE or MLS
+    NEED_B = AFFINE or MLS_GRADIENT
     SOURCES = SOURCE_DIGEST
     N = BLOCK**DIM
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, origin, dx, inertia, dt, flip_alpha, slot_of, table_strides, mode_index, v_grid,
-            v_tilde, x_new, v_new, C_new, F_new, J_new, modes_new):
+    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
+            modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
+        origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
-        T = x_new.dtype.type
+        real = x_new.dtype.type
         inv_dx = 1.0 / dx
         n = x.shape[0]
         for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
@@ -377,13 +387,10 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
             for p in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
                 if POLY:
                     acc[:] = 0.0
-                v_pic, dv_flip = zeros(T, DIM), zeros(T, DIM)
-                B, grad_v = zeros2(T, DIM), zeros2(T, DIM)
-                b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-                d0, d1 = cast(offsets(f0, dx, S), T, S), cast(offsets(f1, dx, S), T, S)
-                g0, g1 = cast(scaled(dw0, inv_dx, S), T, S), cast(scaled(dw1, inv_dx, S), T, S)
-                v0, v1 = cast(w0, T, S), cast(w1, T, S)
+                v_pic, dv_flip = zeros(real, DIM), zeros(real, DIM)
+                B, grad_v = zeros2(real, DIM), zeros2(real, DIM)
+                b0, f0, w0, d0, g0, wt0 = axis_stencil(KERNEL, x[p, 0], origin[0], dx, inv_dx, real, S)
+                b1, f1, w1, d1, g1, wt1 = axis_stencil(KERNEL, x[p, 1], origin[1], dx, inv_dx, real, S)
                 if DIM == 2:
                     k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
                     l0, l1 = b0 % BLOCK, b1 % BLOCK
@@ -398,20 +405,19 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                         row_i = (k1 if c0[i] else k0) + r0[i]
                         for j in range(S):
                             idx = row_i + r1[j]
-                            w = v0[i] * v1[j]
+                            w = wt0[i] * wt1[j]
                             vi = row(v_grid, idx, DIM)
                             v_pic = axpy(v_pic, w, vi, DIM)
                             if NEED_B:
                                 B = add_outer(B, scaled(vi, w, DIM), (d0[i], d1[j]), DIM)
-                            if not MLS:
-                                grad_v = add_outer(grad_v, vi, (g0[i] * v1[j], g1[j] * v0[i]), DIM)
+                            if not MLS_GRADIENT:
+                                grad_v = add_outer(grad_v, vi, (g0[i] * wt1[j], g1[j] * wt0[i]), DIM)
                             if FLIP:
                                 dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
                             if POLY:
                                 gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
                 else:
-                    b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
-                    d2, g2, v2 = cast(offsets(f2, dx, S), T, S), cast(scaled(dw2, inv_dx, S), T, S), cast(w2, T, S)
+                    b2, f2, w2, d2, g2, wt2 = axis_stencil(KERNEL, x[p, 2], origin[2], dx, inv_dx, real, S)
                     k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
                     l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
                     c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
@@ -425,17 +431,17 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                     for i in range(S):
                         ka, kb = (k10, k11) if c0[i] else (k00, k01)
                         for j in range(S):
-                            w01 = v0[i] * v1[j]
+                            w01 = wt0[i] * wt1[j]
                             row_ij = (kb if c1[j] else ka) + r0[i] + r1[j]
                             for l in range(S):
                                 idx = row_ij + r2[l]
-                                w = w01 * v2[l]
+                                w = w01 * wt2[l]
                                 vi = row(v_grid, idx, DIM)
                                 v_pic = axpy(v_pic, w, vi, DIM)
                                 if NEED_B:
                                     B = add_outer(B, scaled(vi, w, DIM), (d0[i], d1[j], d2[l]), DIM)
-                                if not MLS:
-                                    g = (g0[i] * v1[j] * v2[l], g1[j] * v0[i] * v2[l], g2[l] * w01)
+                                if not MLS_GRADIENT:
+                                    g = (g0[i] * wt1[j] * wt2[l], g1[j] * wt0[i] * wt2[l], g2[l] * w01)
                                     grad_v = add_outer(grad_v, vi, g, DIM)
                                 if FLIP:
                                     dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, DIM), DIM)
@@ -443,7 +449,7 @@ def g2p_kernel(DIM, KERNEL, S, AFFINE, POLY, FLIP, MLS, BLOCK):
                                     gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
                 finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
                                 mode_index, x_new, v_new, C_new, F_new, J_new, modes_new,
-                                AFFINE, POLY, FLIP, MLS, F_new.shape[0] > 0, J_new.shape[0] > 0)
+                                AFFINE, POLY, FLIP, MLS_GRADIENT, F_new.shape[0] > 0, J_new.shape[0] > 0)
 
     return g2p
 
@@ -453,19 +459,19 @@ G2P_CHUNK = 256
 
 
 @njit(cache=True, inline="always")
-def zeros(T, dim):
-    """A d-tuple of zeros of scalar type ``T``."""
+def zeros(real, dim):
+    """A d-tuple of zeros of scalar type ``real``."""
     if dim == 2:
-        return (T(0.0), T(0.0))
-    return (T(0.0), T(0.0), T(0.0))
+        return (real(0.0), real(0.0))
+    return (real(0.0), real(0.0), real(0.0))
 
 
 @njit(cache=True, inline="always")
-def zeros2(T, dim):
-    """A d x d matrix of zeros of scalar type ``T`` as a flat tuple (row-major)."""
+def zeros2(real, dim):
+    """A d x d matrix of zeros of scalar type ``real`` as a flat tuple (row-major)."""
     if dim == 2:
-        return (T(0.0), T(0.0), T(0.0), T(0.0))
-    return (T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0), T(0.0))
+        return (real(0.0), real(0.0), real(0.0), real(0.0))
+    return (real(0.0), real(0.0), real(0.0), real(0.0), real(0.0), real(0.0), real(0.0), real(0.0), real(0.0))
 
 
 @njit(cache=True, inline="always")
@@ -507,10 +513,12 @@ def gather_modes(acc, idx, w, ks, v_grid, q, mode_index):
 
 @njit(cache=True, inline="always")
 def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm, mode_index,
-                    x_new, v_new, C_new, F_new, J_new, modes_new, affine, poly, flip, mls, tracks_F, tracks_J):
+                    x_new, v_new, C_new, F_new, J_new, modes_new, affine, poly, flip, mls_gradient, tracks_F,
+                    tracks_J):
     r"""G2P's per-particle update from the gathered sums (see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    :math:`C_p = B_p D_p^{-1}`; :math:`\nabla v_p = C_p` (MLS) or the gathered :math:`\sum_i v_i \nabla w_{ip}^T`;
+    :math:`C_p = B_p D_p^{-1}`; :math:`\nabla v_p = C_p` (MLS, ``mls_gradient``) or the gathered
+    :math:`\sum_i v_i \nabla w_{ip}^T`;
     :math:`x_p \leftarrow x_p + \Delta t\, v^{PIC}_p`; the FLIP blend (``dv_flip`` holds
     :math:`\sum_i w_{ip}(v_i - \tilde v_i)` less :math:`v^{PIC}_p`, added back here); :math:`F_p \leftarrow
     F_p + \Delta t\, \nabla v_p F_p`; :math:`J_p \leftarrow J_p (1 + \Delta t \operatorname{tr} \nabla v_p)`;
@@ -538,12 +546,12 @@ def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, g
             for b in range(d):
                 s = 0.0
                 for c in range(d):
-                    s += dt * (B[a * d + c] / inertia if mls else grad_v[a * d + c]) * F[p, c, b]
+                    s += dt * (B[a * d + c] / inertia if mls_gradient else grad_v[a * d + c]) * F[p, c, b]
                 F_new[p, a, b] = F[p, a, b] + s
     if tracks_J:
         trace = 0.0
         for a in range(d):
-            trace += B[a * d + a] / inertia if mls else grad_v[a * d + a]
+            trace += B[a * d + a] / inertia if mls_gradient else grad_v[a * d + a]
         J_new[p] = J[p] * (1.0 + dt * trace)
 
 
@@ -681,8 +689,8 @@ def kick_gather_kernel(DIM, KERNEL, S, BLOCK):
     r"""The kick gather of conservative level interfaces (:mod:`mpmref.physics.interface`), a pass of its own
     after G2P, so that the G2P kernels of every other run compile without it.
 
-    The returned ``gather(x, mass, origin, dx, slot_of, table_strides, kick_rows, kicks, impulse, moment)``
-    writes, for each particle ``p`` with ``kick_rows[p] >= 0`` (the first row of its class's kicks in
+    The returned ``gather(x, mass, layout, kick_rows, kicks, impulse, moment)`` (``layout`` a
+    :class:`~.kernel_args.SparseLayout`) writes, for each particle ``p`` with ``kick_rows[p] >= 0`` (the first row of its class's kicks in
     ``kicks``), its impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[p]`` and its moment about
     the origin :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`
     into ``moment[p]`` (one column in 2D, three in 3D), in float64; the nodes are the rows of a
@@ -694,8 +702,9 @@ def kick_gather_kernel(DIM, KERNEL, S, BLOCK):
     N = BLOCK**DIM
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def gather(x, mass, origin, dx, slot_of, table_strides, kick_rows, kicks, impulse, moment):
+    def gather(x, mass, layout, kick_rows, kicks, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
+        origin, dx, inertia, slot_of, table_strides = layout
         for p in prange(x.shape[0]):
             first = kick_rows[p]
             if first < 0:

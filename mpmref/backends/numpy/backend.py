@@ -75,12 +75,12 @@ class NumpyBackend:
     def cpic_contact(self, particles, prepared, rigid, dt):
         return cpic.contact(particles, prepared, self.scene.rigid_bodies, rigid, self.scene.grid, dt, self.gravity,
                             self.stress(particles), transfers.GRADIENT_WEIGHTS[self.scene.transfer.force],
-                            self.scene.method.ghost_force, self.scene.method.cpic_fit == "per_body")
+                            self.scene.cpic.ghost_force, self.scene.cpic.fit == "per_body")
 
     def cpic_impulses(self, grid_state, contact, rigid, dt):
         return cpic.impulses(grid_state, contact, rigid, dt)
 
     def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid):
-        m = self.scene.method
+        m = self.scene.cpic
         return cpic.g2p(particles, v_grid, self.scene.grid, self.kernel, self.scene.transfer, dt, prepared, contact,
                         rigid, m.pushing_force, m.penalty)

@@ -55,17 +55,17 @@ def classic_gradient_weight(stencil, w, dpos, offset):
 GRADIENT_WEIGHTS = {"mls": mls_gradient_weight, "classic": classic_gradient_weight}
 
 
-def prepare(particles, grid, kernel, spec):
+def prepare(particles, grid, kernel, transfer):
     """Kernel stencil of the particles (and PolyPIC's basis): what P2G and G2P of one step share.
 
     Particles do not move between P2G and G2P, so one step computes this once and passes it to both.
     Returns ``(stencil, basis)``; ``basis`` is ``None`` unless the scheme is PolyPIC.
     """
     st = compute_stencil(kernel, particles.x, grid.origin, grid.dx)
-    return st, (polypic_basis(st, grid) if spec.polypic else None)
+    return st, (polypic_basis(st, grid) if transfer.polypic else None)
 
 
-def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes=None):
+def p2g(particles, tau, grid, kernel, transfer, prepared=None, contact=None, classes=None):
     r"""Particle to grid: node mass, momentum and internal force.
 
     .. math::
@@ -89,7 +89,7 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes
     tau : (n, d, d) array   Kirchhoff stress of each particle
     grid : Grid
     kernel : kernel object  (``mpmref.physics.kernels``)
-    spec : TransferSpec    the resolved scheme (:mod:`mpmref.physics.scheme`)
+    transfer : TransferSpec the resolved scheme (:mod:`mpmref.physics.scheme`)
     prepared : output of :func:`prepare` for these particles (computed here if ``None``)
     contact : CPIC only (:class:`mpmref.backends.numpy.cpic.Contact`): particles give mass, momentum and
         force only to compatible nodes; what they would have given an incompatible node is collected there
@@ -100,8 +100,8 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes
         (:mod:`mpmref.physics.interface`): the sums go to ``class_sums`` (K, N, 1 + 2d) per class, in the
         same pass, and the totals are their sums
     """
-    st, basis = prepared or prepare(particles, grid, kernel, spec)
-    gradient_weight = GRADIENT_WEIGHTS[spec.force]
+    st, basis = prepared or prepare(particles, grid, kernel, transfer)
+    gradient_weight = GRADIENT_WEIGHTS[transfer.force]
     m, d = particles.mass, grid.dim
     n_bins = grid.n_nodes * (N_CLASSES if classes is not None else 1)
     stress_volume = particles.vol0[:, None, None] * tau
@@ -119,7 +119,7 @@ def p2g(particles, tau, grid, kernel, spec, prepared=None, contact=None, classes
                 [kept_out, -np.einsum("nab,nb->na", stress_volume, gw * ~keep[:, None])], axis=1), grid.n_nodes)
             w, gw = w * keep, gw * keep[:, None]
         p_mom = particles.v
-        if spec.affine:
+        if transfer.affine:
             p_mom = p_mom + np.einsum("nab,nb->na", particles.C, dpos)
         if basis is not None:
             p_mom = p_mom + np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]), particles.modes)
@@ -194,7 +194,7 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     return v, v_tilde
 
 
-def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost=None, kicks=None):
+def g2p(particles, v_grid, v_tilde, grid, kernel, transfer, dt, prepared=None, ghost=None, kicks=None):
     r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
     .. math::
@@ -210,7 +210,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
         J_p \leftarrow (1 + \Delta t \operatorname{tr} \nabla v_p) J_p, \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
 
     With the MLS velocity gradient :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the
-    classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``spec.gradient`` chooses it, independently of
+    classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``transfer.gradient`` chooses it, independently of
     the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are the projections of
     :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
@@ -234,14 +234,14 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
     docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#flipα, docs/transfers.md#pic,
     docs/transfers.md#polypic
     """
-    st, basis = prepared or prepare(particles, grid, kernel, spec)
+    st, basis = prepared or prepare(particles, grid, kernel, transfer)
     n, d = particles.x.shape
     dtype = v_grid.dtype
-    need_B = spec.affine or spec.mls_gradient
+    need_B = transfer.affine or transfer.mls_gradient
     v_pic = np.zeros((n, d), dtype=dtype)
     B = np.zeros((n, d, d), dtype=dtype) if need_B else None
-    grad_v = np.zeros((n, d, d), dtype=dtype) if not spec.mls_gradient else None
-    dv_flip = np.zeros((n, d), dtype=dtype) if spec.flip else None
+    grad_v = np.zeros((n, d, d), dtype=dtype) if not transfer.mls_gradient else None
+    dv_flip = np.zeros((n, d), dtype=dtype) if transfer.flip else None
     modes = np.zeros_like(particles.modes) if basis is not None else None
     if kicks is not None:
         classes, kick = kicks
@@ -258,7 +258,7 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
             B += np.einsum("na,nb->nab", w[:, None] * vi, st.node_offset_vector(offset))
         if grad_v is not None:
             grad_v += np.einsum("na,nb->nab", vi, st.node_gradient(offset))
-        if spec.flip:
+        if transfer.flip:
             dv_flip += w[:, None] * (vi - v_tilde[idx])
         if basis is not None:
             modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
@@ -267,12 +267,12 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, spec, dt, prepared=None, ghost
             dP += ki
             dL += moment(st.node_offset_vector(offset), ki)
     C = B / st.inertia if need_B else None
-    grad_v = C if spec.mls_gradient else grad_v
+    grad_v = C if transfer.mls_gradient else grad_v
     v_new = v_pic
-    if spec.flip:
-        v_new = spec.flip_alpha * (particles.v + dv_flip) + (1.0 - spec.flip_alpha) * v_pic
+    if transfer.flip:
+        v_new = transfer.flip_alpha * (particles.v + dv_flip) + (1.0 - transfer.flip_alpha) * v_pic
     changes = {"x": particles.x + dt * v_pic, "v": v_new}
-    if spec.affine:
+    if transfer.affine:
         changes["C"] = C
     if basis is not None:
         norms = mode_norms(basis[2], basis[1])[..., None]

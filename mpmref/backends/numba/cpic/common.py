@@ -2,20 +2,20 @@ r"""Kernel helpers of the Numba CPIC stages that are the same in 2D and 3D: how 
 the colored distance field, a particle's sticky tag, and whether a node enters a particle's least-squares fit
 (Hu et al. 2018, SIGGRAPH, §4; :mod:`mpmref.physics.cdf`; docs/cpic.md)."""
 
-
 import numpy as np
 from numba import njit
 
-from ....physics.cdf import (TAG_THRESHOLD)
-
-
+from ....physics.cdf import TAG_THRESHOLD
 
 
 @njit(cache=True, inline="always")
-def settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T):
-    r"""After body ``r``'s ``count`` rasterised (node, :math:`h`) pairs: :math:`T_{ir} = [h < 0]` from the pairs at
-    the body's distance :math:`d_{ir}` (the last such pair wins), node :math:`i`'s nearest body is ``r`` if
-    :math:`d_{ir} < d_i` (so the first body wins a tie), and ``d_r`` is reset to ``inf`` for the next body."""
+def settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T, d_body):
+    r"""After body ``r``'s ``count`` rasterised (node, :math:`h`) pairs: the body's own distance
+    :math:`d_{ir}` into ``d_body``, :math:`T_{ir} = [h < 0]` from the pairs at :math:`d_{ir}` (the last such pair
+    wins), node :math:`i`'s nearest body is ``r`` if :math:`d_{ir} < d_i` (so the first body wins a tie), and
+    ``d_r`` is reset to ``inf`` for the next body."""
+    for c in range(count):
+        d_body[pair_node[c], r] = d_r[pair_node[c]]
     for c in range(count):
         if abs(pair_h[c]) == d_r[pair_node[c]]:
             T[pair_node[c], r] = pair_h[c] < 0.0
@@ -77,3 +77,43 @@ def sticky_tags(p, near_r, S0, S1, tag_A, tag_T, A_new, T_new):
     for r in range(near_r.shape[0]):
         tagged = sticky_tag(p, r, near_r, S0, S1, tag_A, tag_T, A_new, T_new) or tagged
     return tagged
+
+
+@njit(cache=True, inline="always")
+def several_tags(p, fits):
+    """Whether the per-body fit is on and two or more bodies tag particle ``p`` (it then has a fit per body)."""
+    return fits[0] and tagged_by_several(p, fits[4])
+
+
+@njit(cache=True, inline="always")
+def tagged_by_several(p, A_p):
+    """Whether two or more bodies tag particle ``p`` (``A_p[p, r]``): the per-body fit then gives it a fit per body."""
+    tagged = 0
+    for r in range(A_p.shape[1]):
+        tagged += A_p[p, r]
+    return tagged >= 2
+
+
+@njit(cache=True, inline="always")
+def body_target(p, flat, r, dx, d_body, T, T_p):
+    r"""The per-body fit's target of node ``flat`` for body ``r``: :math:`y_{ir} = \pm d_{ir}/\Delta x`, ``+`` iff
+    :math:`T_{ir} = T_{pr}` (:func:`mpmref.physics.cdf.reconstruct_per_body`)."""
+    y = d_body[flat, r] / dx
+    return -y if T[flat, r] != T_p[p, r] else y
+
+
+@njit(cache=True, inline="always")
+def crossed_body(p, idx, tag_T, fits):
+    r"""With the per-body fit (``fits = (per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, ``per_body``
+    true), the body :math:`c` whose own fit gives the ghost velocity of incompatible node ``idx`` for particle
+    ``p``: :math:`A_{ic} = A_{pc} = 1`, :math:`T_{ic} \ne T_{pc}`, the least :math:`d_{ic}`, the lowest id on a
+    tie, if its per-body fit is accepted; otherwise -1 (the single fit then applies;
+    :func:`mpmref.backends.numpy.cpic.ghost_frames`)."""
+    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
+    if not per_body:
+        return -1
+    c, best = -1, np.inf
+    for r in range(tag_A.shape[1]):
+        if A[idx, r] and tag_A[p, r] and T[idx, r] != tag_T[p, r] and d_body[idx, r] < best:
+            c, best = r, d_body[idx, r]
+    return c if c >= 0 and fit_near[p, c] else -1

@@ -9,15 +9,12 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from ....physics.cdf import (DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD,
-                             ColoredDistanceField)
-
+from ....physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, ColoredDistanceField
 from ....physics.rigid import surface_samples
 from ....physics.rigid_dynamics import current_shapes
 from ..stencil import kernel_axis, quadratic_axis
 from ..transfers import SOURCE_DIGEST
-from .common import add_side_sums, fit_target, settle_body, sticky_tags
-
+from .common import add_side_sums, body_target, fit_target, settle_body, sticky_tags, tagged_by_several
 
 
 def body_samples(bodies, rigid, dx):
@@ -107,9 +104,7 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T, 
                 count += 1
                 d_r[flat] = min(d_r[flat], abs(h))
                 A[flat, r] = True
-        for c in range(count):
-            d_body[pair_node[c], r] = d_r[pair_node[c]]
-        settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T)
+        settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T, d_body)
 
 
 @lru_cache(maxsize=None)
@@ -303,15 +298,11 @@ def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_
     for each body :math:`r` tagging it, the fit over the stencil nodes with :math:`A_{ir} = 1` of the targets
     :math:`y_{ir} = \pm d_{ir}/\Delta x` (``+`` iff :math:`T_{ir} = T_{pr}`) gives :math:`\phi_{pr}`,
     :math:`\mathbf n_{pr}` and ``fit_near[p, r]`` (``M``, ``rhs``: scratch)."""
-    n_bodies = A_p.shape[1]
-    tagged = 0
-    for r in range(n_bodies):
-        tagged += A_p[p, r]
-    if tagged < 2:
+    if not tagged_by_several(p, A_p):
         return
     b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
     b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
-    for r in range(n_bodies):
+    for r in range(A_p.shape[1]):
         if not A_p[p, r]:
             continue
         M[:] = 0.0
@@ -320,8 +311,7 @@ def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_
             flat = stencil_node(b0, b1, k, shape)
             if flat < 0 or not A[flat, r]:
                 continue
-            y = d_body[flat, r] / dx
-            add_fit_sample(M, rhs, w0[k // 3] * w1[k % 3], k, f0, f1, dx, -y if T[flat, r] != T_p[p, r] else y)
+            add_fit_sample(M, rhs, w0[k // 3] * w1[k % 3], k, f0, f1, dx, body_target(p, flat, r, dx, d_body, T, T_p))
         accepted, c, n0, n1 = solve_fit(M, rhs)
         if accepted:
             fit_phi[p, r] = c * dx

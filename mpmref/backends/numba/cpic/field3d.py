@@ -8,15 +8,12 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from ....physics.cdf import (BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD,
-                             ColoredDistanceField)
-
-from ....physics.trimesh import surface_samples
+from ....physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
 from ....physics.rigid_dynamics import current_shapes
+from ....physics.trimesh import surface_samples
 from ..stencil import kernel_axis, quadratic_axis
 from ..transfers import SOURCE_DIGEST
-from .common import add_side_sums, fit_target, settle_body, sticky_tags
-
+from .common import add_side_sums, body_target, fit_target, settle_body, sticky_tags, tagged_by_several
 
 
 def body_samples(bodies, rigid, dx):
@@ -52,14 +49,16 @@ def build_cdf(bodies, rigid, shape, origin, dx):
     nearest = np.full(n_nodes, -1, dtype=np.int64)
     A = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
     T = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    rasterise(x, tri, start, a, e1, e2, normal, origin, float(dx), shape, d, nearest, A, T)
+    d_body = np.full((n_nodes, len(bodies)), np.inf)
+    rasterise(x, tri, start, a, e1, e2, normal, origin, float(dx), shape, d, nearest, A, T, d_body)
     return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=tuple(int(s) for s in shape), origin=origin,
-                               dx=float(dx))
+                               dx=float(dx), d_body=d_body)
 
 
 @njit(cache=True)
-def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A, T):
-    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` (:func:`mpmref.physics.cdf.build_cdf`).
+def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A, T, d_body):
+    r"""Write the colored distance field into ``d``, ``nearest``, ``A``, ``T`` and the per-body distance
+    ``d_body`` (:func:`mpmref.physics.cdf.build_cdf`).
 
     For every sample :math:`s` of body :math:`r` and node :math:`i` of its 3 × 3 × 3 quadratic stencil, with
     :math:`\mathbf r = \mathbf x_i - \mathbf a`, the signed offset :math:`h = \mathbf r\cdot\mathbf n` and the
@@ -117,19 +116,20 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
                 count += 1
                 d_r[flat] = min(d_r[flat], abs(h))
                 A[flat, r] = True
-        settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T)
+        settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T, d_body)
 
 
 @lru_cache(maxsize=None)
 def tag_kernel(KERNEL, S):
     r"""Sticky tags, least-squares distance and normal of every particle (3D, quadratic stencil), and the mask
     of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``); as the
-    2D :func:`mpmref.backends.numba.cpic.tag_kernel`, over the particles' blocks, skipping blocks far from every band."""
+    2D :func:`~mpmref.backends.numba.cpic.field2d.tag_kernel` (with its per-body fits,
+    :func:`per_body_fits`), over the particles' blocks, skipping blocks far from every band."""
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
     def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
-             order, block_start, blocks, block, blocks_per_axis):
+             order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal, fit_near):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         n_bodies = tag_A.shape[1]
         for bi in prange(blocks.shape[0]):
@@ -150,6 +150,9 @@ def tag_kernel(KERNEL, S):
                     b1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)[0]
                     b2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)[0]
                     incompatible[p] = incompatibility_mask(p, b0, b1, b2, S, strides, A, T, A_new, T_new)
+                    if per_body:
+                        per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_new, T_new, fit_phi, fit_normal,
+                                      fit_near, M, rhs)
 
     return tags
 
@@ -157,7 +160,7 @@ def tag_kernel(KERNEL, S):
 @njit(cache=True, inline="always")
 def block_in_band(c0, c1, c2, block, shape, d):
     """Whether a node that the quadratic stencils of block ``(c0, c1, c2)``'s particles can reach is in a band
-    (the 3D :func:`mpmref.backends.numba.cpic.block_in_band`: per axis ``[c B - 1, c B + B + 2]``)."""
+    (the 3D :func:`mpmref.backends.numba.cpic.field2d.block_in_band`: per axis ``[c B - 1, c B + B + 2]``)."""
     for i0 in range(max(c0 * block - 1, 0), min(c0 * block + block + 3, shape[0])):
         for i1 in range(max(c1 * block - 1, 0), min(c1 * block + block + 3, shape[1])):
             for i2 in range(max(c2 * block - 1, 0), min(c2 * block + block + 3, shape[2])):
@@ -192,7 +195,7 @@ def stencil_node(b0, b1, b2, k, shape):
 @njit(cache=True, inline="always")
 def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, near_r, S0, S1, M,
                  rhs):
-    r"""Tags, distance, normal and ``near`` of particle ``p`` (the 3D :func:`mpmref.backends.numba.cpic.tag_particle`: sticky tags,
+    r"""Tags, distance, normal and ``near`` of particle ``p`` (the 3D :func:`mpmref.backends.numba.cpic.field2d.tag_particle`: sticky tags,
     :math:`S_s = \sum_{i: A_{ir} = 1, T_{ir} = s} w_{ip} d_i`, then :func:`reconstruct_particle`); returns
     whether it is tagged. Hu et al. 2018 §4; docs/cpic.md."""
     b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
@@ -225,8 +228,8 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
 @njit(cache=True, inline="always")
 def reconstruct_particle(p, base, f, w0, w1, w2, dx, shape, d, A, T, A_p, T_p, phi, normal, near, M, rhs):
     r"""The weighted least-squares fit of :func:`mpmref.physics.cdf.reconstruct` for one tagged particle in 3D:
-    minimise :math:`\sum_i w_{ip}(\mathbf n\cdot\mathbf z_i + c - y_i)^2` (a 4 × 4 normal system); ``near``
-    iff :math:`|\det M| > 10^{-4}`. ``M``, ``rhs``: scratch."""
+    minimise :math:`\sum_i w_{ip}(\mathbf n\cdot\mathbf z_i + c - y_i)^2` (a 4 × 4 normal system,
+    :func:`add_fit_sample`, :func:`solve_fit`); ``near`` iff :math:`|\det M| > 10^{-4}`. ``M``, ``rhs``: scratch."""
     M[:] = 0.0
     rhs[:] = 0.0
     for k in range(27):
@@ -236,24 +239,74 @@ def reconstruct_particle(p, base, f, w0, w1, w2, dx, shape, d, A, T, A_p, T_p, p
         use, y = fit_target(p, flat, dx, d, A, T, A_p, T_p)
         if not use:
             continue
-        w = w0[k // 9] * w1[(k // 3) % 3] * w2[k % 3]
-        # (x_i - x_p) / dx, as the reference forms it, and the constant term
-        z = (((k // 9) - f[0]) * dx / dx, (((k // 3) % 3) - f[1]) * dx / dx, ((k % 3) - f[2]) * dx / dx, 1.0)
-        for i in range(4):
-            wz = w * z[i]
-            for j in range(4):
-                M[i, j] += wz * z[j]
-            rhs[i] += wz * y
+        add_fit_sample(M, rhs, w0[k // 9] * w1[(k // 3) % 3] * w2[k % 3], k, f, dx, y)
+    accepted, c, n = solve_fit(M, rhs)
+    if accepted:
+        phi[p] = c * dx
+        for a in range(3):
+            normal[p, a] = n[a]
+        near[p] = True
+
+
+@njit(cache=True, inline="always")
+def add_fit_sample(M, rhs, w, k, f, dx, y):
+    r"""Add node ``k`` of the 3 × 3 × 3 stencil (weight ``w``, target ``y``, particle fractions ``f``) to the
+    normal equations :math:`M \mathrel{+}= w (\mathbf z, 1)(\mathbf z, 1)^T`,
+    :math:`\mathbf b \mathrel{+}= w y (\mathbf z, 1)`, :math:`\mathbf z = (\mathbf x_i - \mathbf x_p)/\Delta x`
+    (:func:`mpmref.physics.cdf.reconstruct`)."""
+    # (x_i - x_p) / dx, as the reference forms it, and the constant term
+    z = (((k // 9) - f[0]) * dx / dx, (((k // 3) % 3) - f[1]) * dx / dx, ((k % 3) - f[2]) * dx / dx, 1.0)
+    for i in range(4):
+        wz = w * z[i]
+        for j in range(4):
+            M[i, j] += wz * z[j]
+        rhs[i] += wz * y
+
+
+@njit(cache=True, inline="always")
+def solve_fit(M, rhs):
+    r"""Solve the 3D fit's normal equations (overwriting ``M``, ``rhs``): ``(accepted, c, n)``, accepted iff
+    :math:`|\det M| > 10^{-4}`, the normal :math:`\mathbf n/|\mathbf n|` (0 if :math:`|\mathbf n|^2 \le
+    10^{-4}`) as a 3-tuple (:func:`mpmref.physics.cdf.reconstruct`)."""
     det, sol = lu_solve(M, rhs)
     if not abs(det) > DET_THRESHOLD_3D:
-        return
-    phi[p] = sol[3] * dx
+        return False, 0.0, (0.0, 0.0, 0.0)
     norm2 = sol[0] * sol[0] + sol[1] * sol[1] + sol[2] * sol[2]
     if norm2 > NORMAL_THRESHOLD:
         length = np.sqrt(norm2)
-        for a in range(3):
-            normal[p, a] = sol[a] / length
-    near[p] = True
+        return True, sol[3], (sol[0] / length, sol[1] / length, sol[2] / length)
+    return True, sol[3], (0.0, 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_normal, fit_near, M, rhs):
+    r"""The per-body fits of particle ``p`` in 3D if two or more bodies tag it, as the 2D
+    :func:`~mpmref.backends.numba.cpic.field2d.per_body_fits` (:func:`mpmref.physics.cdf.reconstruct_per_body`):
+    for each body :math:`r` tagging it, the fit over the stencil nodes with :math:`A_{ir} = 1` of the targets
+    :math:`y_{ir} = \pm d_{ir}/\Delta x` (``+`` iff :math:`T_{ir} = T_{pr}`) gives :math:`\phi_{pr}`,
+    :math:`\mathbf n_{pr}` and ``fit_near[p, r]`` (``M``, ``rhs``: scratch)."""
+    if not tagged_by_several(p, A_p):
+        return
+    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
+    b2, f2, w2, dw2 = quadratic_axis((x[p, 2] - origin[2]) / dx)
+    for r in range(A_p.shape[1]):
+        if not A_p[p, r]:
+            continue
+        M[:] = 0.0
+        rhs[:] = 0.0
+        for k in range(27):
+            flat = stencil_node(b0, b1, b2, k, shape)
+            if flat < 0 or not A[flat, r]:
+                continue
+            add_fit_sample(M, rhs, w0[k // 9] * w1[(k // 3) % 3] * w2[k % 3], k, (f0, f1, f2), dx,
+                           body_target(p, flat, r, dx, d_body, T, T_p))
+        accepted, c, n = solve_fit(M, rhs)
+        if accepted:
+            fit_phi[p, r] = c * dx
+            for a in range(3):
+                fit_normal[p, r, a] = n[a]
+            fit_near[p, r] = True
 
 
 @njit(cache=True, inline="always")

@@ -10,6 +10,7 @@ from numba import njit
 from ....physics.cdf import ColoredDistanceField
 from ....physics.rigid_dynamics import initial_state
 from ....state import GridState
+from ..kernel_args import Bodies, ContactArrays, DenseLayout, Groups
 from ..stencil import KERNEL_CODES
 from . import field2d, field3d, transfer2d, transfer3d
 
@@ -48,13 +49,13 @@ class Contact:
     rigid : RigidState          the bodies as P2G sees them (their velocities give P2G's ghost velocities)
     tau : (n, 2, 2)             the particles' Kirchhoff stress (computed once for the step)
     dt : float                  the step
-    ghost_force : bool          ghost velocities include the particle's own internal force (``method.ghost_force``)
+    ghost_force : bool          ghost velocities include the particle's own internal force (``scene.cpic.ghost_force``)
     dim : int                   2, or 3 (vectors then have 3 components)
     kernels : DimensionKernels  the kernels of ``dim`` (:data:`KERNELS`), which the step's stages call
-    fits : tuple                2D: ``(per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, what
-                                :func:`ghost_frame` needs for the per-body fit (``method.cpic_fit``; empty
+    fits : tuple                ``(per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, what the kernels'
+                                ``ghost_frame`` needs for the per-body fit (``scene.cpic.fit``; empty
                                 ``fit_*`` arrays with the single fit)
-    fit_phi : (n, nb) or (0, nb) the per-body distances :math:`\phi_{pr}` (:func:`per_body_fits`)
+    fit_phi : (n, nb) or (0, nb) the per-body distances :math:`\phi_{pr}` (``per_body_fits`` of the field kernels)
     """
 
     cdf: ColoredDistanceField
@@ -86,7 +87,7 @@ class Contact:
 def contact(backend, particles, blocks, rigid, dt):
     """The step's :class:`Contact` and the particles with their new tags, distance, normal and ``near`` flag
     (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
-    scene, spec = backend.scene, backend.cfg
+    scene, transfer = backend.scene, backend.transfer
     bodies, d = scene.rigid_bodies, particles.dim
     k = KERNELS[d]
     cdf = k.build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
@@ -99,44 +100,57 @@ def contact(backend, particles, blocks, rigid, dt):
             np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
             incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block,
             backend.blocks_per_axis)
-    fits = fit_phi = None
-    if d == 2:
-        per_body = scene.method.cpic_fit == "per_body"
-        m = n if per_body else 0
-        fit_phi, fit_normal, fit_near = np.zeros((m, nb)), np.zeros((m, nb, 2)), np.zeros((m, nb), dtype=np.bool_)
-        args += (per_body, cdf.d_body, fit_phi, fit_normal, fit_near)
-        fits = (per_body, cdf.A, cdf.T, cdf.d_body, A, fit_normal, fit_near)
-    k.tag_kernel(KERNEL_CODES[spec.kernel], spec.support)(*args)
+    per_body = scene.cpic.fit == "per_body"
+    m = n if per_body else 0
+    fit_phi, fit_normal, fit_near = np.zeros((m, nb)), np.zeros((m, nb, d)), np.zeros((m, nb), dtype=np.bool_)
+    args += (per_body, cdf.d_body, fit_phi, fit_normal, fit_near)
+    fits = (per_body, cdf.A, cdf.T, cdf.d_body, A, fit_normal, fit_near)
+    k.tag_kernel(KERNEL_CODES[transfer.kernel], transfer.support)(*args)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
-    c = Contact(cdf=cdf, incompatible=incompatible, support=spec.support, friction=friction,
+    c = Contact(cdf=cdf, incompatible=incompatible, support=transfer.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
-                dt=float(dt), ghost_force=bool(scene.method.ghost_force), dim=d, kernels=k, fits=fits,
+                dt=float(dt), ghost_force=bool(scene.cpic.ghost_force), dim=d, kernels=k, fits=fits,
                 fit_phi=fit_phi)
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
 def p2g(backend, particles, blocks, contact):
-    """CPIC P2G (:func:`p2g_kernel`): a :class:`~mpmref.state.GridState` with ``rejected_momentum`` and
-    ``rejected_force``."""
-    spec, N = backend.cfg, backend.scene.grid.n_nodes
+    """CPIC P2G (the dimension's ``p2g_kernel``, :func:`.transfer2d.p2g_kernel`): a
+    :class:`~mpmref.state.GridState` with ``rejected_momentum`` and ``rejected_force``."""
+    transfer, N = backend.transfer, backend.scene.grid.n_nodes
     d = particles.dim
     gs = GridState(mass=np.zeros(N, dtype=backend.dtype), momentum=np.zeros((N, d), dtype=backend.dtype),
                    force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
                    rejected_force=np.zeros((N, d)))
-    rigid, cdf = contact.rigid, contact.cdf
-    kernel = contact.kernels.p2g_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls)
+    kernel = contact.kernels.p2g_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
+                                        transfer.mls_force)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
-           contact.tau, backend.origin, backend.dx, backend.inertia, backend.strides, blocks.order,
-           blocks.block_start, *blocks.block_colours, contact.incompatible, contact.gravity_dv,
-           cdf.body, particles.near, particles.normal, particles.tag_T, contact.friction, rigid.position,
-           rigid.velocity, rigid.angular_velocity, contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force,
-           gs.rejected_momentum, gs.rejected_force, *(() if d == 3 else (contact.fits,)))
+           contact.tau, dense_layout(backend), Groups(blocks.order, blocks.block_start, *blocks.block_colours),
+           contact_arrays(contact, particles), bodies_of(contact.rigid, contact), contact.gravity_dv,
+           contact.ghost_force, contact.dt, gs.mass, gs.momentum, gs.force, gs.rejected_momentum, gs.rejected_force,
+           contact.fits)
     return gs
+
+
+def dense_layout(backend):
+    """The dense grid's :class:`~mpmref.backends.numba.kernel_args.DenseLayout` that the CPIC kernels read."""
+    return DenseLayout(backend.origin, backend.dx, backend.inertia, backend.strides)
+
+
+def contact_arrays(contact, particles):
+    """The particle–node contact of the step (:class:`~mpmref.backends.numba.kernel_args.ContactArrays`)."""
+    return ContactArrays(contact.incompatible, contact.cdf.body, contact.cdf.d, particles.near, particles.phi,
+                         particles.normal, particles.tag_T)
+
+
+def bodies_of(rigid, contact):
+    """The bodies ``rigid`` as a kernel reads them (:class:`~mpmref.backends.numba.kernel_args.Bodies`)."""
+    return Bodies(rigid.position, rigid.velocity, rigid.angular_velocity, contact.friction)
 
 
 def impulses(grid_state, contact, rigid, dt):
     """Impulses ``(J (nb, 2), L (nb,))`` (3D: ``(nb, 3)`` both) of the incompatible nodes on the bodies
-    (:func:`node_impulses`)."""
+    (the dimension's ``node_impulses``, :func:`.transfer2d.node_impulses`)."""
     nb, d = rigid.position.shape
     J, L = np.zeros((nb, d)), np.zeros((nb,) if d == 2 else (nb, 3))
     cdf = contact.cdf
@@ -146,9 +160,10 @@ def impulses(grid_state, contact, rigid, dt):
 
 
 def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
-    """CPIC G2P (:func:`g2p_kernel`) with the bodies ``rigid`` as G2P sees them; returns ``(new particles,
-    (J, L))``, the penalty's impulses on the bodies, summed per block by the kernel, then over blocks in order."""
-    spec, method = backend.cfg, backend.scene.method
+    """CPIC G2P (the dimension's ``g2p_kernel``, :func:`.transfer2d.g2p_kernel`) with the bodies ``rigid`` as G2P
+    sees them; returns ``(new particles, (J, L))``, the penalty's impulses on the bodies, summed per block by the
+    kernel, then over blocks in order."""
+    transfer, cpic = backend.transfer, backend.scene.cpic
     n, d = particles.x.shape
 
     def empty(*shape):
@@ -160,16 +175,13 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     J_new = empty(n) if particles.J is not None else empty(0)
     nb = len(rigid.angle)
     block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3 if d == 2 else 6))  # J, then L
-    kernel = contact.kernels.g2p_kernel(KERNEL_CODES[spec.kernel], spec.support, spec.affine, spec.mls, spec.mls_gradient,
-                        spec.tracks_F, spec.tracks_J)
-    cdf = contact.cdf
+    kernel = contact.kernels.g2p_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
+                                        transfer.mls_force, transfer.mls_gradient, transfer.tracks_F, transfer.tracks_J)
     kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
            backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
-           backend.origin, backend.dx, backend.inertia, dt, backend.strides, blocks.order,
-           blocks.block_start, blocks.block_colours[0], v_grid, contact.incompatible, cdf.body, cdf.d, particles.near,
-           particles.phi, particles.normal, particles.tag_T, contact.friction, rigid.position, rigid.velocity,
-           rigid.angular_velocity, float(method.pushing_force), float(method.penalty), x_new, v_new, C_new, F_new,
-           J_new, block_impulse, *(() if d == 3 else (contact.fits, contact.fit_phi)))
+           dense_layout(backend), dt, Groups(blocks.order, blocks.block_start, *blocks.block_colours), v_grid,
+           contact_arrays(contact, particles), bodies_of(rigid, contact), float(cpic.pushing_force),
+           float(cpic.penalty), x_new, v_new, C_new, F_new, J_new, block_impulse, contact.fits, contact.fit_phi)
     total = sum_in_order(block_impulse)
     J, L = total[:, :d], (total[:, d] if d == 2 else total[:, d:])
     changes = {"x": x_new, "v": v_new}

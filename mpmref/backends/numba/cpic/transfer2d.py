@@ -7,11 +7,10 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from ....physics.cdf import (PENALTY_WINDOW)
-
+from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
 from ..transfers import SOURCE_DIGEST
-
+from .common import crossed_body, several_tags
 
 
 @njit(cache=True, inline="always")
@@ -50,19 +49,13 @@ def ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits):
     (:func:`mpmref.backends.numpy.cpic.ghost_frames`): ``(project, r, n0, n1, mu)``.
 
     Single fit: the node's nearest body :math:`r`, the particle's normal :math:`\mathbf n_p`, the friction of its
-    side, ``project`` = ``near[p]``. With the per-body fit (``fits = (per_body, A, T, d_body, tag_A, fit_normal,
-    fit_near)``, ``per_body`` true): the crossed body :math:`c` — :math:`A_{ic} = A_{pc} = 1`,
-    :math:`T_{ic} \ne T_{pc}`, the least :math:`d_{ic}`, the lowest id on a tie — with its own normal
-    :math:`\mathbf n_{pc}`, if its per-body fit is accepted."""
-    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
-    if per_body:
-        c, best = -1, np.inf
-        for r in range(tag_A.shape[1]):
-            if A[idx, r] and tag_A[p, r] and T[idx, r] != tag_T[p, r] and d_body[idx, r] < best:
-                c, best = r, d_body[idx, r]
-        if c >= 0 and fit_near[p, c]:
-            mu = friction[c, 1] if tag_T[p, c] else friction[c, 0]
-            return True, c, fit_normal[p, c, 0], fit_normal[p, c, 1], mu
+    side, ``project`` = ``near[p]``. With the per-body fit: the crossed body :math:`c` (:func:`crossed_body`)
+    with its own normal :math:`\mathbf n_{pc}`, if there is one."""
+    c = crossed_body(p, idx, tag_T, fits)
+    if c >= 0:
+        fit_normal = fits[5]
+        mu = friction[c, 1] if tag_T[p, c] else friction[c, 0]
+        return True, c, fit_normal[p, c, 0], fit_normal[p, c, 1], mu
     r = max(node_body[idx], 0)
     mu = friction[r, 1] if tag_T[p, r] else friction[r, 0]
     return near[p], r, normal[p, 0], normal[p, 1], mu
@@ -92,18 +85,18 @@ def force_velocity(ghost_force, dt, f0, f1, w, m):
 
 
 @njit(cache=True, inline="always")
-def gradient_weight(mls, w, d0, d1, wa0, wa1, dwa0, dwa1, dx, inertia):
+def gradient_weight(mls_force, w, d0, d1, wa0, wa1, dwa0, dwa1, dx, inertia):
     r"""The force's gradient weight :math:`g_{ip}` of a node (2D): MLS :math:`w_{ip}(\mathbf x_i - \mathbf x_p)/D`
     (``d0, d1`` = :math:`\mathbf x_i - \mathbf x_p`, ``inertia`` = :math:`D`), or the kernel gradient
     :math:`(N'_0 N_1, N_0 N'_1)/\Delta x` from the per-axis weights ``wa`` and derivatives ``dwa`` (see
     :func:`mpmref.backends.numpy.transfers.mls_gradient_weight` and ``classic_gradient_weight``)."""
-    if mls:
+    if mls_force:
         return w * d0 / inertia, w * d1 / inertia
     return dwa0 / dx * wa1, dwa1 / dx * wa0
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(KERNEL, S, AFFINE, MLS):
+def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE):
     r"""CPIC P2G kernel (2D): mass, momentum and force to compatible nodes; rejected momentum and force at
     the others (see :func:`mpmref.backends.numpy.transfers.p2g` with a contact).
 
@@ -117,10 +110,13 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
-    def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
-            incompatible, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force,
-            dt, grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
+    def p2g(x, v, C, mass, vol0, tau, layout, groups, contact, bodies, gravity_dv, ghost_force, dt, grid_mass,
+            grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        origin, dx, inertia, strides = layout
+        order, block_start, colour_blocks, colour_start = groups
+        incompatible, node_body, node_d, near, phi, normal, tag_T = contact
+        position, velocity, omega, friction = bodies
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
             for bi in prange(colour_start[colour + 1] - first):
@@ -139,7 +135,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                         for j in range(S):
                             d1 = (j - f1) * dx
                             w = w0[i] * w1[j]
-                            g0, g1 = gradient_weight(MLS, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx, inertia)
+                            g0, g1 = gradient_weight(MLS_FORCE, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx, inertia)
                             idx = base + i * strides[0] + j * strides[1]
                             f_0 = s00 * g0 + s01 * g1
                             f_1 = s10 * g0 + s11 * g1
@@ -184,18 +180,6 @@ def nearest_body(base, S, strides, node_body, node_d):
 
 
 @njit(cache=True, inline="always")
-def several_tags(p, fits):
-    """Whether the per-body fit is on and two or more bodies tag particle ``p`` (it then has a fit per body)."""
-    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
-    if not per_body:
-        return False
-    tagged = 0
-    for r in range(tag_A.shape[1]):
-        tagged += tag_A[p, r]
-    return tagged >= 2
-
-
-@njit(cache=True, inline="always")
 def add_impulse(block_impulse, bi, r, j0, j1, x0, x1, position):
     r"""Add the impulse :math:`\mathbf J = (j_0, j_1)` at :math:`\mathbf x` on body ``r`` to block ``bi``'s sums:
     :math:`\mathbf J` and :math:`(\mathbf x - \mathbf c_r)\times\mathbf J`."""
@@ -226,7 +210,7 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
+def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
     r"""CPIC G2P kernel (2D): G2P with ghost velocities, ``C_p := 0`` for near particles, and the penalty
     (see :func:`mpmref.backends.numpy.cpic.g2p`).
 
@@ -239,18 +223,21 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
     ``block_impulse[bi, r]`` (zero on entry) accumulates :math:`(J_x, J_y, (\mathbf x_p - \mathbf c_r)\times
     \mathbf J)` over the particles of block ``bi`` in their order. Block-parallel gather; every particle
     writes only its own rows, every block its own impulses. ``MLS_FORCE``: the force's gradient weight
-    is MLS's (it enters :math:`\mathbf a_{ip}`, :func:`force_velocity`); ``MLS``: the velocity gradient is
-    :math:`C_p` (``spec.mls_gradient``).
+    is MLS's (it enters :math:`\mathbf a_{ip}`, :func:`force_velocity`); ``MLS_GRADIENT``: the velocity gradient
+    is :math:`C_p` (``transfer.mls_gradient``).
     """
-    NEED_B = AFFINE or MLS
+    NEED_B = AFFINE or MLS_GRADIENT
     SOURCES = SOURCE_DIGEST
     LO, HI = PENALTY_WINDOW
 
     @njit(parallel=True, cache=True)
-    def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, origin, dx, inertia, dt, strides, order, block_start,
-            blocks, v_grid, incompatible, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity,
-            omega, push, penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
+    def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, layout, dt, groups, v_grid, contact, bodies, push,
+            penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        origin, dx, inertia, strides = layout
+        order, block_start, blocks, colour_start = groups
+        incompatible, node_body, node_d, near, phi, normal, tag_T = contact
+        position, velocity, omega, friction = bodies
         for bi in prange(blocks.shape[0]):
             block = blocks[bi]
             for q in range(block_start[block], block_start[block + 1]):
@@ -294,13 +281,13 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                             B01 += (w * vi0) * d1
                             B10 += (w * vi1) * d0
                             B11 += (w * vi1) * d1
-                        if not MLS:
+                        if not MLS_GRADIENT:
                             g0, g1 = gradient_weight(False, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx, inertia)
                             G00 += vi0 * g0
                             G01 += vi0 * g1
                             G10 += vi1 * g0
                             G11 += vi1 * g1
-                if MLS:
+                if MLS_GRADIENT:
                     G00, G01, G10, G11 = B00 / inertia, B01 / inertia, B10 / inertia, B11 / inertia
                 x_new[p, 0] = x[p, 0] + dt * vp0
                 x_new[p, 1] = x[p, 1] + dt * vp1

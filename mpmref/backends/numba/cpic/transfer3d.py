@@ -8,18 +8,17 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from ....physics.cdf import (PENALTY_WINDOW)
-
+from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
 from ..transfers import SOURCE_DIGEST
-
+from .common import crossed_body, several_tags
 
 
 @njit(cache=True, inline="always")
 def ghost_velocity(v, node_x, r, position, velocity, omega, n, mu):
     r"""The friction projection :math:`\Pi(\mathbf v; \mathbf v_r(\mathbf x_i), \mathbf n, \mu)` against body ``r``
     in 3D, :math:`\mathbf v_r(\mathbf x) = \mathbf v_r + \boldsymbol\omega_r\times(\mathbf x - \mathbf c_r)`
-    (the 3D :func:`mpmref.backends.numba.cpic.ghost_velocity`; the talk's Eq. 25, Hu et al. 2018 §5). ``v``, ``node_x``, ``n``:
+    (the 3D :func:`mpmref.backends.numba.cpic.transfer2d.ghost_velocity`; the talk's Eq. 25, Hu et al. 2018 §5). ``v``, ``node_x``, ``n``:
     3-tuples; returns a 3-tuple."""
     rel0, rel1, rel2 = node_x[0] - position[r, 0], node_x[1] - position[r, 1], node_x[2] - position[r, 2]
     vb0 = velocity[r, 0] + (omega[r, 1] * rel2 - omega[r, 2] * rel1)
@@ -41,16 +40,45 @@ def ghost_velocity(v, node_x, r, position, velocity, omega, n, mu):
 
 
 @njit(cache=True, inline="always")
-def node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, vs, a, position, velocity, omega):
-    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (3D :func:`mpmref.backends.numba.cpic.node_ghost`): if ``near``,
-    the friction projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` against the node's nearest body, else
-    :math:`\mathbf v^*_p` (``vs``)."""
-    if not near[p]:
-        return vs
+def ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits):
+    r"""What the ghost velocity of incompatible node ``idx`` for particle ``p`` projects against, in 3D
+    (:func:`mpmref.backends.numpy.cpic.ghost_frames`): ``(project, r, n, mu)``, ``n`` a 3-tuple. Single fit:
+    the node's nearest body, the particle's normal, the friction of its side, ``project`` = ``near[p]``; with
+    the per-body fit, the crossed body (:func:`~mpmref.backends.numba.cpic.common.crossed_body`) with its own
+    normal :math:`\mathbf n_{pc}`, if there is one (as the 2D
+    :func:`~mpmref.backends.numba.cpic.transfer2d.ghost_frame`)."""
+    c = crossed_body(p, idx, tag_T, fits)
+    if c >= 0:
+        fit_normal = fits[5]
+        mu = friction[c, 1] if tag_T[p, c] else friction[c, 0]
+        return True, c, (fit_normal[p, c, 0], fit_normal[p, c, 1], fit_normal[p, c, 2]), mu
     r = max(node_body[idx], 0)
     mu = friction[r, 1] if tag_T[p, r] else friction[r, 0]
-    return ghost_velocity((vs[0] + a[0], vs[1] + a[1], vs[2] + a[2]), node_x, r, position, velocity, omega,
-                          (normal[p, 0], normal[p, 1], normal[p, 2]), mu)
+    return near[p], r, (normal[p, 0], normal[p, 1], normal[p, 2]), mu
+
+
+@njit(cache=True, inline="always")
+def node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, fits, vs, a, position, velocity, omega):
+    r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` in 3D (as the 2D
+    :func:`~mpmref.backends.numba.cpic.transfer2d.node_ghost`): if :func:`ghost_frame` projects, the friction
+    projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` against its body and normal, else
+    :math:`\mathbf v^*_p` (``vs``)."""
+    project, r, n, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
+    if not project:
+        return vs
+    return ghost_velocity((vs[0] + a[0], vs[1] + a[1], vs[2] + a[2]), node_x, r, position, velocity, omega, n, mu)
+
+
+@njit(cache=True, inline="always")
+def add_impulse(block_impulse, bi, r, jv, xp, position):
+    r"""Add the impulse :math:`\mathbf J` = ``jv`` at :math:`\mathbf x` = ``xp`` on body ``r`` to block ``bi``'s
+    sums: :math:`\mathbf J` and :math:`(\mathbf x - \mathbf c_r)\times\mathbf J` (3D)."""
+    rel = (xp[0] - position[r, 0], xp[1] - position[r, 1], xp[2] - position[r, 2])
+    for a in range(3):
+        block_impulse[bi, r, a] += jv[a]
+    block_impulse[bi, r, 3] += rel[1] * jv[2] - rel[2] * jv[1]
+    block_impulse[bi, r, 4] += rel[2] * jv[0] - rel[0] * jv[2]
+    block_impulse[bi, r, 5] += rel[0] * jv[1] - rel[1] * jv[0]
 
 
 @njit(cache=True, inline="always")
@@ -63,11 +91,11 @@ def force_velocity(ghost_force, dt, f, w, m):
 
 
 @njit(cache=True, inline="always")
-def gradient_weight(mls, w, dpos, wa, dwa, dx, inertia):
+def gradient_weight(mls_force, w, dpos, wa, dwa, dx, inertia):
     r"""The force's gradient weight :math:`g_{ip}` in 3D: MLS :math:`w_{ip}(\mathbf x_i - \mathbf x_p)/D`, or the
     kernel gradient :math:`(N'_0 N_1 N_2, N_0 N'_1 N_2, N_0 N_1 N'_2)/\Delta x` from the per-axis weights ``wa``
     and derivatives ``dwa`` (3-tuples of the node's own axis values)."""
-    if mls:
+    if mls_force:
         return w * dpos[0] / inertia, w * dpos[1] / inertia, w * dpos[2] / inertia
     return dwa[0] / dx * wa[1] * wa[2], wa[0] * (dwa[1] / dx) * wa[2], wa[0] * wa[1] * (dwa[2] / dx)
 
@@ -81,7 +109,7 @@ def stress_force(vol0, tau, p, g):
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(KERNEL, S, AFFINE, MLS):
+def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE):
     r"""CPIC P2G kernel (3D): mass, momentum and force to compatible nodes; at an incompatible node
     :math:`\mathbf J^m_i \mathrel{+}= m_p w_{ip}(\mathbf v^*_p - \tilde{\mathbf v}_i)` and
     :math:`\mathbf J^f_i \mathrel{-}= V_p^0\tau_p g_{ip}` (see :func:`mpmref.backends.numpy.transfers.p2g` with a
@@ -89,10 +117,13 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
-    def p2g(x, v, C, mass, vol0, tau, origin, dx, inertia, strides, order, block_start, colour_blocks, colour_start,
-            incompatible, gravity_dv, node_body, near, normal, tag_T, friction, position, velocity, omega, ghost_force,
-            dt, grid_mass, grid_momentum, grid_force, rejected_momentum, rejected_force):
+    def p2g(x, v, C, mass, vol0, tau, layout, groups, contact, bodies, gravity_dv, ghost_force, dt, grid_mass,
+            grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        origin, dx, inertia, strides = layout
+        order, block_start, colour_blocks, colour_start = groups
+        incompatible, node_body, node_d, near, phi, normal, tag_T = contact
+        position, velocity, omega, friction = bodies
         for colour in range(colour_start.shape[0] - 1):
             first = colour_start[colour]
             for bi in prange(colour_start[colour + 1] - first):
@@ -111,7 +142,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                             for k in range(S):
                                 dpos = ((i - f0) * dx, (j - f1) * dx, (k - f2) * dx)
                                 w = w0[i] * w1[j] * w2[k]
-                                g = gradient_weight(MLS, w, dpos, (w0[i], w1[j], w2[k]), (dw0[i], dw1[j], dw2[k]),
+                                g = gradient_weight(MLS_FORCE, w, dpos, (w0[i], w1[j], w2[k]), (dw0[i], dw1[j], dw2[k]),
                                                     dx, inertia)
                                 f = stress_force(vol0, tau, p, g)
                                 idx = base + i * strides[0] + j * strides[1] + k * strides[2]
@@ -128,8 +159,8 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
                                     node_x = (origin[0] + (b0 + i) * dx, origin[1] + (b1 + j) * dx,
                                               origin[2] + (b2 + k) * dx)
                                     acc = force_velocity(ghost_force, dt, f, w, m)
-                                    gh = node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, vs, acc,
-                                                    position, velocity, omega)
+                                    gh = node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, fits, vs,
+                                                    acc, position, velocity, omega)
                                     for a in range(3):
                                         rejected_momentum[idx, a] += wm * (vs[a] - gh[a])
                                         rejected_force[idx, a] -= f[a]
@@ -140,7 +171,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS):
 @njit(cache=True, inline="always")
 def nearest_body(base, S, strides, node_body, node_d):
     """The nearest body of the transfer-stencil node closest to a body (first in stencil order), or 0: the body
-    that receives a particle's penalty impulse (3D :func:`mpmref.backends.numba.cpic.nearest_body`)."""
+    that receives a particle's penalty impulse (3D :func:`mpmref.backends.numba.cpic.transfer2d.nearest_body`)."""
     best_d, best_body = np.inf, 0
     for i in range(S):
         for j in range(S):
@@ -175,20 +206,25 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
+def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
     r"""CPIC G2P kernel (3D): G2P with ghost velocities (plus the pushing force for near particles),
     ``C_p := 0`` for near particles, and the penalty, whose impulse :math:`m_p\Delta\mathbf v` and its moment
-    about the nearest body's centre accumulate per block in ``block_impulse[bi, r]`` (6 components) — the 3D
-    :func:`mpmref.backends.numba.cpic.g2p_kernel` (see :func:`mpmref.backends.numpy.cpic.g2p`)."""
-    NEED_B = AFFINE or MLS
+    about the nearest body's centre accumulate per block in ``block_impulse[bi, r]`` (6 components); with the
+    per-body fit, a particle tagged by several bodies gets the penalty of each body's own fit instead, each
+    body receiving its part (``fits``, ``fit_phi``) — the 3D
+    :func:`mpmref.backends.numba.cpic.transfer2d.g2p_kernel` (see :func:`mpmref.backends.numpy.cpic.g2p`)."""
+    NEED_B = AFFINE or MLS_GRADIENT
     SOURCES = SOURCE_DIGEST
     LO, HI = PENALTY_WINDOW
 
     @njit(parallel=True, cache=True)
-    def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, origin, dx, inertia, dt, strides, order, block_start,
-            blocks, v_grid, incompatible, node_body, node_d, near, phi, normal, tag_T, friction, position, velocity,
-            omega, push, penalty, x_new, v_new, C_new, F_new, J_new, block_impulse):
+    def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, layout, dt, groups, v_grid, contact, bodies, push,
+            penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        origin, dx, inertia, strides = layout
+        order, block_start, blocks, colour_start = groups
+        incompatible, node_body, node_d, near, phi, normal, tag_T = contact
+        position, velocity, omega, friction = bodies
         for bi in prange(blocks.shape[0]):
             block = blocks[bi]
             vp, B, G, vi = np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
@@ -199,7 +235,6 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                 b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
                 base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
                 inc = incompatible[p]
-                scale = dt * dx * push if near[p] else 0.0
                 vs = (v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], v[p, 2] + gravity_dv[2])
                 vp[:] = 0.0
                 B[:] = 0.0
@@ -216,15 +251,19 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                             else:
                                 node_x = (origin[0] + (b0 + i) * dx, origin[1] + (b1 + j) * dx,
                                           origin[2] + (b2 + k) * dx)
+                                project, r, n, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
                                 acc = (0.0, 0.0, 0.0)
-                                if near[p] and ghost_force:
+                                if project and ghost_force:
                                     g = gradient_weight(MLS_FORCE, w, dpos, (w0[i], w1[j], w2[k]),
                                                         (dw0[i], dw1[j], dw2[k]), dx, inertia)
                                     acc = force_velocity(True, dt, stress_force(vol0, tau, p, g), w, mass[p])
-                                gh = node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, vs, acc,
-                                                position, velocity, omega)
                                 for a in range(3):
-                                    vi[a] = gh[a] + normal[p, a] * scale
+                                    vi[a] = vs[a]
+                                if project:
+                                    gh = ghost_velocity((vs[0] + acc[0], vs[1] + acc[1], vs[2] + acc[2]), node_x, r,
+                                                        position, velocity, omega, n, mu)
+                                    for a in range(3):
+                                        vi[a] = gh[a] + n[a] * (dt * dx * push)
                             gw = gradient_weight(False, w, dpos, (w0[i], w1[j], w2[k]), (dw0[i], dw1[j], dw2[k]),
                                                  dx, inertia)
                             for a in range(3):
@@ -232,28 +271,32 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS, TRACKS_F, TRACKS_J):
                                 for c in range(3):
                                     if NEED_B:
                                         B[a, c] += (w * vi[a]) * dpos[c]
-                                    if not MLS:
+                                    if not MLS_GRADIENT:
                                         G[a, c] += vi[a] * gw[c]
-                if MLS:
+                if MLS_GRADIENT:
                     for a in range(3):
                         for c in range(3):
                             G[a, c] = B[a, c] / inertia
                 for a in range(3):
                     x_new[p, a] = x[p, a] + dt * vp[a]
-                pushed = near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0
-                for a in range(3):
-                    dv = penalty * phi[p] * normal[p, a] if pushed else 0.0
-                    v_new[p, a] = vp[a] - dv
-                if pushed:
+                xp = (x_new[p, 0], x_new[p, 1], x_new[p, 2])
+                dv = (0.0, 0.0, 0.0)
+                if several_tags(p, fits):
+                    tag_A, fit_normal, fit_near = fits[4], fits[5], fits[6]
+                    for r in range(tag_A.shape[1]):
+                        if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:
+                            kphi = penalty * fit_phi[p, r]
+                            dvr = (kphi * fit_normal[p, r, 0], kphi * fit_normal[p, r, 1], kphi * fit_normal[p, r, 2])
+                            dv = (dv[0] + dvr[0], dv[1] + dvr[1], dv[2] + dvr[2])
+                            add_impulse(block_impulse, bi, r, (mass[p] * dvr[0], mass[p] * dvr[1], mass[p] * dvr[2]),
+                                        xp, position)
+                elif near[p] and phi[p] > LO * dx and phi[p] < HI * dx and penalty > 0.0:
+                    dv = (penalty * phi[p] * normal[p, 0], penalty * phi[p] * normal[p, 1],
+                          penalty * phi[p] * normal[p, 2])
                     r = nearest_body(base, S, strides, node_body, node_d)
-                    jv = (mass[p] * (penalty * phi[p] * normal[p, 0]), mass[p] * (penalty * phi[p] * normal[p, 1]),
-                          mass[p] * (penalty * phi[p] * normal[p, 2]))
-                    rel = (x_new[p, 0] - position[r, 0], x_new[p, 1] - position[r, 1], x_new[p, 2] - position[r, 2])
-                    for a in range(3):
-                        block_impulse[bi, r, a] += jv[a]
-                    block_impulse[bi, r, 3] += rel[1] * jv[2] - rel[2] * jv[1]
-                    block_impulse[bi, r, 4] += rel[2] * jv[0] - rel[0] * jv[2]
-                    block_impulse[bi, r, 5] += rel[0] * jv[1] - rel[1] * jv[0]
+                    add_impulse(block_impulse, bi, r, (mass[p] * dv[0], mass[p] * dv[1], mass[p] * dv[2]), xp, position)
+                for a in range(3):
+                    v_new[p, a] = vp[a] - dv[a]
                 if AFFINE:
                     for a in range(3):
                         for c in range(3):
