@@ -323,7 +323,8 @@ class NumbaBackend:
         inside what earlier warm-ups compiled finds all of it in the cache."""
         dtype = np.dtype(self.dtype).str
         laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
-        cpic_kernels = {(dtype, "cpic", self.scene.dim)} if self.scene.rigid_bodies else set()
+        cpic = self.scene.cpic
+        cpic_kernels = {(dtype, "cpic", self.scene.dim, cpic.fit)} if cpic is not None else set()
         return {self._p2g, self._g2p, dtype} | laws | cpic_kernels
 
     def warm_up(self, particles, step, per_material=2):

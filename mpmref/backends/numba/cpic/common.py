@@ -80,12 +80,6 @@ def sticky_tags(p, near_r, S0, S1, tag_A, tag_T, A_new, T_new):
 
 
 @njit(cache=True, inline="always")
-def several_tags(p, fits):
-    """Whether the per-body fit is on and two or more bodies tag particle ``p`` (it then has a fit per body)."""
-    return fits[0] and tagged_by_several(p, fits[4])
-
-
-@njit(cache=True, inline="always")
 def tagged_by_several(p, A_p):
     """Whether two or more bodies tag particle ``p`` (``A_p[p, r]``): the per-body fit then gives it a fit per body."""
     tagged = 0
@@ -104,14 +98,12 @@ def body_target(p, flat, r, dx, d_body, T, T_p):
 
 @njit(cache=True, inline="always")
 def crossed_body(p, idx, tag_T, fits):
-    r"""With the per-body fit (``fits = (per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, ``per_body``
-    true), the body :math:`c` whose own fit gives the ghost velocity of incompatible node ``idx`` for particle
-    ``p``: :math:`A_{ic} = A_{pc} = 1`, :math:`T_{ic} \ne T_{pc}`, the least :math:`d_{ic}`, the lowest id on a
-    tie, if its per-body fit is accepted; otherwise -1 (the single fit then applies;
-    :func:`mpmref.backends.numpy.cpic.ghost_frames`)."""
+    r"""With the per-body fit (``fits = (per_body, A, T, d_body, tag_A, fit_normal, fit_near)``), the body :math:`c`
+    whose own fit gives the ghost velocity of incompatible node ``idx`` for particle ``p``: :math:`A_{ic} = A_{pc}
+    = 1`, :math:`T_{ic} \ne T_{pc}`, the least :math:`d_{ic}`, the lowest id on a tie, if its per-body fit is
+    accepted; otherwise -1 (the single fit then applies; :func:`mpmref.backends.numpy.cpic.ghost_frames`). The
+    kernels call it only when compiled for the per-body fit (their ``PER_BODY``)."""
     per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
-    if not per_body:
-        return -1
     c, best = -1, np.inf
     for r in range(tag_A.shape[1]):
         if A[idx, r] and tag_A[p, r] and T[idx, r] != tag_T[p, r] and d_body[idx, r] < best:

@@ -108,13 +108,13 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T, 
 
 
 @lru_cache(maxsize=None)
-def tag_kernel(KERNEL, S):
+def tag_kernel(KERNEL, S, PER_BODY):
     r"""Sticky tags, least-squares distance and normal of every particle (2D, quadratic stencil), and the
     mask of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
 
     The returned ``tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
-    incompatible, order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal,
-    fit_near)`` fills the arrays from ``A_new`` to ``incompatible``, and with ``per_body`` the per-body fits
+    incompatible, order, block_start, blocks, block, blocks_per_axis, d_body, fit_phi, fit_normal, fit_near)``
+    fills the arrays from ``A_new`` to ``incompatible``, and compiled with ``PER_BODY`` the per-body fits
     ``fit_*`` (n, nb) of particles tagged by several bodies (:func:`per_body_fits`), which must be zero on entry:
     only particles near a body are written (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the
     particles' blocks (``prepare``'s
@@ -124,7 +124,7 @@ def tag_kernel(KERNEL, S):
 
     @njit(parallel=True, cache=True)
     def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
-             order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal, fit_near):
+             order, block_start, blocks, block, blocks_per_axis, d_body, fit_phi, fit_normal, fit_near):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         n_bodies = tag_A.shape[1]
         for bi in prange(blocks.shape[0]):
@@ -141,7 +141,7 @@ def tag_kernel(KERNEL, S):
                     b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
                     b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
                     incompatible[p] = incompatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
-                    if per_body:
+                    if PER_BODY:  # a closure constant: the per-body fits compile only where asked for
                         per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_new, T_new, fit_phi, fit_normal,
                                       fit_near, M, rhs)
 

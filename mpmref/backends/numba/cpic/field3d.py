@@ -120,7 +120,7 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
 
 
 @lru_cache(maxsize=None)
-def tag_kernel(KERNEL, S):
+def tag_kernel(KERNEL, S, PER_BODY):
     r"""Sticky tags, least-squares distance and normal of every particle (3D, quadratic stencil), and the mask
     of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``); as the
     2D :func:`~mpmref.backends.numba.cpic.field2d.tag_kernel` (with its per-body fits,
@@ -129,7 +129,7 @@ def tag_kernel(KERNEL, S):
 
     @njit(parallel=True, cache=True)
     def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
-             order, block_start, blocks, block, blocks_per_axis, per_body, d_body, fit_phi, fit_normal, fit_near):
+             order, block_start, blocks, block, blocks_per_axis, d_body, fit_phi, fit_normal, fit_near):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
         n_bodies = tag_A.shape[1]
         for bi in prange(blocks.shape[0]):
@@ -150,7 +150,7 @@ def tag_kernel(KERNEL, S):
                     b1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)[0]
                     b2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)[0]
                     incompatible[p] = incompatibility_mask(p, b0, b1, b2, S, strides, A, T, A_new, T_new)
-                    if per_body:
+                    if PER_BODY:  # a closure constant: the per-body fits compile only where asked for
                         per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_new, T_new, fit_phi, fit_normal,
                                       fit_near, M, rhs)
 

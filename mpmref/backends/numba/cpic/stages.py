@@ -103,9 +103,9 @@ def contact(backend, particles, blocks, rigid, dt):
     per_body = scene.cpic.fit == "per_body"
     m = n if per_body else 0
     fit_phi, fit_normal, fit_near = np.zeros((m, nb)), np.zeros((m, nb, d)), np.zeros((m, nb), dtype=np.bool_)
-    args += (per_body, cdf.d_body, fit_phi, fit_normal, fit_near)
+    args += (cdf.d_body, fit_phi, fit_normal, fit_near)
     fits = (per_body, cdf.A, cdf.T, cdf.d_body, A, fit_normal, fit_near)
-    k.tag_kernel(KERNEL_CODES[transfer.kernel], transfer.support)(*args)
+    k.tag_kernel(KERNEL_CODES[transfer.kernel], transfer.support, per_body)(*args)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=transfer.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
@@ -123,7 +123,7 @@ def p2g(backend, particles, blocks, contact):
                    force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
                    rejected_force=np.zeros((N, d)))
     kernel = contact.kernels.p2g_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
-                                        transfer.mls_force)
+                                        transfer.mls_force, contact.fits[0])
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            contact.tau, dense_layout(backend), Groups(blocks.order, blocks.block_start, *blocks.block_colours),
            contact_arrays(contact, particles), bodies_of(contact.rigid, contact), contact.gravity_dv,
@@ -176,7 +176,8 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     nb = len(rigid.angle)
     block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3 if d == 2 else 6))  # J, then L
     kernel = contact.kernels.g2p_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
-                                        transfer.mls_force, transfer.mls_gradient, transfer.tracks_F, transfer.tracks_J)
+                                        transfer.mls_force, transfer.mls_gradient, transfer.tracks_F, transfer.tracks_J,
+                                        contact.fits[0])
     kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
            backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
            dense_layout(backend), dt, Groups(blocks.order, blocks.block_start, *blocks.block_colours), v_grid,

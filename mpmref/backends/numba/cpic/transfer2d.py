@@ -10,7 +10,7 @@ from numba import njit, prange
 from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
 from ..transfers import SOURCE_DIGEST
-from .common import crossed_body, several_tags
+from .common import crossed_body, tagged_by_several
 
 
 @njit(cache=True, inline="always")
@@ -44,16 +44,15 @@ def ghost_velocity(v0, v1, node_x0, node_x1, r, position, velocity, omega, n0, n
 
 
 @njit(cache=True, inline="always")
-def ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits):
+def ghost_frame(p, idx, c, node_body, near, normal, tag_T, friction, fit_normal):
     r"""What the ghost velocity of incompatible node ``idx`` for particle ``p`` projects against
     (:func:`mpmref.backends.numpy.cpic.ghost_frames`): ``(project, r, n0, n1, mu)``.
 
     Single fit: the node's nearest body :math:`r`, the particle's normal :math:`\mathbf n_p`, the friction of its
-    side, ``project`` = ``near[p]``. With the per-body fit: the crossed body :math:`c` (:func:`crossed_body`)
-    with its own normal :math:`\mathbf n_{pc}`, if there is one."""
-    c = crossed_body(p, idx, tag_T, fits)
+    side, ``project`` = ``near[p]``. With the per-body fit, a crossed body ``c >= 0``
+    (:func:`~mpmref.backends.numba.cpic.common.crossed_body`; -1 if none, or without the per-body fit) with its
+    own normal :math:`\mathbf n_{pc}` (``fit_normal[p, c]``)."""
     if c >= 0:
-        fit_normal = fits[5]
         mu = friction[c, 1] if tag_T[p, c] else friction[c, 0]
         return True, c, fit_normal[p, c, 0], fit_normal[p, c, 1], mu
     r = max(node_body[idx], 0)
@@ -62,13 +61,13 @@ def ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits):
 
 
 @njit(cache=True, inline="always")
-def node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, fits, v0, v1, a0, a1, position, velocity,
-               omega):
+def node_ghost(p, idx, c, nx0, nx1, node_body, near, normal, tag_T, friction, fit_normal, v0, v1, a0, a1, position,
+               velocity, omega):
     r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` (see
     :func:`mpmref.backends.numpy.cpic.ghost_velocities`): if :func:`ghost_frame` projects, the friction
     projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` (``(v0 + a0, v1 + a1)``, the load with the particle's
     own internal force) against its body and normal; otherwise :math:`\mathbf v^*_p` = ``(v0, v1)``."""
-    project, r, n0, n1, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
+    project, r, n0, n1, mu = ghost_frame(p, idx, c, node_body, near, normal, tag_T, friction, fit_normal)
     if not project:
         return v0, v1
     return ghost_velocity(v0 + a0, v1 + a1, nx0, nx1, r, position, velocity, omega, n0, n1, mu)
@@ -96,7 +95,7 @@ def gradient_weight(mls_force, w, d0, d1, wa0, wa1, dwa0, dwa1, dx, inertia):
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE):
+def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
     r"""CPIC P2G kernel (2D): mass, momentum and force to compatible nodes; rejected momentum and force at
     the others (see :func:`mpmref.backends.numpy.transfers.p2g` with a contact).
 
@@ -155,8 +154,9 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE):
                                 nx1 = origin[1] + (b1 + j) * dx
                                 vs0, vs1 = v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1]
                                 a0, a1 = force_velocity(ghost_force, dt, f_0, f_1, w, m)
-                                gh0, gh1 = node_ghost(p, idx, nx0, nx1, node_body, near, normal, tag_T, friction, fits,
-                                                      vs0, vs1, a0, a1, position, velocity, omega)
+                                c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
+                                gh0, gh1 = node_ghost(p, idx, c, nx0, nx1, node_body, near, normal, tag_T, friction,
+                                                      fits[5], vs0, vs1, a0, a1, position, velocity, omega)
                                 wm = w * m
                                 rejected_momentum[idx, 0] += wm * (vs0 - gh0)
                                 rejected_momentum[idx, 1] += wm * (vs1 - gh1)
@@ -210,7 +210,7 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
+def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, PER_BODY):
     r"""CPIC G2P kernel (2D): G2P with ghost velocities, ``C_p := 0`` for near particles, and the penalty
     (see :func:`mpmref.backends.numpy.cpic.g2p`).
 
@@ -260,7 +260,9 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
                         else:
                             nx0 = origin[0] + (b0 + i) * dx
                             nx1 = origin[1] + (b1 + j) * dx
-                            project, r, n0, n1, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
+                            c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
+                            project, r, n0, n1, mu = ghost_frame(p, idx, c, node_body, near, normal, tag_T, friction,
+                                                                 fits[5])
                             a0, a1 = 0.0, 0.0
                             if project and ghost_force:
                                 g0, g1 = gradient_weight(MLS_FORCE, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx,
@@ -292,7 +294,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
                 x_new[p, 0] = x[p, 0] + dt * vp0
                 x_new[p, 1] = x[p, 1] + dt * vp1
                 dv0, dv1 = 0.0, 0.0
-                if several_tags(p, fits):
+                if PER_BODY and tagged_by_several(p, fits[4]):  # PER_BODY: a closure constant
                     per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
                     for r in range(tag_A.shape[1]):
                         if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:

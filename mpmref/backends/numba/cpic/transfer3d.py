@@ -11,7 +11,7 @@ from numba import njit, prange
 from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
 from ..transfers import SOURCE_DIGEST
-from .common import crossed_body, several_tags
+from .common import crossed_body, tagged_by_several
 
 
 @njit(cache=True, inline="always")
@@ -40,33 +40,33 @@ def ghost_velocity(v, node_x, r, position, velocity, omega, n, mu):
 
 
 @njit(cache=True, inline="always")
-def ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits):
+def ghost_frame(p, idx, c, node_body, near, normal, tag_T, friction, fit_normal):
     r"""What the ghost velocity of incompatible node ``idx`` for particle ``p`` projects against, in 3D
-    (:func:`mpmref.backends.numpy.cpic.ghost_frames`): ``(project, r, n, mu)``, ``n`` a 3-tuple. Single fit:
+    (:func:`mpmref.backends.numpy.cpic.ghost_frames`): ``(project, r, n0, n1, n2, mu)``. Single fit:
     the node's nearest body, the particle's normal, the friction of its side, ``project`` = ``near[p]``; with
     the per-body fit, the crossed body (:func:`~mpmref.backends.numba.cpic.common.crossed_body`) with its own
     normal :math:`\mathbf n_{pc}`, if there is one (as the 2D
     :func:`~mpmref.backends.numba.cpic.transfer2d.ghost_frame`)."""
-    c = crossed_body(p, idx, tag_T, fits)
     if c >= 0:
-        fit_normal = fits[5]
         mu = friction[c, 1] if tag_T[p, c] else friction[c, 0]
-        return True, c, (fit_normal[p, c, 0], fit_normal[p, c, 1], fit_normal[p, c, 2]), mu
+        return True, c, fit_normal[p, c, 0], fit_normal[p, c, 1], fit_normal[p, c, 2], mu
     r = max(node_body[idx], 0)
     mu = friction[r, 1] if tag_T[p, r] else friction[r, 0]
-    return near[p], r, (normal[p, 0], normal[p, 1], normal[p, 2]), mu
+    return near[p], r, normal[p, 0], normal[p, 1], normal[p, 2], mu
 
 
 @njit(cache=True, inline="always")
-def node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, fits, vs, a, position, velocity, omega):
+def node_ghost(p, idx, c, node_x, node_body, near, normal, tag_T, friction, fit_normal, vs, a, position, velocity,
+               omega):
     r"""Ghost velocity of incompatible node ``idx`` for particle ``p`` in 3D (as the 2D
     :func:`~mpmref.backends.numba.cpic.transfer2d.node_ghost`): if :func:`ghost_frame` projects, the friction
     projection of :math:`\mathbf v^*_p + \mathbf a_{ip}` against its body and normal, else
     :math:`\mathbf v^*_p` (``vs``)."""
-    project, r, n, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
+    project, r, n0, n1, n2, mu = ghost_frame(p, idx, c, node_body, near, normal, tag_T, friction, fit_normal)
     if not project:
         return vs
-    return ghost_velocity((vs[0] + a[0], vs[1] + a[1], vs[2] + a[2]), node_x, r, position, velocity, omega, n, mu)
+    return ghost_velocity((vs[0] + a[0], vs[1] + a[1], vs[2] + a[2]), node_x, r, position, velocity, omega,
+                          (n0, n1, n2), mu)
 
 
 @njit(cache=True, inline="always")
@@ -109,7 +109,7 @@ def stress_force(vol0, tau, p, g):
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE):
+def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
     r"""CPIC P2G kernel (3D): mass, momentum and force to compatible nodes; at an incompatible node
     :math:`\mathbf J^m_i \mathrel{+}= m_p w_{ip}(\mathbf v^*_p - \tilde{\mathbf v}_i)` and
     :math:`\mathbf J^f_i \mathrel{-}= V_p^0\tau_p g_{ip}` (see :func:`mpmref.backends.numpy.transfers.p2g` with a
@@ -159,8 +159,9 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE):
                                     node_x = (origin[0] + (b0 + i) * dx, origin[1] + (b1 + j) * dx,
                                               origin[2] + (b2 + k) * dx)
                                     acc = force_velocity(ghost_force, dt, f, w, m)
-                                    gh = node_ghost(p, idx, node_x, node_body, near, normal, tag_T, friction, fits, vs,
-                                                    acc, position, velocity, omega)
+                                    c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
+                                    gh = node_ghost(p, idx, c, node_x, node_body, near, normal, tag_T, friction,
+                                                    fits[5], vs, acc, position, velocity, omega)
                                     for a in range(3):
                                         rejected_momentum[idx, a] += wm * (vs[a] - gh[a])
                                         rejected_force[idx, a] -= f[a]
@@ -206,7 +207,7 @@ def node_impulses(rejected_momentum, rejected_force, dt, node_body, node_shape, 
 
 
 @lru_cache(maxsize=None)
-def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
+def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, PER_BODY):
     r"""CPIC G2P kernel (3D): G2P with ghost velocities (plus the pushing force for near particles),
     ``C_p := 0`` for near particles, and the penalty, whose impulse :math:`m_p\Delta\mathbf v` and its moment
     about the nearest body's centre accumulate per block in ``block_impulse[bi, r]`` (6 components); with the
@@ -251,7 +252,10 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
                             else:
                                 node_x = (origin[0] + (b0 + i) * dx, origin[1] + (b1 + j) * dx,
                                           origin[2] + (b2 + k) * dx)
-                                project, r, n, mu = ghost_frame(p, idx, node_body, near, normal, tag_T, friction, fits)
+                                c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
+                                project, r, n0, n1, n2, mu = ghost_frame(p, idx, c, node_body, near, normal, tag_T,
+                                                                         friction, fits[5])
+                                n = (n0, n1, n2)
                                 acc = (0.0, 0.0, 0.0)
                                 if project and ghost_force:
                                     g = gradient_weight(MLS_FORCE, w, dpos, (w0[i], w1[j], w2[k]),
@@ -281,7 +285,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J):
                     x_new[p, a] = x[p, a] + dt * vp[a]
                 xp = (x_new[p, 0], x_new[p, 1], x_new[p, 2])
                 dv = (0.0, 0.0, 0.0)
-                if several_tags(p, fits):
+                if PER_BODY and tagged_by_several(p, fits[4]):  # PER_BODY: a closure constant
                     tag_A, fit_normal, fit_near = fits[4], fits[5], fits[6]
                     for r in range(tag_A.shape[1]):
                         if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:
