@@ -178,6 +178,28 @@ def test_options_from_the_command_line():
             parse(bad)
 
 
+def test_the_sections_are_registered_once_and_the_cli_the_json_and_the_tables_follow(monkeypatch):
+    """--only's choices, the default sections and the JSON keys are the registry's; the runner runs and renders
+    the registered section (here a stand-in for cpic, so nothing is timed)."""
+    from mpmref.bench import DEFAULT_SECTIONS, sections
+
+    names = tuple(section.name for section in sections.SECTIONS)
+    assert SECTIONS == names and len(set(names)) == len(names)
+    assert DEFAULT_SECTIONS == tuple(name for name in names if name not in ("peer", "async"))
+    parser = argparse.ArgumentParser(prog="mpmref")
+    bench = add_parser(parser.add_subparsers(dest="command"))
+    assert tuple(next(a for a in bench._actions if a.dest == "only").choices) == names
+    stand_in = sections.Section("cpic", lambda options, log: {"results": [], "ran": options.quick},
+                                lambda section: f"stand-in table, quick {section['ran']}")
+    monkeypatch.setitem(sections.BY_NAME, "cpic", stand_in)
+    lines = []
+    results = run_bench(BenchOptions(backends=("numpy",), threads=(1,), sections=("cpic",), quick=True),
+                        log=lines.append, progress=lambda line: None)
+    assert list(results) == ["schema", "created_utc", "environment", "options", *names, "goals"]
+    assert results["cpic"] == {"results": [], "ran": True} and lines[0] == "stand-in table, quick True\n"
+    assert all(results[name] is None for name in names if name != "cpic")
+
+
 def test_too_many_threads_are_refused_before_any_work():
     numba = pytest.importorskip("numba")
     options = BenchOptions(backends=("numba",), threads=(1, numba.config.NUMBA_NUM_THREADS + 1),

@@ -59,7 +59,7 @@ def test_report_writes_plot_vtk_series_and_table(result, tmp_path):
     assert text.count("| 2 | quadratic |") == len(momentum.VARIANTS)
     assert [line for line in text.splitlines() if "FAIL" in line] == []
     assert_every_figure_has_a_caption(tmp_path)
-    assert case.backends_run(result) == ("numpy", "numba")
+    assert case.backends_run(result, "numpy") == ("numpy", "numba")
 
 
 def test_quick_preset_passes_from_an_empty_numba_cache_and_again_from_the_filled_one(tmp_path):

@@ -2,18 +2,25 @@
 
 import argparse
 import html
+import inspect
 import json
 import os
 import re
+import sys
 import time
-from dataclasses import replace
+import types
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mpmref.backends.numpy import backend as numpy_backend
-from verification import momentum, registry
+from verification import momentum, registry, warmup
+from verification.case import PRESETS, Case
 from verification.cli import add_parser
+from verification.common import Check
+from verification.report import case_record, pyplot, save_figure
 
 
 def verify(argv):
@@ -33,12 +40,84 @@ def test_registry_lists_and_loads_the_cases():
     names = registry.available()
     assert {"momentum", "energy", "transfer_energy"} <= set(names)
     for name in names:
-        module = registry.load(name)
-        for preset in registry.PRESETS:
-            assert isinstance(registry.preset_params(module, preset), module.Params)
-        assert module.MAIN_FIGURE.endswith(".png")  # the figure index.html shows for it
+        case = registry.load(name)
+        for preset in PRESETS:
+            assert isinstance(case.params(preset), case.Params)
+        assert case.main_figure.endswith(".png")  # the figure index.html shows for it
     with pytest.raises(KeyError, match="available: momentum"):
         registry.load("nonsense")
+    with pytest.raises(ValueError, match="unknown preset 'tiny'"):
+        registry.load("momentum").params("tiny")
+
+
+def takes(function, *args, **kwargs):
+    """Whether ``function`` can be called with these arguments (its signature binds them)."""
+    try:
+        inspect.signature(function).bind(*args, **kwargs)
+    except TypeError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("name", registry.available())
+def test_every_registered_case_satisfies_the_case_protocol(name):
+    """Each case module declares a Case whose members take the arguments the framework passes them."""
+    case = registry.load(name)
+    assert isinstance(case, Case) and case.title and case.title == case.doc.strip().splitlines()[0]
+    params = case.params("quick")
+    assert takes(case.run, params, backend="numpy", executor=None)
+    assert all(takes(member, "result") for member in (case.checks, case.findings))
+    assert takes(case.report, "result", "out_dir") and takes(case.backends_run, "result", "numpy")
+    assert takes(case.compiled_scenes, params, "numpy") and isinstance(case.runs_alone, bool)
+    assert not takes(case.run, params, "numpy", None, "extra")  # the check can fail
+
+
+@dataclass(frozen=True)
+class BareParams:
+    slope: float = 1.0
+
+    @classmethod
+    def quick(cls):
+        return cls(slope=0.5)
+
+    @classmethod
+    def full(cls):
+        return cls(slope=2.0)
+
+
+def bare_run(params, backend="numpy", executor=None):
+    return {"slope": params.slope}
+
+
+def bare_checks(result):
+    return [Check("slope", result["slope"], "<=", 1.0, "the bare case's bound")]
+
+
+def bare_report(result, out_dir):
+    for name in ("first.png", "second.png"):
+        fig, ax = pyplot().subplots()
+        ax.plot([0.0, 1.0], [0.0, result["slope"]])
+        save_figure(fig, Path(out_dir) / name, caption=name)
+
+
+def test_a_case_with_only_the_required_members_gets_the_defaults(monkeypatch, tmp_path):
+    """No findings, the backend asked for, nothing compiled ahead, not run alone, its first figure shown."""
+    bare = Case("A bare case.\n\nIt declares Params, run, checks and report only.", BareParams, bare_run,
+                bare_checks, bare_report)
+    assert bare.title == "A bare case."
+    assert tuple(bare.findings({})) == () and tuple(bare.backends_run({}, "numba")) == ("numba",)
+    assert bare.compiled_scenes(BareParams(), "numpy") == [] and bare.main_figure is None and not bare.runs_alone
+    assert [bare.params(p) for p in PRESETS] == [BareParams(0.5), BareParams(1.0), BareParams(2.0)]
+    module = types.ModuleType("bare_case")
+    module.CASE = bare
+    monkeypatch.setitem(sys.modules, "bare_case", module)
+    monkeypatch.setitem(registry.CASES, "bare", "bare_case")
+    outcome = registry.run_case("bare", "quick", "numba", out_dir=tmp_path)
+    assert outcome.passed and outcome.title == "A bare case." and outcome.params == BareParams(0.5)
+    record = case_record(outcome, tmp_path)
+    assert record.backends == ("numba",) and record.findings == () and record.main_figure[:2] == (
+        Path("first.png"), "first.png")
+    assert not warmup.compiles("bare", "quick", "numpy") and not warmup.runs_alone("bare")
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +150,7 @@ def test_index_lists_every_check_with_figure_bound_and_verdict(report_dir):
     index, page = (out / "report.md").read_text(), (out / "index.html").read_text()
     for case in ("momentum", "transfer_energy"):
         assert f"| {case} |" in index and f"{case}/index.html" in page
-        assert f"<img src='{case}/{registry.load(case).MAIN_FIGURE}'" in page  # its main figure, inline
+        assert f"<img src='{case}/{registry.load(case).main_figure}'" in page  # its main figure, inline
     cells = [re.split(r"(?<!\\)\|", line)[1:-1] for line in index.splitlines()]
     checks = [[c.strip() for c in row] for row in cells if len(row) == 6 and row[0].strip() == "momentum"]
     assert len(checks) == 2 * len(momentum.VARIANTS)  # linear + angular per scheme
@@ -98,7 +177,7 @@ def test_a_case_that_raises_is_reported_and_fails(monkeypatch, tmp_path):
     def explode(params, backend="numpy", executor=None):
         raise RuntimeError("deliberate failure inside the case")
 
-    monkeypatch.setattr(momentum, "run", explode)
+    monkeypatch.setattr(momentum, "CASE", replace(momentum.CASE, run=explode))
     assert verify(["momentum", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 1
     assert "deliberate failure inside the case" in (tmp_path / "momentum" / "report.md").read_text()
     assert "| [momentum](momentum/report.md) | numpy | 0 | ERROR |" in (tmp_path / "report.md").read_text()

@@ -146,7 +146,7 @@ def test_an_exception_in_findings_stops_the_case_with_an_error(toy_case, monkeyp
     def broken(result):
         raise RuntimeError("deliberate failure in findings")
 
-    monkeypatch.setattr(toy, "findings", broken)
+    monkeypatch.setattr(toy, "CASE", replace(toy.CASE, findings=broken))
     assert run_toy(monkeypatch, tmp_path) == 1
     (case,) = strict_json(tmp_path / "results.json")["cases"]
     assert case["verdict"] == "ERROR" and "deliberate failure in findings" in case["error"]

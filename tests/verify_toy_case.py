@@ -9,6 +9,7 @@ declares that it ran two backends, as the cases that compare backends do.
 from dataclasses import dataclass
 from pathlib import Path
 
+from verification.case import Case
 from verification.common import Check, Finding
 from verification.report import pyplot, save_figure
 
@@ -31,11 +32,11 @@ class Params:
         return cls()
 
 
-def run(params, backend="numpy"):
+def run(params, backend="numpy", executor=None):
     return {"slope": params.slope, "backend": backend}
 
 
-def backends_run(result):
+def backends_run(result, backend):
     return (result["backend"], "numba")
 
 
@@ -56,3 +57,6 @@ def report(result, out_dir):
         ax.plot([0.0, 1.0], [0.0, result["slope"]])
         save_figure(fig, out / name, caption=caption)
     return out
+
+
+CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run, main_figure=MAIN_FIGURE)

@@ -40,6 +40,7 @@ from mpmref.conformance.cases import MATERIALS
 from mpmref.diagnostics import polypic_mode_norms
 from mpmref.io.atomic import write_text_atomic
 
+from .case import Case
 from .common import Check, checks_table
 from .executor import Executor
 from .momentum import VARIANT, VARIANTS
@@ -161,7 +162,7 @@ def run(params=Params(), backend="numpy", executor=None):
             "runs": executor.map(run_pair, jobs)}
 
 
-def backends_run(result):
+def backends_run(result, backend):
     """The reference and the candidate: this case runs both."""
     return ("numpy", result["candidate"])
 
@@ -241,3 +242,8 @@ def report(result, out_dir):
             f"{table(result)}\n\n{checks_table(checks(result))}\n\n![growth](difference_growth.png)\n")
     write_text_atomic(out / "backends.md", text)
     return paths + [out / "backends.md"]
+
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, backends_run=backends_run,
+            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)

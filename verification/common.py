@@ -1,9 +1,8 @@
 """Shared pieces of verification cases: named checks with their bound and verdict, and findings.
 
 A case's ``checks(result)`` returns :class:`Check` objects (a figure held to a bound derived from
-theory); a case may also define ``findings(result)`` returning :class:`Finding` objects (a measured
-figure that is reported, not judged: behaviour worth knowing that is not a failure) and
-``backends_run(result)`` returning the backends it ran (default: the one it was asked for).
+theory); its ``findings(result)`` returns :class:`Finding` objects (a measured figure that is reported,
+not judged: behaviour worth knowing that is not a failure; see :class:`verification.case.Case`).
 """
 
 from dataclasses import dataclass

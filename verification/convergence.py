@@ -38,6 +38,7 @@ from mpmref.steppers.limits import cfl_time_step
 
 from ._conv_problems import PROBLEMS
 from ._conv_stepping import TREATMENTS, advance
+from .case import Case
 from .common import Check, Finding, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure
@@ -432,3 +433,6 @@ def report(result, out_dir):
     write_text_atomic(out / "convergence.md", "\n".join(parts))
     return out / "convergence.md"
 
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, findings=findings, main_figure=MAIN_FIGURE)

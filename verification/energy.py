@@ -45,6 +45,7 @@ import numpy as np
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 
+from .case import Case
 from .common import Check, checks_table
 from .executor import Executor
 from .momentum import VARIANT, VARIANTS
@@ -262,3 +263,7 @@ def report(result, out_dir):
     text = "# Energy budget per scheme\n\n" + "\n".join(sections) + f"\n## Checks\n\n{checks_table(checks(result))}\n"
     write_text_atomic(out / "energy.md", text)
     return paths + [out / "energy.md"]
+
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)

@@ -39,6 +39,7 @@ import numpy as np
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
 from mpmref.stability import StabilityWarning
 
+from .case import Case
 from .common import Check, Finding, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure
@@ -406,3 +407,7 @@ def report(result, out_dir):
     parts += ["## Checks", "", checks_table(checks(result)), ""]
     write_text_atomic(out / "extremes.md", "\n".join(parts))
     return out / "extremes.md"
+
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, findings=findings, main_figure=MAIN_FIGURE)

@@ -1,7 +1,7 @@
 """The HTML pages of the verification report: ``index.html`` (read in five minutes) and one page per case.
 
 ``index.html`` opens with the verdict and the failures, then shows one figure per case (the plot that
-carries the case's main claim, its ``MAIN_FIGURE``, with its caption), then the findings, then every
+carries the case's main claim, its ``main_figure``, with its caption), then the findings, then every
 check. Each case's own page, ``CASE/index.html``, one click away, holds all its figures, checks, findings,
 parameters, VTK series and tables. The pages are self-contained: one inline style sheet, relative links
 only, nothing fetched from a network.

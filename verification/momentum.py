@@ -37,6 +37,7 @@ from mpmref.physics.materials import FixedCorotated
 from mpmref.physics.scheme import resolve
 from mpmref.scene import MethodSpec
 
+from .case import Case
 from .common import Check, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure, snapshot, write_series
@@ -332,3 +333,7 @@ def report(result, out_dir):
             "![drift](momentum_drift.png)\n\n![angular momentum](angular_momentum.png)\n")
     write_text_atomic(out / "momentum.md", text)
     return paths + [out / "momentum.md"]
+
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)

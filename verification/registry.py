@@ -1,14 +1,12 @@
 """The verification cases by name, imported lazily, and one way to run any of them.
 
-A case module exposes ``Params`` (a frozen dataclass whose defaults are the standard preset, with the
-classmethods ``quick()`` and ``full()``), ``run(params, backend="numpy", executor=None)``,
-``checks(result) -> [Check]`` and ``report(result, out_dir)``. A case whose ``run`` takes no ``executor``
-runs as it is.
+A case module declares its :class:`~verification.case.Case` as ``CASE``: ``Params``,
+``run(params, backend="numpy", executor=None)``, ``checks(result) -> [Check]``, ``report(result, out_dir)``
+and the optional members, each with its default.
 """
 
 import importlib
 import importlib.util
-import inspect
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -28,8 +26,6 @@ CASES = {
     "cpic": "verification.cpic",
 }
 
-PRESETS = ("quick", "default", "full")
-
 
 def available():
     """Names of the registered cases whose module is present, in registration order."""
@@ -37,17 +33,11 @@ def available():
 
 
 def load(name):
-    """The module of case ``name``; ``KeyError`` names the available cases."""
+    """The :class:`~verification.case.Case` of case ``name`` (its module's ``CASE``); ``KeyError`` names the
+    available cases."""
     if name not in CASES:
         raise KeyError(f"unknown verification case {name!r}; available: {', '.join(available())}")
-    return importlib.import_module(CASES[name])
-
-
-def preset_params(module, preset):
-    """``Params()`` for ``"default"``, else ``Params.quick()`` / ``Params.full()``."""
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
-    return module.Params() if preset == "default" else getattr(module.Params, preset)()
+    return importlib.import_module(CASES[name]).CASE
 
 
 @dataclass
@@ -78,28 +68,22 @@ class Outcome:
         return "pass" if self.passed else f"FAIL ({n_failed} of {len(self.checks)})"
 
 
-def _title(module):
-    doc = (module.__doc__ or "").strip()
-    return doc.splitlines()[0] if doc else module.__name__
-
-
 def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None, params=None):
     """Run case ``name`` and evaluate its checks; with ``out_dir`` also write its report files.
 
     An exception inside the case is caught and kept (with its traceback) in ``Outcome.error`` so that a
     long verification run still reports every other case; such a case counts as failed.
     """
-    module = load(name)
-    params = preset_params(module, preset) if params is None else params
-    outcome = Outcome(name=name, title=_title(module), preset=preset, backend=backend, params=params,
+    case = load(name)
+    params = case.params(preset) if params is None else params
+    outcome = Outcome(name=name, title=case.title, preset=preset, backend=backend, params=params,
                       started=time.time())
     start = time.perf_counter()
     try:
-        kwargs = {"executor": executor} if "executor" in inspect.signature(module.run).parameters else {}
-        outcome.result = module.run(params, backend=backend, **kwargs)
-        outcome.checks = list(module.checks(outcome.result))
+        outcome.result = case.run(params, backend=backend, executor=executor)
+        outcome.checks = list(case.checks(outcome.result))
         if out_dir is not None:
-            module.report(outcome.result, out_dir)
+            case.report(outcome.result, out_dir)
     except Exception:  # reported in the case's report.md and the index; the case fails
         outcome.error = traceback.format_exc()
     outcome.wall_s = time.perf_counter() - start

@@ -142,15 +142,16 @@ class CaseRecord:
     outcome : verification.registry.Outcome
         The case's run: checks, timing, error.
     backends : tuple of str
-        The backends the case ran: its ``backends_run(result)`` where it defines one (cases that compare
-        backends), else the backend it was asked for.
+        The backends the case ran: its ``backends_run(result, backend)`` (by default the backend it was asked
+        for; the cases that compare backends name them all); only the one asked for when the case stopped with
+        an error.
     findings : tuple of verification.common.Finding
-        Its ``findings(result)`` where it defines one: measured behaviour reported, not judged.
+        Its ``findings(result)``: measured behaviour reported, not judged.
     figures : tuple of (Path, str)
         Each PNG written by this run (relative to the case folder) with its caption.
     main_figure : (Path, str, float) or None
         The figure that carries the case's main claim, its caption and its width over its height: the case's
-        ``MAIN_FIGURE`` (a file name in the case folder) where it declares one and wrote it, else its first
+        ``main_figure`` (a file name in the case folder) where it declares one and wrote it, else its first
         figure; ``None`` when it wrote none.
     """
 
@@ -171,20 +172,17 @@ def case_record(outcome, case_dir):
     An exception in the case's ``backends_run`` or ``findings`` is kept in ``outcome.error`` (the case
     then counts as stopped with an error), like one in its ``run``.
     """
-    module = registry.load(outcome.name)
+    case = registry.load(outcome.name)
     backends, findings = (outcome.backend,), ()
     if outcome.error is None:
         try:
-            if hasattr(module, "backends_run"):
-                backends = tuple(module.backends_run(outcome.result))
-            if hasattr(module, "findings"):
-                findings = tuple(module.findings(outcome.result))
+            backends = tuple(case.backends_run(outcome.result, outcome.backend))
+            findings = tuple(case.findings(outcome.result))
         except Exception:  # reported like an exception in the case's run
             outcome.error = traceback.format_exc()
     pngs, _, _ = _files_by_kind(case_dir, outcome.started)
     figures = tuple((p, figure_caption(Path(case_dir) / p) or NO_CAPTION) for p in pngs)
-    declared = getattr(module, "MAIN_FIGURE", None)
-    main = next((f for f in figures if f[0].as_posix() == declared), figures[0] if figures else None)
+    main = next((f for f in figures if f[0].as_posix() == case.main_figure), figures[0] if figures else None)
     if main is not None:
         main = (*main, aspect_ratio(Path(case_dir) / main[0]))
     return CaseRecord(outcome, backends, findings, figures, main)

@@ -37,14 +37,11 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 
 from .backends import trajectory_bound
+from .case import Case
 from .common import Check, Finding, checks_table
 from .convergence import LevelRun, Series, run_level
 from .executor import Executor
 from .report import pyplot, save_figure, write_series
-
-#: the case times its runs: ``mpmref verify`` starts it only after the background compilation has ended
-#: (:mod:`verification.warmup`), so that no compilation shares the machine with the timed runs
-RUNS_ALONE = True
 
 #: (scheme, force) pairs the convergence case names
 SCHEMES = (("pic", "classic"), ("apic", "classic"), ("mls", "mls"))
@@ -166,7 +163,7 @@ def run(params=Params(), backend="numpy", executor=None):
             "timing": timing}
 
 
-def backends_run(result):
+def backends_run(result, backend):
     """The backends whose runs were timed and compared."""
     return result["backends"]
 
@@ -291,3 +288,9 @@ def report(result, out_dir):
     parts += ["", "## Checks", "", checks_table(checks(result)), ""]
     write_text_atomic(out / "speed_accuracy.md", "\n".join(parts))
     return paths + [out / "speed_accuracy.md"]
+
+
+#: this case, for the registry; it times its runs, so ``mpmref verify`` starts it only after the background
+#: compilation has ended (:mod:`verification.warmup`): no compilation shares the machine with the timed runs
+CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE, runs_alone=True)

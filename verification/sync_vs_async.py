@@ -51,6 +51,7 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.steppers import AsynchronousStepper
 from mpmref.steppers.asynchronous import _Interval
 
+from .case import Case
 from .common import Check, Finding, checks_table
 from .report import pyplot, save_figure, snapshot, write_series
 
@@ -520,8 +521,8 @@ def compiled_scenes(params, backend="numpy"):
 
 
 # --------------------------------------------------------------------------------------------- run
-def run(params=Params(), backend="numpy"):
-    """Every part of the case (see the module docstring)."""
+def run(params=Params(), backend="numpy", executor=None):
+    """Every part of the case (see the module docstring), in this process (``executor`` is not used)."""
     out = {"params": params, "backend": backend}
     out["one_level"] = [one_level(params, b) for b in ("numpy", "numba")]
     out["free_fall"] = free_fall(params, backend)
@@ -639,7 +640,7 @@ def findings(result):
     return out
 
 
-def backends_run(result):
+def backends_run(result, backend):
     """The one-level part runs on NumPy and Numba, the sweeps on Numba; the rest on the requested backend."""
     return sorted({"numpy", "numba", result["backend"], result["sweeps_backend"]})
 
@@ -746,3 +747,8 @@ def report(result, out_dir):
             + f"\n\n## Checks\n\n{checks_table(checks(result))}\n")
     write_text_atomic(out / "sync_vs_async.md", text)
     return paths + [out / "sync_vs_async.md"]
+
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)

@@ -22,6 +22,7 @@ import numpy as np
 from mpmref import SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 
+from .case import Case
 from .common import Check, checks_table
 from .report import pyplot, save_figure
 
@@ -90,8 +91,9 @@ def energy_history(params, scheme, options, wavelength, backend="numpy"):
     return np.array(history), velocities
 
 
-def run(params=Params(), backend="numpy"):
-    """Energy kept per scheme and wavelength: first cycle, per cycle after, and the fixed-point residual."""
+def run(params=Params(), backend="numpy", executor=None):
+    """Energy kept per scheme and wavelength: first cycle, per cycle after, and the fixed-point residual (in
+    this process: the runs are short, ``executor`` is not used)."""
     rows = []
     for scheme, options in SCHEMES:
         for wl in params.wavelengths:
@@ -174,3 +176,7 @@ def report(result, out_dir):
             f"![energy](transfer_energy.png)\n")
     write_text_atomic(out / "transfer_energy.md", text)
     return [figure, out / "transfer_energy.md"]
+
+
+#: this case, for the registry
+CASE = Case(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)

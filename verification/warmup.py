@@ -13,8 +13,8 @@ would compile them a second time, on the other core (measured: the ``backends`` 
 CPU that way against 64 s alone). So a case that declares compiled scenes starts only once every scene it
 needs is compiled (:func:`can_start`: then, between two NumPy cases, while the warm-up goes on with the
 others) or after :func:`wait` for the whole warm-up; every kernel compiles once. A case that times its
-runs (``RUNS_ALONE = True`` in its module) always waits for the whole warm-up: compilation on the other
-core would slow what it measures.
+runs (``runs_alone=True`` in its :class:`~verification.case.Case`) always waits for the whole warm-up:
+compilation on the other core would slow what it measures.
 
 The queue (:func:`plan`) holds one scene per set of kernels not yet compiled by the scenes before it
 (``compiled_kernels()`` of the backend), the scenes of cases that may start early first, fewest first,
@@ -37,14 +37,13 @@ from . import registry
 
 def declared_scenes(name, preset, backend):
     """``[(backend name, scene)]`` that case ``name`` runs on a compiled backend (its ``compiled_scenes``)."""
-    module = registry.load(name)
-    declared = getattr(module, "compiled_scenes", None)
-    return declared(registry.preset_params(module, preset), backend) if declared else []
+    case = registry.load(name)
+    return case.compiled_scenes(case.params(preset), backend)
 
 
 def runs_alone(name):
-    """Whether case ``name`` times its runs and so starts only after the whole warm-up (``RUNS_ALONE``)."""
-    return getattr(registry.load(name), "RUNS_ALONE", False)
+    """Whether case ``name`` times its runs and so starts only after the whole warm-up (its ``runs_alone``)."""
+    return registry.load(name).runs_alone
 
 
 def plan(names, preset, backend):

@@ -45,24 +45,16 @@ from importlib import metadata
 
 from ..backends import BACKENDS
 from ..io.atomic import write_text_atomic
-from .asynchronous import run_async
-from .cpic import run_cpic
-from .domain import run_domain
 from .goals import goals_section, render_goals
-from .peer import run_peer
-from .report import RENDERERS
-from .scenes import peer_cases, table2_cells, throughput_cases
-from .stages import plot_scaling, run_scaling, run_stages
-from .table2 import run_table2
-from .throughput import run_throughput
+from .scenes import table2_cells
+# the names of the sections (:data:`mpmref.bench.sections.SECTIONS`), and of those a run without --only runs
+from .sections import BY_NAME, DEFAULT_NAMES as DEFAULT_SECTIONS, NAMES as SECTIONS
 from .timing import check_threads
 
 SCHEMA = "mpmref-bench/1"
 DESCRIPTION = ("Time P2G and G2P of classic MPM and MLS-MPM (the talk's Table 2), whole-step throughput, and "
                "optionally a Taichi peer on the same scenes. Every figure is the median of --repeats; JIT "
                "compilation is reported apart. See docs/performance.md.")
-SECTIONS = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "peer", "async", "cpic")
-DEFAULT_SECTIONS = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic")
 DEFAULT_PARTICLES = 1_000_000
 QUICK_PARTICLES = 4096
 FULL_CELLS = 100
@@ -131,55 +123,12 @@ def run_bench(options, log=print, progress=_to_stderr):
         tag = f"[{i}/{len(options.sections)}] {name}"
         progress(f"{tag}: started")
         start = time.perf_counter()
-        results[name] = SECTION_RUNNERS[name](options, progress)
+        results[name] = BY_NAME[name].run(options, progress)
         progress(f"{tag}: finished in {time.perf_counter() - start:.1f} s")
-        log(RENDERERS[name](results[name]) + "\n")
+        log(BY_NAME[name].render(results[name]) + "\n")
     results["goals"] = goals_section(results)
     log(render_goals(results["goals"]) + "\n")
     return results
-
-
-def _table2(o, log):
-    return run_table2(o.table2_cells, o.backends, o.threads, o.dtypes, o.repeats, o.memory, log)
-
-
-def _table2_2d(o, log):
-    return run_table2(o.table2_2d_cells, o.backends, o.threads, o.dtypes, o.repeats, False, log, dim=2)
-
-
-def _throughput(o, log):
-    return run_throughput(throughput_cases(o.quick), o.backends, o.threads, o.dtypes, o.repeats, o.steps, log)
-
-
-def _peer(o, log):
-    return run_peer(peer_cases(o.quick), o.backends, o.threads, o.repeats, o.peer_steps, log)
-
-
-def _async(o, log):
-    return run_async(o.quick, o.backends, o.threads, o.repeats, log)
-
-
-def _stages(o, log):
-    return run_stages(throughput_cases(o.quick), o.backends, o.threads, o.dtypes, o.steps, log)
-
-
-def _cpic(o, log):
-    return run_cpic(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
-
-
-def _scaling(o, log):
-    section = run_scaling(o.backends, o.threads, o.dtypes, o.repeats, o.steps, o.full, o.quick, log)
-    if o.plot:
-        plot_scaling(section, o.plot)
-    return section
-
-
-def _domain(o, log):
-    return run_domain(o.backends, o.threads, o.dtypes, o.repeats, o.steps, o.quick, o.memory, log)
-
-
-SECTION_RUNNERS = {"table2": _table2, "table2_2d": _table2_2d, "throughput": _throughput, "stages": _stages,
-                   "scaling": _scaling, "domain": _domain, "peer": _peer, "async": _async, "cpic": _cpic}
 
 
 def environment():

@@ -1,9 +1,6 @@
-"""Readable tables of the benchmark sections (the JSON holds every figure; these show the medians)."""
-
-from .asynchronous import render_async
-from .cpic import render_cpic
-from .domain import render_domain
-from .stages import render_scaling, render_stages
+"""Readable tables of the Table-2, throughput and peer sections (the JSON holds every figure; these show the
+medians). The other sections render their own (:data:`mpmref.bench.sections.SECTIONS` says which renders which).
+"""
 
 METHOD_COLUMNS = (("mpm", "MPM"), ("mls", "MLS-MPM"))
 STAGE_ROWS = (("p2g", "P2G"), ("g2p", "G2P"))
@@ -104,12 +101,3 @@ def render_peer(section):
                      f"{r['ratio']:>7.2f}x{r['mean_position_difference']:>12.2e}{r['bound']:>10.2e}  {agree}")
     return "\n".join(lines)
 
-
-RENDERERS = {"table2": render_table2, "table2_2d": render_table2, "throughput": render_throughput, "stages": render_stages,
-             "scaling": render_scaling, "domain": render_domain, "peer": render_peer, "async": render_async,
-             "cpic": render_cpic}
-
-
-def render(results):
-    """Every section present in ``results``, as text."""
-    return "\n\n".join(RENDERERS[name](results[name]) for name in RENDERERS if results.get(name) is not None)

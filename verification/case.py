@@ -1,0 +1,88 @@
+"""The contract of a verification case: what ``mpmref verify`` runs, judges and reports.
+
+A case module under ``verification/`` declares one :class:`Case`, named ``CASE``, from its functions; the
+registry (:mod:`verification.registry`) maps the case's name to its module and reads ``CASE`` when the case
+runs. Four members are required (``Params``, ``run``, ``checks``, ``report``); every other member has a
+default that says what a case without it means, so the framework calls each member directly.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+#: the presets every case has: ``Params.quick()``, ``Params()`` and ``Params.full()``
+PRESETS = ("quick", "default", "full")
+
+
+def no_findings(result):
+    """The default ``findings``: the case reports nothing beyond its checks."""
+    return ()
+
+
+def backend_asked(result, backend):
+    """The default ``backends_run``: the case ran the backend it was asked for."""
+    return (backend,)
+
+
+def no_compiled_scenes(params, backend):
+    """The default ``compiled_scenes``: the case compiles nothing ahead (:mod:`verification.warmup`)."""
+    return []
+
+
+@dataclass(frozen=True)
+class Case:
+    """One verification case.
+
+    Attributes
+    ----------
+    doc : str
+        The case module's docstring; its first line is the case's title.
+    Params : type
+        A frozen dataclass whose defaults are the standard preset, with the classmethods ``quick()`` and
+        ``full()``.
+    run : callable
+        ``run(params, backend="numpy", executor=None) -> result``: every simulation of the case, its
+        independent runs through ``executor`` (a :class:`~verification.executor.Executor`; ``None``: in this
+        process).
+    checks : callable
+        ``checks(result) -> [Check]``: each figure held to a bound (:class:`~verification.common.Check`).
+    report : callable
+        ``report(result, out_dir)``: the case's plots (saved with
+        :func:`~verification.report.save_figure`), VTK series and tables under ``out_dir``.
+    findings : callable
+        ``findings(result) -> [Finding]``: measured behaviour reported, not judged
+        (:class:`~verification.common.Finding`). Default: none.
+    backends_run : callable
+        ``backends_run(result, backend) -> [str]``: the backends the case ran when asked for ``backend``, for
+        the cases that compare backends. Default: ``(backend,)``.
+    compiled_scenes : callable
+        ``compiled_scenes(params, backend) -> [(backend name, scene)]``: the scenes the case runs on a compiled
+        backend, which the warm-up compiles ahead (:mod:`verification.warmup`). Default: none.
+    main_figure : str or None
+        The file name (in the case's folder) of the figure that carries the case's main claim, the one
+        ``index.html`` shows. Default ``None``: its first figure.
+    runs_alone : bool
+        Whether the case times its runs, and so starts only once the whole warm-up is done. Default ``False``.
+    """
+
+    doc: str
+    Params: type
+    run: Callable
+    checks: Callable
+    report: Callable
+    findings: Callable = no_findings
+    backends_run: Callable = backend_asked
+    compiled_scenes: Callable = no_compiled_scenes
+    main_figure: str | None = None
+    runs_alone: bool = False
+
+    @property
+    def title(self):
+        """The first line of the case's docstring."""
+        return self.doc.strip().splitlines()[0]
+
+    def params(self, preset):
+        """The parameters of ``preset``: ``Params()`` for ``"default"``, else ``Params.quick()`` /
+        ``Params.full()``."""
+        if preset not in PRESETS:
+            raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
+        return {"quick": self.Params.quick, "default": self.Params, "full": self.Params.full}[preset]()
