@@ -37,7 +37,7 @@ def test_report_writes_plots_series_and_findings(result, tmp_path):
 def test_the_3d_cut_ends_in_four_pieces_without_crossings(result, tmp_path):
     """Spec acceptance 7 in 3D: two crossed zero-thickness blades cut the falling block into 4 components."""
     cut = result.cut3d
-    assert cut.components == 4 and cut.crossings == 0 and cut.n > 300
+    assert cut.components == 4 and cut.crossings == 0 and cut.n_particles > 300
     pv = pytest.importorskip("pyvista")
     case.report(result, tmp_path)
     blades = pv.read(tmp_path / "vtk" / "cut3d" / "rigid_bodies_end.vtp")

@@ -36,7 +36,7 @@ class Case:
     ----------
     doc : str
         The case module's docstring; its first line is the case's title.
-    Params : type
+    Params : class
         A frozen dataclass whose defaults are the standard preset, with the classmethods ``quick()`` and
         ``full()``.
     run : callable

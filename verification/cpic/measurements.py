@@ -84,7 +84,7 @@ def run_watching(scene, frames, every_step=None, particles=None, shapes=None, ba
         if sim.time >= len(shots) * frame_dt * (1 - 1e-9):
             shots.append(snapshot(sim, FRAME_FIELDS))
     return sim, Watched(crossings=len(crossed), far_side=len(count_crossings(first, state)), frames=shots,
-                        n=sim.n_particles, steps=sim.step_count,
+                        n_particles=sim.n_particles, steps=sim.step_count,
                         bodies=shapes or current_shapes(scene.rigid_bodies, sim.state.rigid))
 
 

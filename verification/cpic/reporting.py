@@ -130,7 +130,7 @@ def _rotor(result):
     if rotor is None:
         return []
     return [Finding("rotor: particles that crossed the spinning plate (any step)", rotor.crossings,
-                    f"of {rotor.n}: a plate sweeping through material pushes it only through ghost velocities, "
+                    f"of {rotor.n_particles}: a plate sweeping through material pushes it only through ghost velocities, "
                     "the pushing force and the penalty, so grazing particles cross its line by a fraction of a cell "
                     "before their kept tag brings them back (the far-side count means nothing for a plate that "
                     "turns half a revolution).")]
@@ -219,7 +219,7 @@ def table(result):
                     ("jelly onto a wedge blade", result.cut),
                     ("3D: jelly onto two crossed wedge blades", result.cut3d),
                     ("block sliding (friction)", result.friction)):
-        rows.append(f"| {name} | {r.n} | {r.steps} | {r.crossings} | {r.far_side} |")
+        rows.append(f"| {name} | {r.n_particles} | {r.steps} | {r.crossings} | {r.far_side} |")
     return "\n".join(rows + ["", "*side at the end against side at the start, for particles projecting onto a "
                               "segment both times: for the moving blade it also counts sand that flowed under "
                               "the blade's lower end, which is inside the layer."])

@@ -22,7 +22,7 @@ class Watched:
         Particles on the other side at the end than at the start, of a segment they project onto both times.
     frames : list of (float, numpy.ndarray, dict)
         VTK frames ``(time, x, point_data)``.
-    n : int
+    n_particles : int
         Particles at the end.
     steps : int
         Steps taken.
@@ -33,7 +33,7 @@ class Watched:
     crossings: int
     far_side: int
     frames: list
-    n: int
+    n_particles: int
     steps: int
     bodies: list
 
