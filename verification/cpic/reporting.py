@@ -130,10 +130,10 @@ def _rotor(result):
     if rotor is None:
         return []
     return [Finding("rotor: particles that crossed the spinning plate (any step)", rotor.crossings,
-                    f"of {rotor.n_particles}: a plate sweeping through material pushes it only through ghost velocities, "
-                    "the pushing force and the penalty, so grazing particles cross its line by a fraction of a cell "
-                    "before their kept tag brings them back (the far-side count means nothing for a plate that "
-                    "turns half a revolution).")]
+                    f"of {rotor.n_particles}: a plate sweeping through material pushes it only through ghost "
+                    "velocities, the pushing force and the penalty, so grazing particles cross its line by a fraction "
+                    "of a cell before their kept tag brings them back (the far-side count means nothing for a plate "
+                    "that turns half a revolution).")]
 
 
 def _reference_ghosts(result):

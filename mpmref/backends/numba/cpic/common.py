@@ -8,6 +8,36 @@ from numba import njit
 from ....physics.cdf import TAG_THRESHOLD
 
 
+def empty_field(n_nodes, n_bodies):
+    """The arrays of a colored distance field before rasterising, ``(d, nearest, A, T, d_body)``: no node in a
+    band (distances ``inf``, nearest body -1, no :math:`A_{ir}`, :math:`T_{ir}`)."""
+    return (np.full(n_nodes, np.inf), np.full(n_nodes, -1, dtype=np.int64),
+            np.zeros((n_nodes, n_bodies), dtype=np.bool_), np.zeros((n_nodes, n_bodies), dtype=np.bool_),
+            np.full((n_nodes, n_bodies), np.inf))
+
+
+@njit(cache=True, inline="always")
+def add_pair(flat, h, r, count, pair_node, pair_h, d_r, A):
+    r"""Record body ``r``'s ``count``-th rasterised pair (node ``flat``, signed offset :math:`h`): the body's
+    distance :math:`d_{ir} = \min(d_{ir}, |h|)` and :math:`A_{ir} = 1`; returns the new count
+    (:func:`settle_body` settles the pairs)."""
+    pair_node[count] = flat
+    pair_h[count] = h
+    d_r[flat] = min(d_r[flat], abs(h))
+    A[flat, r] = True
+    return count + 1
+
+
+@njit(cache=True, inline="always")
+def node_incompatible(p, idx, A, T, A_p, T_p):
+    r"""Whether node ``idx`` is incompatible with particle ``p``: some body :math:`r` has :math:`A_{ir} = A_{pr}
+    = 1` and :math:`T_{ir} \ne T_{pr}` (Hu et al. 2018 §4; docs/cpic.md)."""
+    for r in range(A_p.shape[1]):
+        if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
+            return True
+    return False
+
+
 @njit(cache=True, inline="always")
 def settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T, d_body):
     r"""After body ``r``'s ``count`` rasterised (node, :math:`h`) pairs: the body's own distance

@@ -14,7 +14,8 @@ from ....physics.rigid import surface_samples
 from ....physics.rigid_dynamics import current_shapes
 from ..stencil import kernel_axis, quadratic_axis
 from ..transfers import SOURCE_DIGEST
-from .common import add_side_sums, body_target, fit_target, settle_body, sticky_tags, tagged_by_several
+from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
+                     settle_body, sticky_tags, tagged_by_several)
 
 
 def body_samples(bodies, rigid, dx):
@@ -43,12 +44,7 @@ def build_cdf(bodies, rigid, shape, origin, dx):
     ``shape`` is the grid's node shape (an int64 array), ``origin`` a float64 array.
     """
     x, seg, start, seg_a, seg_b = body_samples(bodies, rigid, dx)
-    n_nodes = int(shape[0] * shape[1])
-    d = np.full(n_nodes, np.inf)
-    nearest = np.full(n_nodes, -1, dtype=np.int64)
-    A = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    T = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    d_body = np.full((n_nodes, len(bodies)), np.inf)
+    d, nearest, A, T, d_body = empty_field(int(shape[0] * shape[1]), len(bodies))
     rasterise(x, seg, start, seg_a, seg_b, origin, float(dx), shape, d, nearest, A, T, d_body)
     return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=(int(shape[0]), int(shape[1])), origin=origin,
                                dx=float(dx), d_body=d_body)
@@ -99,11 +95,7 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T, 
                 if sigma < -EDGE_MARGIN or sigma > 1.0 + EDGE_MARGIN:
                     continue
                 h = (r1 * e0 - r0 * e1) / np.sqrt(length2)
-                pair_node[count] = flat
-                pair_h[count] = h
-                count += 1
-                d_r[flat] = min(d_r[flat], abs(h))
-                A[flat, r] = True
+                count = add_pair(flat, h, r, count, pair_node, pair_h, d_r, A)
         settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T, d_body)
 
 
@@ -170,10 +162,8 @@ def incompatibility_mask(p, b0, b1, S, strides, A, T, A_p, T_p):
     mask = 0
     for k in range(S * S):
         idx = (b0 + k // S) * strides[0] + (b1 + k % S) * strides[1]
-        for r in range(A_p.shape[1]):
-            if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
-                mask |= 1 << k
-                break
+        if node_incompatible(p, idx, A, T, A_p, T_p):
+            mask |= 1 << k
     return mask
 
 

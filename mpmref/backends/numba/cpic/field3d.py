@@ -13,7 +13,8 @@ from ....physics.rigid_dynamics import current_shapes
 from ....physics.trimesh import surface_samples
 from ..stencil import kernel_axis, quadratic_axis
 from ..transfers import SOURCE_DIGEST
-from .common import add_side_sums, body_target, fit_target, settle_body, sticky_tags, tagged_by_several
+from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
+                     settle_body, sticky_tags, tagged_by_several)
 
 
 def body_samples(bodies, rigid, dx):
@@ -44,12 +45,7 @@ def body_samples(bodies, rigid, dx):
 def build_cdf(bodies, rigid, shape, origin, dx):
     """The colored distance field (:func:`mpmref.physics.cdf.build_cdf`) of 3D bodies, rasterised by :func:`rasterise`."""
     x, tri, start, a, e1, e2, normal = body_samples(bodies, rigid, dx)
-    n_nodes = int(shape[0] * shape[1] * shape[2])
-    d = np.full(n_nodes, np.inf)
-    nearest = np.full(n_nodes, -1, dtype=np.int64)
-    A = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    T = np.zeros((n_nodes, len(bodies)), dtype=np.bool_)
-    d_body = np.full((n_nodes, len(bodies)), np.inf)
+    d, nearest, A, T, d_body = empty_field(int(shape[0] * shape[1] * shape[2]), len(bodies))
     rasterise(x, tri, start, a, e1, e2, normal, origin, float(dx), shape, d, nearest, A, T, d_body)
     return ColoredDistanceField(d=d, body=nearest, A=A, T=T, shape=tuple(int(s) for s in shape), origin=origin,
                                dx=float(dx), d_body=d_body)
@@ -111,11 +107,7 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
                     continue
                 h = r0 * normal[t, 0] + r1 * normal[t, 1] + r2 * normal[t, 2]
                 flat = (i0 * shape[1] + i1) * shape[2] + i2
-                pair_node[count] = flat
-                pair_h[count] = h
-                count += 1
-                d_r[flat] = min(d_r[flat], abs(h))
-                A[flat, r] = True
+                count = add_pair(flat, h, r, count, pair_node, pair_h, d_r, A)
         settle_body(r, count, pair_node, pair_h, d_r, d, nearest, T, d_body)
 
 
@@ -176,10 +168,8 @@ def incompatibility_mask(p, b0, b1, b2, S, strides, A, T, A_p, T_p):
     mask = 0
     for k in range(S * S * S):
         idx = (b0 + k // (S * S)) * strides[0] + (b1 + (k // S) % S) * strides[1] + (b2 + k % S) * strides[2]
-        for r in range(A_p.shape[1]):
-            if A[idx, r] and A_p[p, r] and T[idx, r] != T_p[p, r]:
-                mask |= 1 << k
-                break
+        if node_incompatible(p, idx, A, T, A_p, T_p):
+            mask |= 1 << k
     return mask
 
 
