@@ -264,6 +264,15 @@ def diagnostics(bodies, state):
 
 
 
+def mechanical_energy(bodies, state, gravity):
+    r"""Kinetic plus gravitational energy of each body (nb,): the dimension's ``kinetic_energy`` and
+    :math:`-M_r\, \mathbf g \cdot \mathbf c_r` for a dynamic body that feels gravity and is not pinned
+    (:math:`\mathbf c_r` its centre of mass, :math:`\mathbf g` gravity); zero for fixed and scripted bodies."""
+    falls = np.array([b.motion == "dynamic" and b.gravity and not b.pinned for b in bodies])
+    mass = np.array([b.mass if f else 0.0 for b, f in zip(bodies, falls)])
+    return state.mechanics.kinetic_energy(bodies, state) - mass * (state.position @ np.asarray(gravity, dtype=np.float64))
+
+
 def momentum(bodies, state):
     """Linear momentum :math:`\\sum_r M_r \\mathbf v_r` of the dynamic bodies (finite mass), shape (2,)."""
     return sum((b.mass * state.velocity[r] for r, b in enumerate(bodies) if b.motion == "dynamic"),

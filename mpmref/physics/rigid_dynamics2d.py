@@ -155,6 +155,21 @@ def end_step(bodies, state, time, dt, gravity):
     return state.with_(position=position, angle=angle, velocity=velocity, angular_velocity=weld(bodies, omega))
 
 
+def kinetic_energy(bodies, state):
+    r"""Kinetic energy of each dynamic body, :math:`\tfrac12 M_r |\mathbf v_r|^2 + \tfrac12 I_r \omega_r^2` (nb,);
+    zero for fixed and scripted bodies (infinite mass: they are the scene's drive, not part of its energy), and
+    no translation for a pinned one.
+
+    :math:`M_r` mass, :math:`I_r` moment of inertia about the reference point (the centre of mass),
+    :math:`\mathbf v_r` and :math:`\omega_r` the body's velocity and angular velocity (Goldstein §5.1).
+    """
+    dynamic = np.array([b.motion == "dynamic" for b in bodies])
+    mass = np.array([b.mass if b.motion == "dynamic" and not b.pinned else 0.0 for b in bodies])
+    inertia = np.array([b.inertia if b.motion == "dynamic" else 0.0 for b in bodies])
+    energy = 0.5 * mass * np.sum(state.velocity**2, axis=1) + 0.5 * inertia * state.angular_velocity**2
+    return np.where(dynamic, energy, 0.0)
+
+
 def diagnostics(bodies, state):
     """Per body ``r``: ``rigid{r}_`` position, angle, velocity, angular velocity and impulse received (dict)."""
     out = {}

@@ -228,6 +228,24 @@ def end_step(bodies, state, time, dt, gravity):
     return state.with_(position=position, angle=angle, velocity=velocity, angular_velocity=omega)
 
 
+def kinetic_energy(bodies, state):
+    r"""Kinetic energy of each dynamic body,
+    :math:`\tfrac12 M_r |\mathbf v_r|^2 + \tfrac12 \boldsymbol\omega_r \cdot R \mathbf I_0 R^T \boldsymbol\omega_r` (nb,);
+    zero for fixed and scripted bodies (infinite mass: they are the scene's drive, not part of its energy).
+
+    :math:`M_r` mass, :math:`\mathbf I_0` inertia tensor about the centre of mass in the declared pose,
+    :math:`R` the rotation of the orientation quaternion, :math:`\mathbf v_r`, :math:`\boldsymbol\omega_r` the
+    velocity and angular velocity (Goldstein §5.1).
+    """
+    energy = np.zeros(len(bodies))
+    for r, body in enumerate(bodies):
+        if body.motion == "dynamic":
+            R = rotation_matrix(state.angle[r])
+            omega = state.angular_velocity[r]
+            energy[r] = 0.5 * body.mass * state.velocity[r] @ state.velocity[r] + 0.5 * omega @ R @ body.inertia @ R.T @ omega
+    return energy
+
+
 def diagnostics(bodies, state):
     """Per body ``r``: ``rigid{r}_`` position, orientation quaternion, velocity, angular velocity and impulses (dict)."""
     out = {}

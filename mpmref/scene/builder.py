@@ -87,7 +87,7 @@ class Scene:
         boundary = parse_boundary(data.get("boundary", {}), dim, grid)
         time = parse_time(data.get("time", {}))
         rigid_bodies = parse_rigid_bodies(data.get("rigid_bodies", []), dim, grid, cpic, time, base_dir)
-        output = parse_output(data.get("output", {}))
+        output = parse_output(data.get("output", {}), time)
         emitters = parse_emitters(data.get("emitters", []), dim, materials, grid, get_kernel(method.kernel), time)
         limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
                                    "transfer": resolve(method, dim, list(materials.values())),

@@ -170,9 +170,11 @@ def parse_time(t):
                     interface=choice(t, "interface", "time", INTERFACES, default="conservative"))
 
 
-def parse_output(o):
-    """The ``[output]``: how often, which particle fields, and whether grid fields and checkpoints are written."""
-    section(o, "output", {"every", "fields", "grid", "grid_region", "checkpoint"})
+def parse_output(o, time):
+    """The ``[output]``: how often, which particle fields, whether grid fields and checkpoints are written, and
+    whether ``diagnostics.csv`` books the energy ledger (synchronous stepping only; ``time`` is the parsed
+    ``[time]``)."""
+    section(o, "output", {"every", "fields", "grid", "grid_region", "checkpoint", "energy_ledger"})
     every = integer(o, "every", "output", default=50, lo=1)
     fields_ = o.get("fields", list(OUTPUT_FIELDS))
     if not isinstance(fields_, list) or any(f not in OUTPUT_FIELDS for f in fields_):
@@ -181,4 +183,9 @@ def parse_output(o):
     region = o.get("grid_region", "active")
     if region not in GRID_REGIONS:
         fail("output.grid_region", region, f"one of {list(GRID_REGIONS)}")
-    return OutputSpec(every=every, fields=tuple(fields_), grid=grid, checkpoint=checkpoint, grid_region=region)
+    ledger = flag(o, "energy_ledger", "output", default=False)
+    if ledger and time.stepping != "sync":
+        fail("output.energy_ledger", ledger, "false with time.stepping = 'async' (the ledger books the stages of a "
+             "synchronous step; asynchronous stepping has none that covers every particle)")
+    return OutputSpec(every=every, fields=tuple(fields_), grid=grid, checkpoint=checkpoint, grid_region=region,
+                      energy_ledger=ledger)

@@ -79,6 +79,7 @@ class OutputSpec:
     grid: bool
     checkpoint: bool
     grid_region: str = "active"
+    energy_ledger: bool = False
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,7 @@ def nodal_body_force(particles, grid, kernel, b):
     return f
 
 
-def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
+def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=None):
     """One symplectic-Euler MPM step of ``particles`` from ``time`` with step ``dt``; returns new particles.
 
     The only place the stages are composed: prepare, P2G, the hooks, grid update (gravity, walls and
@@ -69,9 +69,14 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
     are and the particles' sticky tags (``cpic_contact``), P2G to compatible nodes only, the impulses of
     incompatible nodes on the bodies, G2P with ghost velocities and the penalty (``cpic_g2p``), then the
     rigid step (docs/cpic.md of the reference code, written up in docs/cpic.md).
+
+    A ``ledger`` (:class:`~mpmref.ledger.EnergyLedger`) observes the stages' outputs and books the step's
+    energy change by stage (docs/energy_ledger.md); it changes nothing the stages compute.
     """
     scene = backend.scene
     with backend.running(particles.n):
+        if ledger is not None:
+            ledger.start(particles, rigid)
         prepared = backend.prepare(particles)  # the stencil is shared: particles do not move until G2P
         contact = None
         if rigid is not None:
@@ -81,9 +86,26 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None):
         if hooks.body_force is not None or hooks.grid_folds:
             apply_hooks(hooks, grid_state, particles, scene, time)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
+        if ledger is not None:
+            ledger.grid(grid_state, v_grid, dt, time)
         if contact is None:
-            return backend.return_map(backend.g2p(particles, v_grid, v_tilde, dt, prepared))
-        return _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time)
+            new = _observed(ledger, backend.g2p(particles, v_grid, v_tilde, dt, prepared), backend.return_map)
+            return new if ledger is None else _closed(ledger, new)
+        new, rigid = _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time, ledger)
+        return (new, rigid) if ledger is None else (_closed(ledger, new, rigid), rigid)
+
+
+def _observed(ledger, trial, return_map):
+    """``return_map(trial)``, with the ledger shown the G2P output ``trial`` first (a backend may reuse its arrays)."""
+    if ledger is not None:
+        ledger.g2p(trial)
+    return return_map(trial)
+
+
+def _closed(ledger, new, rigid=None):
+    """``new``, after the ledger has closed the step on it."""
+    ledger.finish(new, rigid)
+    return new
 
 
 def interface_substep(backend, particles, classes, dt, time):
@@ -124,7 +146,7 @@ def apply_hooks(hooks, grid_state, particles, scene, time):
     grid_state.assign_dense(dense)
 
 
-def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time):
+def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time, ledger=None):
     r"""The CPIC end of :func:`substep`: impulses, G2P with ghosts, the rigid step; returns ``(particles, rigid)``.
 
     The impulses that incompatible nodes did not take in P2G change the dynamic bodies' velocities before
@@ -137,6 +159,6 @@ def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigi
     exact = scene.cpic.momentum_exact
     seen = rigid if exact else apply_impulses(bodies, rigid, J, L)  # the bodies G2P sees
     new, (J_pen, L_pen) = backend.cpic_g2p(particles, v_grid, dt, prepared, contact, seen)
-    new = backend.return_map(new)
+    new = _observed(ledger, new, backend.return_map)
     after = (J + J_pen, L + L_pen) if exact else (J_pen, L_pen)
     return new, end_step(bodies, apply_impulses(bodies, seen, *after), time, dt, scene.gravity)

@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..ledger import accumulate, ledger_columns
 from ..physics import rigid_dynamics
 from ..state import State
 from .limits import cfl_time_step, signal_speeds
@@ -13,13 +14,15 @@ from .pipeline import NO_HOOKS, substep
 class SynchronousStepper:
     """Chooses one Δt for the whole domain and applies :func:`~.pipeline.substep` to every particle.
 
-    The clock counts one tick per step; ``tick_length`` is the fixed Δt (``None`` with a CFL step).
+    The clock counts one tick per step; ``tick_length`` is the fixed Δt (``None`` with a CFL step). With a
+    ``ledger`` (:class:`~mpmref.ledger.EnergyLedger`) every step is booked by it, and the cumulative ledger is
+    kept in the state (``stepper["energy_ledger"]``, so checkpoints carry it).
     """
 
     name = "sync"
 
-    def __init__(self, scene, backend, hooks=NO_HOOKS):
-        self.scene, self.backend, self.hooks = scene, backend, hooks
+    def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
+        self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
 
     def initial_state(self, particles):
         bodies = self.scene.rigid_bodies
@@ -47,21 +50,26 @@ class SynchronousStepper:
                 dt = min(dt, t_end - state.time)
         rigid = state.rigid
         if rigid is None:
-            particles = substep(self.backend, state.particles, dt, state.time, self.hooks)
+            particles = substep(self.backend, state.particles, dt, state.time, self.hooks, ledger=self.ledger)
         else:
-            particles, rigid = substep(self.backend, state.particles, dt, state.time, self.hooks, rigid)
+            particles, rigid = substep(self.backend, state.particles, dt, state.time, self.hooks, rigid, self.ledger)
+        stepper = state.stepper
+        if self.ledger is not None:
+            stepper = {**stepper, "energy_ledger": accumulate(stepper.get("energy_ledger"), self.ledger.last)}
         return replace(state, particles=particles, step=state.step + 1, time=state.time + dt, tick=state.tick + 1,
-                       rigid=rigid)
+                       rigid=rigid, stepper=stepper)
 
     def updates(self, old, new):
         """Particle updates made between two states: every particle once per step."""
         return old.particles.n * (new.step - old.step)
 
     def diagnostics(self, state):
-        """Stepper columns of ``diagnostics.csv``: the rigid bodies' (none without bodies)."""
-        if state.rigid is None:
-            return {}
-        return rigid_dynamics.diagnostics(self.scene.rigid_bodies, state.rigid)
+        """Stepper columns of ``diagnostics.csv``: the rigid bodies' (none without bodies) and, with a ledger, the
+        cumulative energy ledger's (``ledger_<term>``, :func:`mpmref.ledger.ledger_columns`)."""
+        out = {} if state.rigid is None else rigid_dynamics.diagnostics(self.scene.rigid_bodies, state.rigid)
+        if self.ledger is not None:
+            out |= ledger_columns(state.stepper.get("energy_ledger"))
+        return out
 
     def summary(self, state):
         """Stepper figures for the run summary (none for synchronous stepping)."""

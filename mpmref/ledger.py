@@ -1,0 +1,220 @@
+r"""The energy ledger: where in the step each joule of the total energy change went.
+
+The total energy of a run is :math:`E = K_p + \Psi + U\ (+ E_{bodies})`: the particles' kinetic energy (velocity,
+affine and PolyPIC-mode parts, :func:`mpmref.diagnostics.diagnostics`), their stored elastic energy, their
+gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, and with CPIC the rigid bodies' kinetic and
+gravitational energy. A step (:func:`mpmref.steppers.pipeline.substep`) changes it stage by stage; the ledger
+observes the stages' outputs and books each change to the stage that made it, in float64 whatever the run's
+dtype (docs/energy_ledger.md derives each term):
+
+.. math::
+
+    \Delta E = \underbrace{(K_g^0 - K_p^n)}_{\texttt{p2g\_transfer}}
+    + \underbrace{\textstyle\sum_{i \in \partial} B_i}_{\texttt{boundary}}
+    + \underbrace{(K_p^{n+1}(x^n) - K_g^1)}_{\texttt{g2p\_transfer}}
+    + \underbrace{(K_p^{n+1} - K_p^{n+1}(x^n))}_{\texttt{advection}}
+    + \underbrace{(\Psi^{n+1} - \Psi^{tr})}_{\texttt{plastic}}
+    + \underbrace{\Delta E_{bodies}}_{\texttt{rigid\_bodies}}
+    + \texttt{integration},
+
+    \texttt{integration} = (\Psi^{tr} - \Psi^n + W_{int}) + (U^{n+1} - U^n + W_g) + \textstyle\sum_{i \notin \partial} B_i,
+
+with the grid's kinetic energy :math:`K_g^0 = \tfrac12 \sum_i |(mv)_i|^2 / m_i` after P2G and
+:math:`K_g^1 = \tfrac12 \sum_i m_i |v_i|^2` after the grid update; :math:`K_p^{n+1}(x^n)` the particles'
+kinetic energy after G2P with their PolyPIC modes' norms taken where G2P projected the grid's velocity
+(``advection`` is the change of those norms as the particles move: zero for every other scheme); the force work at the velocity the
+nodes then move with, :math:`W_{int} = \Delta t \sum_i f_i \cdot v_i` and :math:`W_g = \Delta t \sum_i m_i\, g \cdot
+v_i` (flows from the stored energies into kinetic energy: reported, and cancelling in :math:`\Delta E`); and per
+node what the velocity change does that this work does not,
+
+.. math::
+
+    B_i = \tfrac12 m_i |v_i|^2 - \tfrac12 m_i |\tilde v_i|^2 - \Delta t\,(f_i + m_i g) \cdot v_i
+        = R_i \cdot v_i - \tfrac12 m_i |v_i - \tilde v_i|^2, \qquad R_i = m_i (v_i - v_i^*),
+
+where :math:`v_i^* = \tilde v_i + \Delta t (f_i / m_i + g)` is the velocity before the walls and colliders and
+:math:`R_i` the impulse they apply. Nodes a wall band or a collider acts on (:math:`\partial`) book :math:`B_i` as
+``boundary``: :math:`R_i \cdot v_i \le 0` for every static projection of talk Eq. 25, so it is never positive for
+static walls and colliders, and a moving collider can add energy. Elsewhere :math:`R_i = 0` and
+:math:`B_i = -\tfrac12 m_i |\Delta t\, a_i|^2`, the symplectic Euler step's own kinetic error, which joins
+``integration``. The terms telescope: their sum is :math:`\Delta E` identically (``closure`` records the
+round-off).
+"""
+
+import numpy as np
+
+from .backends.numpy.transfers import wall_bands
+from .diagnostics import elastic_energy, polypic_mode_norms
+from .physics import rigid_dynamics
+
+#: the ledger's terms, in step order: their sum is the change of total energy
+TERMS = ("p2g_transfer", "boundary", "g2p_transfer", "advection", "plastic", "rigid_bodies", "integration")
+#: flows between stored energies, reported beside the terms (they cancel in the total)
+FLOWS = ("internal_work", "gravity_work")
+#: what a step's entry holds: the terms, the flows, the measured change of total energy and the closure
+COLUMNS = (*TERMS, *FLOWS, "energy_change", "closure")
+
+
+class EnergyLedger:
+    """Observer of :func:`~mpmref.steppers.pipeline.substep` that books each step's energy change by stage.
+
+    The step calls :meth:`start`, :meth:`grid`, :meth:`g2p` and :meth:`finish` in that order; :meth:`finish`
+    returns the step's entry (a dict over :data:`COLUMNS`), kept as ``last``. What accumulates over a run lives
+    in the run's state (:func:`accumulate`), so that checkpoints carry it.
+
+    Parameters
+    ----------
+    scene : Scene
+        Its materials, gravity, kernel, grid, walls, colliders and rigid bodies define the energies and the
+        boundary nodes.
+
+    Docs: docs/energy_ledger.md#p2g, docs/energy_ledger.md#rigid-bodies-and-the-integration-error
+    """
+
+    def __init__(self, scene):
+        self.scene = scene
+        kernel, grid = scene.kernel, scene.grid
+        self.inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
+        self.gravity = np.asarray(scene.gravity, dtype=np.float64)
+        self.wall_nodes = np.zeros(grid.n_nodes, dtype=bool)  # C-ordered nodes of every wall band that acts
+        for name, band, _ in wall_bands(grid, scene.boundary.width):
+            if scene.boundary.walls[name].type != "open":
+                self.wall_nodes |= band
+        self.last = None
+        self._open = {}
+
+    # ------------------------------------------------------------------ the stages
+    def start(self, particles, rigid=None):
+        """Record the energies of the step's input state."""
+        self._open = {"x": particles.x.copy(), "K": self.kinetic(particles), "Psi": elastic_energy(particles, self.scene.material_list),
+                      "U": self.potential(particles), "bodies": self.bodies_energy(rigid)}
+
+    def grid(self, grid_state, v_grid, dt, time):
+        r"""Book P2G (the grid's kinetic energy against the particles'), the force work and the boundary.
+
+        ``grid_state`` is the grid after P2G (and the hooks); ``v_grid`` the velocity after the grid update, in
+        the same rows (dense, or the rows of a sparse ``layout``).
+        """
+        m = np.asarray(grid_state.mass, dtype=np.float64)
+        has = m > 0
+        m = m[has]
+        p = np.asarray(grid_state.momentum, dtype=np.float64)[has]
+        f = np.asarray(grid_state.force, dtype=np.float64)[has]
+        v = np.asarray(v_grid, dtype=np.float64)[has]
+        v_tilde = p / m[:, None]
+        v_star = v_tilde + dt * (f / m[:, None] + self.gravity)
+        per_node = node_kinetic_remainder(m, v_tilde, v_star, v)
+        on_boundary = self.boundary_nodes(grid_state.layout, time)[has]
+        o = self._open
+        o["K_g0"] = 0.5 * float(np.sum(np.einsum("nd,nd->n", p, p) / m))
+        o["K_g1"] = 0.5 * float(np.sum(m * np.einsum("nd,nd->n", v, v)))
+        o["internal_work"] = dt * float(np.sum(f * v))
+        o["gravity_work"] = dt * float(np.sum(m * (v @ self.gravity)))
+        o["boundary"] = float(np.sum(per_node[on_boundary]))
+        o["kinetic_error"] = float(np.sum(per_node[~on_boundary]))
+
+    def g2p(self, trial):
+        """Record the state after G2P and before the return map (kinetic energy where G2P projected the grid's
+        velocity and where the particles moved to, trial elastic energy)."""
+        self._open["K_projected"] = self.kinetic(trial.with_(x=self._open["x"])) if trial.modes is not None else None
+        self._open["K_new"] = self.kinetic(trial)
+        self._open["Psi_trial"] = elastic_energy(trial, self.scene.material_list)
+
+    def finish(self, new, rigid=None):
+        """Book the return map and the bodies; close the step and return its entry."""
+        o = self._open
+        psi_new, u_new, bodies_new = elastic_energy(new, self.scene.material_list), self.potential(new), \
+            self.bodies_energy(rigid)
+        entry = {
+            "p2g_transfer": o["K_g0"] - o["K"],
+            "boundary": o["boundary"],
+            "g2p_transfer": (o["K_projected"] if o["K_projected"] is not None else o["K_new"]) - o["K_g1"],
+            "advection": o["K_new"] - o["K_projected"] if o["K_projected"] is not None else 0.0,
+            "plastic": psi_new - o["Psi_trial"],
+            "rigid_bodies": bodies_new - o["bodies"],
+            "integration": ((o["Psi_trial"] - o["Psi"] + o["internal_work"]) + (u_new - o["U"] + o["gravity_work"])
+                            + o["kinetic_error"]),
+            "internal_work": o["internal_work"],
+            "gravity_work": o["gravity_work"],
+            "energy_change": (o["K_new"] - o["K"]) + (psi_new - o["Psi"]) + (u_new - o["U"])
+            + (bodies_new - o["bodies"]),
+        }
+        entry["closure"] = entry["energy_change"] - sum(entry[t] for t in TERMS)
+        self.last = entry
+        self._open = {}
+        return entry
+
+    # ------------------------------------------------------------------ energies
+    def kinetic(self, particles):
+        r"""Kinetic energy of the particles' velocity fields, float64: velocity, affine and PolyPIC-mode parts,
+        :math:`\tfrac12 \sum_p m_p (|v_p|^2 + D \|C_p\|^2 + \sum_r |c_{pr}|^2 \sum_i w_{ip} s_r(x_i)^2)`
+        (:func:`mpmref.diagnostics.diagnostics`, whose three kinetic parts this sums)."""
+        m = particles.mass.astype(np.float64)
+        total = np.sum(m * np.sum(particles.v.astype(np.float64) ** 2, axis=1))
+        if particles.C is not None:
+            total += self.inertia * np.sum(m * np.sum(particles.C.astype(np.float64) ** 2, axis=(1, 2)))
+        if particles.modes is not None:
+            norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid)
+            total += np.sum(m[:, None] * norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2))
+        return 0.5 * float(total)
+
+    def potential(self, particles):
+        r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64."""
+        return -float(np.sum(particles.mass.astype(np.float64) * (particles.x.astype(np.float64) @ self.gravity)))
+
+    def bodies_energy(self, rigid):
+        """The rigid bodies' kinetic and gravitational energy (0 without bodies)."""
+        if rigid is None:
+            return 0.0
+        return float(np.sum(rigid_dynamics.mechanical_energy(self.scene.rigid_bodies, rigid, self.gravity)))
+
+    def boundary_nodes(self, layout, time):
+        """Mask over the rows of a grid state with sparse ``layout`` (dense C order when ``None``) of the nodes a
+        wall band or a collider acts on at ``time``."""
+        grid = self.scene.grid
+        if layout is None:
+            mask, index = self.wall_nodes.copy(), grid.node_indices() if self.scene.colliders else None
+        else:
+            index = layout.node_index
+            inside = np.all(index < np.array(grid.node_shape), axis=1)  # padding rows lie beyond the grid
+            mask = inside & self.wall_nodes[np.where(inside[:, None], index, 0) @ grid.strides]
+        for collider in self.scene.colliders:
+            mask |= collider.shape.sdf(grid.origin + index * grid.dx - collider.velocity * time) <= 0.0
+        return mask
+
+
+def accumulate(total, entry):
+    """The cumulative ledger ``total`` (an array over :data:`COLUMNS`, or None before the first step) plus a
+    step's ``entry``.
+
+    Docs: docs/energy_ledger.md#rigid-bodies-and-the-integration-error
+    """
+    step = np.array([entry[c] for c in COLUMNS])
+    return step if total is None else np.asarray(total) + step
+
+
+def ledger_columns(total):
+    """``diagnostics.csv`` columns ``ledger_<column>`` of a cumulative ledger (zeros before the first step)."""
+    values = np.zeros(len(COLUMNS)) if total is None else np.asarray(total)
+    return {f"ledger_{c}": float(x) for c, x in zip(COLUMNS, values)}
+
+
+def node_kinetic_remainder(m, v_tilde, v_star, v):
+    r"""Per node, the kinetic energy change of the grid update that the force work at :math:`v_i` does not give.
+
+    .. math::
+
+        B_i = \tfrac12 m_i |v_i|^2 - \tfrac12 m_i |\tilde v_i|^2 - \Delta t\,(f_i + m_i g)\cdot v_i
+            = R_i \cdot v_i - \tfrac12 m_i |v_i - \tilde v_i|^2, \qquad R_i = m_i (v_i - v_i^*)
+
+    (the identity follows from :math:`m_i(v_i - \tilde v_i) = \Delta t (f_i + m_i g) + R_i`); written in the
+    second form, which has no cancellation of kinetic energies. :math:`m_i` node mass, :math:`\tilde v_i`
+    velocity after P2G, :math:`v_i^*` after the forces, :math:`v_i` after the walls and colliders, :math:`R_i`
+    their impulse. Arrays (n,) and (n, d), float64; returns (n,).
+
+    Docs: docs/energy_ledger.md#the-grid-update
+    """
+    R = m[:, None] * (v - v_star)
+    jump = v - v_tilde
+    return np.einsum("nd,nd->n", R, v) - 0.5 * m * np.einsum("nd,nd->n", jump, jump)
+
