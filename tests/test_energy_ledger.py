@@ -286,3 +286,23 @@ def test_a_resumed_run_goes_on_adding_to_the_ledger(tmp_path):
     expected = {k: v for k, v in straight.diagnostics().items() if k.startswith("ledger_")}
     assert {k: v for k, v in resumed.diagnostics().items() if k.startswith("ledger_")} == expected
     assert expected["ledger_plastic"] < 0.0
+
+
+def test_snow_compressed_past_its_limit_dissipates_the_closed_form():
+    """Snow (Stomakhin et al. 2013 §5) held at rest in F = diag(s, s), s = 0.95 < 1 - theta_c: a step of dt = 0
+    changes nothing but the return map, which clamps both singular values to 1 - theta_c and moves the rest
+    into J_P = s^2 / (1 - theta_c)^2. ``plastic`` must be V0 [Psi(after) - Psi(trial)] with
+    Psi = e^{xi (1 - J_P)} [mu sum (sigma - 1)^2 + lambda/2 (J - 1)^2], evaluated here by hand."""
+    E, nu, xi, theta_c, s = 1e4, 0.2, 10.0, 0.025, 0.95
+    scene = (SceneBuilder(dim=2, name="snow").grid(size=1.0, cells=16).method("mls")
+             .material("m", "snow", E=E, nu=nu, rho=1.0, theta_c=theta_c, hardening=xi)
+             .box("m", lower=[0.4, 0.4], upper=[0.6, 0.6], ppc=4).walls("open").time(dt=1e-4, steps=1).build())
+    sim = Simulation(scene)
+    sim.F = np.broadcast_to(np.diag([s, s]), sim.F.shape)
+    entry = booked(sim, 1, dt=0.0)[0]
+    mu, lam = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+    clamped = 1.0 - theta_c
+    trial = 2 * mu * (s - 1) ** 2 + 0.5 * lam * (s * s - 1) ** 2
+    after = np.exp(xi * (1 - s * s / clamped**2)) * (2 * mu * (clamped - 1) ** 2 + 0.5 * lam * (clamped**2 - 1) ** 2)
+    assert entry["plastic"] == pytest.approx(float(sim.vol0.sum()) * (after - trial), rel=1e-12)
+    assert entry["plastic"] < 0.0
