@@ -185,10 +185,7 @@ class EnergyLedger:
 
 def accumulate(total, entry):
     """The cumulative ledger ``total`` (an array over :data:`COLUMNS`, or None before the first step) plus a
-    step's ``entry``.
-
-    Docs: docs/energy_ledger.md#rigid-bodies-and-the-integration-error
-    """
+    step's ``entry``."""
     step = np.array([entry[c] for c in COLUMNS])
     return step if total is None else np.asarray(total) + step
 
