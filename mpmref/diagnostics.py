@@ -63,6 +63,34 @@ def polypic_mode_norms(particles, kernel, grid):
     return polypic.mode_norms(norm, polypic.higher_modes(grid.dim, kernel.support))
 
 
+def kinetic_parts(particles, inertia, mode_norms=None):
+    r"""The particles' kinetic energy in their velocity, affine part and PolyPIC modes, float64 (a 3-tuple):
+
+    .. math::
+
+        \tfrac12 \sum_p m_p |v_p|^2, \qquad \tfrac12 \sum_p m_p D \|C_p\|^2, \qquad
+        \tfrac12 \sum_p m_p \sum_r |c_{pr}|^2 \sum_i w_{ip} s_r(x_i)^2
+
+    (Jiang et al. 2015 §5.3 for the affine part with :math:`D_p = D I`; Fu et al. 2017 §5 for the modes, which
+    are orthogonal on the stencil). ``inertia`` is :math:`D`, ``mode_norms`` the (n, M) norms
+    :math:`\sum_i w_{ip} s_r^2` (:func:`polypic_mode_norms`); a part the particles do not carry is 0.
+    """
+    m = particles.mass.astype(np.float64)
+    v = particles.v.astype(np.float64)
+    kinetic = float(0.5 * np.sum(m * np.sum(v * v, axis=1)))
+    affine = (float(0.5 * inertia * np.sum(m * np.sum(particles.C.astype(np.float64) ** 2, axis=(1, 2))))
+              if particles.C is not None else 0.0)
+    modes = (float(0.5 * np.sum(m[:, None] * mode_norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2)))
+             if particles.modes is not None else 0.0)
+    return kinetic, affine, modes
+
+
+def gravitational_energy(particles, gravity):
+    r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64 (``gravity`` the (d,) vector :math:`g`)."""
+    return float(-np.sum(particles.mass.astype(np.float64)
+                         * (particles.x.astype(np.float64) @ np.asarray(gravity, dtype=np.float64))))
+
+
 def diagnostics(particles, materials, gravity, inertia, mode_norms=None):
     r"""Mass, momenta, kinetic (particle, affine, higher modes), elastic, gravitational and total energy.
 
@@ -88,17 +116,9 @@ def diagnostics(particles, materials, gravity, inertia, mode_norms=None):
     else:
         for a in range(3):
             out[f"angular_momentum_{'xyz'[a]}"] = float(L[a])
-    out["kinetic"] = float(0.5 * np.sum(m * np.sum(v * v, axis=1)))
-    out["kinetic_affine"] = (
-        float(0.5 * inertia * np.sum(m * np.sum(particles.C.astype(np.float64) ** 2, axis=(1, 2))))
-        if particles.C is not None else 0.0
-    )
-    out["kinetic_modes"] = (
-        float(0.5 * np.sum(m[:, None] * mode_norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2)))
-        if particles.modes is not None else 0.0
-    )
+    out["kinetic"], out["kinetic_affine"], out["kinetic_modes"] = kinetic_parts(particles, inertia, mode_norms)
     out["elastic"] = elastic_energy(particles, materials)
-    out["gravitational"] = float(-np.sum(m * (particles.x.astype(np.float64) @ np.asarray(gravity, dtype=np.float64))))
+    out["gravitational"] = gravitational_energy(particles, gravity)
     out["total_energy"] = (out["kinetic"] + out["kinetic_affine"] + out["kinetic_modes"] + out["elastic"]
                            + out["gravitational"])
     return out

@@ -44,7 +44,7 @@ round-off).
 import numpy as np
 
 from .backends.numpy.transfers import wall_bands
-from .diagnostics import elastic_energy, polypic_mode_norms
+from .diagnostics import elastic_energy, gravitational_energy, kinetic_parts, polypic_mode_norms
 from .physics import rigid_dynamics
 
 #: the ledger's terms, in step order: their sum is the change of total energy
@@ -80,6 +80,7 @@ class EnergyLedger:
         for name, band, _ in wall_bands(grid, scene.boundary.width):
             if scene.boundary.walls[name].type != "open":
                 self.wall_nodes |= band
+        self.dense_index = grid.node_indices() if scene.colliders else None  # node of each dense row
         self.last = None
         self._open = {}
 
@@ -146,21 +147,14 @@ class EnergyLedger:
 
     # ------------------------------------------------------------------ energies
     def kinetic(self, particles):
-        r"""Kinetic energy of the particles' velocity fields, float64: velocity, affine and PolyPIC-mode parts,
-        :math:`\tfrac12 \sum_p m_p (|v_p|^2 + D \|C_p\|^2 + \sum_r |c_{pr}|^2 \sum_i w_{ip} s_r(x_i)^2)`
-        (:func:`mpmref.diagnostics.diagnostics`, whose three kinetic parts this sums)."""
-        m = particles.mass.astype(np.float64)
-        total = np.sum(m * np.sum(particles.v.astype(np.float64) ** 2, axis=1))
-        if particles.C is not None:
-            total += self.inertia * np.sum(m * np.sum(particles.C.astype(np.float64) ** 2, axis=(1, 2)))
-        if particles.modes is not None:
-            norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid)
-            total += np.sum(m[:, None] * norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2))
-        return 0.5 * float(total)
+        """Kinetic energy of the particles' velocity fields, float64: the sum of
+        :func:`mpmref.diagnostics.kinetic_parts` (velocity, affine and PolyPIC-mode parts)."""
+        norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None else None
+        return sum(kinetic_parts(particles, self.inertia, norms))
 
     def potential(self, particles):
-        r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64."""
-        return -float(np.sum(particles.mass.astype(np.float64) * (particles.x.astype(np.float64) @ self.gravity)))
+        """Gravitational potential of the particles (:func:`mpmref.diagnostics.gravitational_energy`)."""
+        return gravitational_energy(particles, self.gravity)
 
     def bodies_energy(self, rigid):
         """The rigid bodies' kinetic and gravitational energy (0 without bodies)."""
@@ -173,7 +167,7 @@ class EnergyLedger:
         wall band or a collider acts on at ``time``."""
         grid = self.scene.grid
         if layout is None:
-            mask, index = self.wall_nodes.copy(), grid.node_indices() if self.scene.colliders else None
+            mask, index = self.wall_nodes.copy(), self.dense_index
         else:
             index = layout.node_index
             inside = np.all(index < np.array(grid.node_shape), axis=1)  # padding rows lie beyond the grid

@@ -90,9 +90,12 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
             ledger.grid(grid_state, v_grid, dt, time)
         if contact is None:
             new = _observed(ledger, backend.g2p(particles, v_grid, v_tilde, dt, prepared), backend.return_map)
-            return new if ledger is None else _closed(ledger, new)
-        new, rigid = _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time, ledger)
-        return (new, rigid) if ledger is None else (_closed(ledger, new, rigid), rigid)
+        else:
+            new, rigid = _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time,
+                                      ledger)
+        if ledger is not None:
+            ledger.finish(new, rigid)
+        return new if contact is None else (new, rigid)
 
 
 def _observed(ledger, trial, return_map):
@@ -100,12 +103,6 @@ def _observed(ledger, trial, return_map):
     if ledger is not None:
         ledger.g2p(trial)
     return return_map(trial)
-
-
-def _closed(ledger, new, rigid=None):
-    """``new``, after the ledger has closed the step on it."""
-    ledger.finish(new, rigid)
-    return new
 
 
 def interface_substep(backend, particles, classes, dt, time):
