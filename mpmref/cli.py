@@ -1,7 +1,7 @@
-"""Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite]``.
+"""Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite] [--backend B]``.
 
-Exit status: 0 success; 2 a bad scene or command-line option (one line on stderr naming the field or
-option, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
+Exit status: 0 success; 2 a bad scene, command-line option or backend reference (one line on stderr naming the
+field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
 particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
 """
 
@@ -16,8 +16,8 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from .backends import BACKENDS
-from .errors import MpmrefError, SceneError
+from .backends import OPTION_HELP, reference_argument
+from .errors import BackendError, MpmrefError, SceneError
 
 #: modules of this package that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
 COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
@@ -73,7 +73,8 @@ def _parser():
     again.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
     again.add_argument("--overwrite", action="store_true",
                        help="replace the run already in the output folder (its frames, diagnostics and checkpoints)")
-    run.add_argument("--backend", default="numpy", choices=BACKENDS, help="execution backend (default: numpy)")
+    run.add_argument("--backend", default="numpy", type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
+                     help=OPTION_HELP + " (default: numpy)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=cmd_run)
     for module in COMMAND_MODULES:
@@ -83,7 +84,7 @@ def _parser():
     return parser
 
 
-def _format_summary(summary, out_dir):
+def _format_summary(summary, out_dir, backend=None):
     final = summary["final"]
     lines = [
         f"steps            {summary['steps']} (now at step {final['step']}, t = {final['time']:.6g})",
@@ -97,6 +98,9 @@ def _format_summary(summary, out_dir):
         f"outputs          {out_dir} (open particles.pvd in ParaView"
         f"{', with rigid_bodies.pvd for the rigid bodies' if 'rigid0_x' in final else ''})",
     ]
+    if backend is not None:
+        version = f" {backend['version']}" if backend["version"] else " (no version given)"
+        lines.insert(0, f"backend          {backend['backend']} ({backend['class']}{version})")
     if "particle_updates" in summary:
         lines.insert(3, f"particle updates {summary['particle_updates']} ({summary['ghost_updates']} of them ghosts); "
                         f"updates saved against sync: {summary['updates_saved']:.2f}x (sync at the finest step, "
@@ -182,7 +186,7 @@ def cmd_run(args):
         print(f"mpmref: interrupted at step {sim.step_count}; checkpoint saved to {path}; resume with: "
               f"{resume_command(args, out_dir)}", file=sys.stderr)
         return INTERRUPTED
-    print(_format_summary(summary, out_dir))
+    print(_format_summary(summary, out_dir, sim.backend_info))
     return 0
 
 
@@ -208,6 +212,9 @@ def main(argv=None):
         return 2
     except SceneError as exc:
         print(f"mpmref: invalid scene: {exc}", file=sys.stderr)
+        return 2
+    except BackendError as exc:
+        print(f"mpmref: invalid backend: {exc}", file=sys.stderr)
         return 2
     except MpmrefError as exc:
         print(f"mpmref: {type(exc).__name__}: {exc}", file=sys.stderr)

@@ -101,3 +101,11 @@ class AllParticlesLeftError(MpmrefError):
         where = f"; last state with particles saved to {checkpoint}" if checkpoint else ""
         super().__init__(f"all particles have left the domain at step {step} ({deleted} deleted in all under "
                          f"boundary.domain_exit = 'delete'); nothing is left to simulate{where}")
+
+
+class BackendError(MpmrefError):
+    """A backend reference cannot be used: an unknown name, a module or attribute that cannot be imported, an
+    object that is not a backend, or a backend lacking a stage (or a stage's arguments) that its scene needs.
+
+    Raised before any work (:func:`mpmref.backends.make_backend`); the command line reports it with exit status 2.
+    """

@@ -2,10 +2,11 @@
 
 import time as _time
 import warnings
+from functools import cached_property
 
 import numpy as np
 
-from .backends import make_backend
+from .backends import describe, make_backend
 from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
 from .domain import apply_domain_exit, outside
@@ -26,8 +27,11 @@ class Simulation:
     ----------
     scene : Scene
         The validated scene.
-    backend : str
-        ``"numpy"`` (the reference) or ``"numba"``.
+    backend : str, callable or backend object
+        A backend reference (:mod:`mpmref.backends`): ``"numpy"`` (the reference), ``"numba"``, an installed
+        plugin's name, ``"MODULE:ATTRIBUTE"``, a factory ``f(scene) -> backend`` or a backend object made for
+        ``scene``. It is checked against the scene before any work (:class:`~mpmref.errors.BackendError` names a
+        missing stage and its signature).
     out_dir : path or None
         Where VTK series, ``diagnostics.csv`` and checkpoints go; None writes nothing.
     particles : Particles
@@ -49,6 +53,7 @@ class Simulation:
     def __init__(self, scene, backend="numpy", out_dir=None, particles=None, hooks=None):
         self.scene = scene
         self.backend = make_backend(backend, scene)
+        self._backend_reference = backend
         self.stepper = make_stepper(scene, self.backend, hooks)
         state = self.stepper.initial_state(particles if particles is not None else sample_particles(scene))
         self.state = with_emitters(scene, state)
@@ -57,6 +62,11 @@ class Simulation:
         self.last_dt = None
         self.last_updates = 0
         self._last_bounded = None  # (state, meta) before an unbounded step, while no bounded step followed
+
+    @cached_property
+    def backend_info(self):
+        """The backend's name (as given), class and version (:func:`mpmref.backends.describe`), for summaries."""
+        return describe(self._backend_reference, self.backend)
 
     # ------------------------------------------------------------------------ state access
     @property

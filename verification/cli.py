@@ -5,7 +5,12 @@ case (its VTK series, PNG plots, tables and ``report.md``) and an index (``repor
 ``results.json`` for programs) with the findings, then every check's figure, bound and verdict. While it
 runs, a line per case on standard error says when the case starts and when it finishes (wall time,
 verdict); standard output gets the failing checks and the summary at the end. Exit code 0 when every
-check passes, 1 otherwise, 2 for an unknown case name.
+check passes, 1 otherwise, 2 for an unknown case name or a backend reference that does not resolve or lacks
+a stage every scene needs (checked before any case runs).
+
+``--backend`` takes any backend reference of :mod:`mpmref.backends` (``numpy``, ``numba``, a plugin's name or
+``MODULE:ATTRIBUTE``): every simulation of every case runs on it, and the cases that compare two backends take it
+as the candidate and the NumPy reference as the truth. The report names it, with its version.
 """
 
 import os
@@ -13,7 +18,8 @@ import sys
 import time
 from pathlib import Path
 
-from mpmref.backends import BACKENDS
+from mpmref import SceneBuilder
+from mpmref.backends import OPTION_HELP, make_backend, reference_argument
 
 from . import registry, warmup
 from .common import failed
@@ -35,7 +41,8 @@ def add_parser(subparsers):
     preset.add_argument("--full", dest="preset", action="store_const", const="full",
                         help="the largest preset (long)")
     p.set_defaults(preset="default", func=cmd_verify)
-    p.add_argument("--backend", default="numpy", choices=BACKENDS, help="execution backend (default: numpy)")
+    p.add_argument("--backend", default="numpy", type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
+                   help=OPTION_HELP + " (default: numpy)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"report folder (default: {DEFAULT_OUT})")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run sweeps on this dask.distributed scheduler")
     p.add_argument("--workers", type=int, help="local worker processes for sweeps (default: CPU cores)")
@@ -51,6 +58,7 @@ def cmd_verify(args):
         print(f"mpmref verify: unknown case(s) {', '.join(unknown)}; available: {', '.join(registry.available())}",
               file=sys.stderr)
         return 2
+    backend = check_backend(args.backend)
     executor = Executor(scheduler=args.scheduler, workers=args.workers)
     start = time.perf_counter()
     compiling = warmup.start(names, args.preset, args.backend)
@@ -62,7 +70,7 @@ def cmd_verify(args):
     finally:
         warmup.stop(compiling)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
-            "machine": machine()}
+            "machine": machine(), "backend": backend}
     md, page, data = write_index(args.out, records, meta)
     for record in records:
         _print_problems(record.outcome)
@@ -73,6 +81,23 @@ def cmd_verify(args):
     print(f"{total - n_failed} of {total} checks pass, {errors} case(s) stopped with an error, "
           f"{meta['wall_s']:.1f} s; report: {md}, {page} and {data}")
     return 0 if all(o.passed for o in outcomes) else 1
+
+
+def probe_scene():
+    """The smallest scene every backend must run: a 2D elastic block, synchronous, no walls or bodies."""
+    return (SceneBuilder(dim=2, name="backend_probe").grid(size=1.0, cells=8)
+            .material("solid", type="fixed_corotated", E=1.0e3, nu=0.3, rho=1.0)
+            .box("solid", lower=[0.25, 0.25], upper=[0.75, 0.75]).time(dt=1.0e-3, steps=1).build())
+
+
+def check_backend(reference):
+    """The backend ``reference`` described for the report (:func:`mpmref.backends.describe`), once made for the
+    :func:`probe_scene` and checked: a backend without the stages every scene needs is refused
+    (:class:`~mpmref.errors.BackendError`, exit 2) before any case runs. Stages that only some scenes need
+    (asynchronous stepping, rigid bodies) are checked where a case builds such a scene."""
+    from mpmref.backends import describe
+
+    return describe(reference, make_backend(reference, probe_scene()))
 
 
 def _run_cases(args, names, executor, compiling):

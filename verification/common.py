@@ -58,3 +58,13 @@ def checks_table(checks):
 def failed(checks):
     """The checks of ``checks`` that do not hold, in order."""
     return [c for c in checks if not c.passed]
+
+
+def backend_sentence(meta):
+    """The backend under test, as the report names it: its reference, class and version (``meta["backend"]``,
+    :func:`mpmref.backends.describe`), or ``""`` when the caller did not describe it."""
+    backend = meta.get("backend")
+    if not backend:
+        return ""
+    version = f"version {backend['version']}" if backend["version"] else "no version given"
+    return f"Backend under test: `{backend['backend']}` ({backend['class']}, {version})."

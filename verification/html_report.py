@@ -10,7 +10,7 @@ only, nothing fetched from a network.
 import html
 from dataclasses import asdict
 
-from .common import failed
+from .common import backend_sentence, failed
 
 e = html.escape
 
@@ -143,7 +143,7 @@ def index_html(records, meta, summary, backends):
     body = (f"<h1>mpmref verification report</h1>{_verdict_box(summary)}"
             f"<p class='meta'>Preset <code>{e(meta['preset'])}</code>; backends run: {e(', '.join(backends))}; "
             f"sweeps in {e(meta['executor'])}; total wall time {meta['wall_s']:.1f} s. "
-            f"Also as <a href='report.md'>report.md</a> and <a href='results.json'>results.json</a>.</p>"
+            f"{e(backend_sentence(meta).replace('`', ''))} Also as <a href='report.md'>report.md</a> and <a href='results.json'>results.json</a>.</p>"
             f"<details class='meta'><summary>Machine</summary><ul>{machine}</ul></details>"
             f"<nav class='toc'>{toc}</nav>{_failures(records)}"
             f"<h2 id='cases'>Cases: the figure that carries each claim</h2>"

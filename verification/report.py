@@ -23,7 +23,7 @@ from mpmref.io.atomic import atomic_path, write_text_atomic
 from mpmref.io.vtk import write_particles_vtu, write_pvd
 
 from . import html_report, registry
-from .common import failed
+from .common import backend_sentence, failed
 
 #: particle fields recorded in the VTK frames of verification runs
 FRAME_FIELDS = ("velocity", "mass", "J", "material")
@@ -294,7 +294,7 @@ def index_md(records, meta):
              f"**{verdict}**: {n['checks'] - n['failing']} of {n['checks']} checks pass in {n['cases']} cases; "
              f"{n['errors']} cases stopped with an error; {n['findings']} findings (measured, not judged).", "",
              f"Preset `{meta['preset']}`; backends run: {', '.join(_all_backends(records))} (per case below); "
-             f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s.", "",
+             f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s. {backend_sentence(meta)}", "",
              "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "", "## Failures", ""]
     failing = [(o, c) for o, c in _check_rows(records) if c is None or not c.passed]
     if failing:
@@ -336,7 +336,8 @@ def _number(x):
 def results(records, meta):
     """The machine-readable report (schema :data:`SCHEMA`) as a dict.
 
-    Keys: ``schema``, ``created_utc``, ``preset``, ``executor``, ``wall_s``, ``machine``, ``summary``
+    Keys: ``schema``, ``created_utc``, ``preset``, ``backend`` (the backend under test: ``backend`` as given,
+    ``class``, ``version``; ``null`` if not described), ``executor``, ``wall_s``, ``machine``, ``summary``
     (counts of cases, checks, failing checks, cases stopped with an error, findings); ``cases`` (per case:
     ``case``, ``title``, ``backends``, ``verdict``, ``passed``, ``wall_s``, ``error``: the traceback or
     ``null``, ``figures``: ``path`` and ``caption``); ``checks`` (every check: ``case``, ``name``,
@@ -346,8 +347,8 @@ def results(records, meta):
     """
     return {
         "schema": SCHEMA, "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "preset": meta["preset"], "executor": meta["executor"], "wall_s": meta["wall_s"],
-        "machine": meta["machine"], "summary": _summary(records),
+        "preset": meta["preset"], "backend": meta.get("backend"), "executor": meta["executor"],
+        "wall_s": meta["wall_s"], "machine": meta["machine"], "summary": _summary(records),
         "cases": [{"case": r.name, "title": r.outcome.title, "backends": list(r.backends),
                    "verdict": r.outcome.verdict, "passed": r.outcome.passed, "wall_s": r.outcome.wall_s,
                    "error": r.outcome.error,

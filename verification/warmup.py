@@ -28,7 +28,7 @@ compiles stay in its memory for the cases that follow.
 import multiprocessing
 from dataclasses import dataclass
 
-from mpmref.backends import make_backend
+from mpmref.backends import make_backend, resolve
 from mpmref.bodies import sample_particles
 from mpmref.steppers.pipeline import substep
 
@@ -36,9 +36,16 @@ from . import registry
 
 
 def declared_scenes(name, preset, backend):
-    """``[(backend name, scene)]`` that case ``name`` runs on a compiled backend (its ``compiled_scenes``)."""
+    """``[(backend name, scene)]`` that case ``name`` runs on a compiled backend (its ``compiled_scenes``), for the
+    backends that can compile ahead (a ``warm_up`` method, as the Numba backend has; a user's backend without one
+    compiles, if it does, in the case itself)."""
     case = registry.load(name)
-    return case.compiled_scenes(case.params(preset), backend)
+    return [(b, scene) for b, scene in case.compiled_scenes(case.params(preset), backend) if warms_up(b)]
+
+
+def warms_up(reference):
+    """Whether the backend ``reference`` names has a ``warm_up(particles, step)`` to compile ahead."""
+    return callable(getattr(resolve(reference), "warm_up", None))
 
 
 def runs_alone(name):

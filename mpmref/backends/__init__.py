@@ -1,28 +1,227 @@
-"""Execution backends: each fulfils the contract of :mod:`mpmref.backends.base` (its stages), which
-:func:`make_backend` checks."""
+"""Execution backends: the built-in ones, installed plugins and a user's own, each named by a *backend reference*.
 
+Everywhere a backend is asked for (``Simulation(scene, backend=...)``, ``--backend`` of the command line, the
+conformance harness, the verification cases, ``mpmref study``), it may be given as
+
+* a built-in name of :data:`BACKENDS`: ``"numpy"`` (the reference) or ``"numba"``;
+* the name of an installed plugin: an entry point of the group :data:`ENTRY_POINT_GROUP` (``mpmref.backends``)
+  whose object is a factory, declared in the plugin's ``pyproject.toml`` as
+  ``[project.entry-points."mpmref.backends"] mine = "my_package.backend:factory"``;
+* ``"MODULE:ATTRIBUTE"``: a factory that ``import MODULE`` makes available (``ATTRIBUTE`` may be dotted);
+* in Python, a factory itself, ``factory(scene) -> backend`` (a backend class is one), or a backend object
+  already made for the scene.
+
+Strings are what travel to worker processes (the verification cases run their sweeps there), so a reference
+given on the command line is resolved again in each worker. Whatever the form, :func:`make_backend` checks the
+backend against its scene before any work: every stage the scene needs (:func:`.base.required_calls`) must be
+there and accept the arguments the steppers pass, and a missing one is named with its expected signature.
+"""
+
+import importlib
+import sys
+from functools import lru_cache
+from importlib.metadata import entry_points
+from pathlib import Path
+
+from ..errors import BackendError
+
+#: the built-in backends
 BACKENDS = ("numpy", "numba")
+#: the entry-point group through which an installed package registers a backend by name
+ENTRY_POINT_GROUP = "mpmref.backends"
 
 
-def make_backend(name, scene):
-    """Instantiate the backend called ``name`` for ``scene``; a :class:`~.base.Backend`, and a
-    :class:`~.base.CoupledBackend` where the scene has rigid bodies (else ``TypeError`` naming what is missing)."""
+def plugin_names():
+    """Names of the backends that installed packages register (entry points of :data:`ENTRY_POINT_GROUP`)."""
+    return sorted(e.name for e in entry_points(group=ENTRY_POINT_GROUP) if e.name not in BACKENDS)
+
+
+def available():
+    """Every backend name: the built-in ones, then the installed plugins'."""
+    return list(BACKENDS) + plugin_names()
+
+
+def _builtin(name):
     if name == "numpy":
-        from .numpy import NumpyBackend as backend_class
-    elif name == "numba":
-        from .numba import NumbaBackend as backend_class
+        from .numpy import NumpyBackend
+
+        return NumpyBackend
+    from .numba import NumbaBackend
+
+    return NumbaBackend
+
+
+def _unknown(reference):
+    plugins = plugin_names()
+    installed = f"; installed plugins: {', '.join(plugins)}" if plugins else ""
+    return BackendError(f"unknown backend {reference!r}: the built-in backends are {', '.join(BACKENDS)}{installed}; "
+                        "or give your own as MODULE:ATTRIBUTE (a factory f(scene) -> backend, e.g. a backend class)")
+
+
+def _import_attribute(reference):
+    """The object ``MODULE:ATTRIBUTE`` names; :class:`BackendError` naming the module or the attribute."""
+    module_name, _, attribute = reference.partition(":")
+    if not module_name or not attribute:
+        raise BackendError(f"backend {reference!r}: expected MODULE:ATTRIBUTE, e.g. my_backend:MyBackend")
+    try:
+        obj = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise BackendError(f"backend {reference!r}: cannot import module {module_name!r} ({exc}); it must be "
+                           "importable from this Python (installed, on PYTHONPATH or in the current folder)") from None
+    for part in attribute.split("."):
+        if not hasattr(obj, part):
+            raise BackendError(f"backend {reference!r}: module {module_name!r} has no attribute {attribute!r}")
+        obj = getattr(obj, part)
+    return obj
+
+
+def _load_plugin(name):
+    entry = next(e for e in entry_points(group=ENTRY_POINT_GROUP) if e.name == name)
+    try:
+        return entry.load()
+    except (ImportError, AttributeError) as exc:
+        raise BackendError(f"backend {name!r}: the plugin's entry point {entry.value!r} cannot be loaded "
+                           f"({exc})") from None
+
+
+def resolve(reference):
+    """The factory or backend object that ``reference`` names (see the module docstring); strings are looked up
+    as a built-in name, a plugin name, then ``MODULE:ATTRIBUTE``. :class:`BackendError` if none fits."""
+    if not isinstance(reference, str):
+        return reference
+    if reference in BACKENDS:
+        return _builtin(reference)
+    if ":" in reference:
+        return _import_attribute(reference)
+    if reference in plugin_names():
+        return _load_plugin(reference)
+    raise _unknown(reference)
+
+
+def label(reference):
+    """How ``reference`` is named in reports and messages: the string itself, else the factory's or the object's
+    qualified name."""
+    if isinstance(reference, str):
+        return reference
+    named = reference if callable(reference) and not _is_backend_object(reference) else type(reference)
+    return f"{named.__module__}:{named.__qualname__}"
+
+
+def _is_backend_object(obj):
+    """A backend object (not a class or factory function): it has a ``p2g`` method and is not a class."""
+    return not isinstance(obj, type) and callable(getattr(obj, "p2g", None))
+
+
+def make_backend(reference, scene):
+    """The backend that ``reference`` names, for ``scene``, checked against what the scene needs.
+
+    Parameters
+    ----------
+    reference : str, callable or backend object
+        See the module docstring.
+    scene : Scene
+
+    Returns
+    -------
+    A backend with every stage of :func:`.base.required_calls` ``(scene)``; :class:`BackendError` otherwise (also
+    for an unknown name, a module or attribute that cannot be imported, and an object made for another scene).
+    """
+    found = resolve(reference)
+    if _is_backend_object(found):
+        backend = found
+        made_for = getattr(backend, "scene", None)
+        if made_for is not None and made_for is not scene and made_for.fingerprint() != scene.fingerprint():
+            raise BackendError(f"backend {label(reference)}: this object was made for another scene "
+                               f"({made_for.name!r}); give a factory f(scene) -> backend instead")
+    elif callable(found):
+        backend = found(scene)
     else:
-        raise ValueError(f"unknown backend {name!r}: available backends are {list(BACKENDS)}")
-    return checked(backend_class(scene), name)
+        raise BackendError(f"backend {label(reference)}: a {type(found).__name__} is neither a factory "
+                           "f(scene) -> backend nor a backend object")
+    return checked(backend, label(reference), scene)
 
 
-def checked(backend, name):
-    """``backend`` if it has every stage its scene needs (:mod:`.base`); ``TypeError`` otherwise."""
-    from .base import ASYNC_BACKEND_STAGES, BACKEND_STAGES, CPIC_BACKEND_STAGES
+def checked(backend, name, scene=None):
+    """``backend`` if it has every stage ``scene`` (default: its own ``scene``) needs, each accepting the
+    arguments the steppers pass (:func:`.base.required_calls`); :class:`BackendError` naming each missing or
+    incompatible stage with its expected signature otherwise."""
+    from .base import required_calls, stage_signature
 
-    needed = BACKEND_STAGES + ASYNC_BACKEND_STAGES + ("running",)
-    needed += CPIC_BACKEND_STAGES if backend.scene.rigid_bodies else ()
-    missing = [stage for stage in needed if not callable(getattr(backend, stage, None))]
-    if missing:
-        raise TypeError(f"backend {name!r} lacks the stage(s) {missing} (the contract: mpmref.backends.base)")
+    scene = scene if scene is not None else backend.scene
+    problems = []
+    for stage, (positional, keywords) in required_calls(scene).items():
+        method = getattr(backend, stage, None)
+        if not callable(method):
+            problems.append(f"lacks the stage {stage_signature(stage)}")
+        elif not _accepts(method, positional, keywords):
+            problems.append(f"has a stage {stage} that does not accept the steppers' {positional} positional "
+                            f"argument(s){' and ' + ', '.join(keywords) if keywords else ''}: expected "
+                            f"{stage_signature(stage)}")
+    if problems:
+        raise BackendError(f"backend {name!r} {'; '.join(problems)} (needed by scene {scene.name!r}; the contract: "
+                           "mpmref.backends.base, docs/checking_your_code.md)")
     return backend
+
+
+def _accepts(method, positional, keywords):
+    """Whether ``method`` can be called with ``positional`` arguments and the keyword arguments ``keywords``."""
+    import inspect
+
+    try:
+        signature = inspect.signature(method)
+    except (TypeError, ValueError):  # a builtin without a signature: nothing to check
+        return True
+    try:
+        signature.bind(*range(positional), **{k: None for k in keywords})
+    except TypeError:
+        return False
+    return True
+
+
+def describe(reference, backend):
+    """``{"backend": label, "class": ..., "version": ...}`` of the backend ``reference`` named, as made, for reports:
+    the backend's ``version`` attribute if it has one, else the version of the installed distribution that
+    provides its module (mpmref's own for the built-in backends), else that module's ``__version__``, else
+    ``None``."""
+    cls = type(backend)
+    module = cls.__module__.split(".")[0]
+    version = getattr(backend, "version", None)
+    if version is None:
+        version = _distribution_version(module)
+    return {"backend": label(reference), "class": f"{cls.__module__}.{cls.__qualname__}",
+            "version": None if version is None else str(version)}
+
+
+@lru_cache(maxsize=None)
+def _distribution_version(module):
+    from importlib.metadata import PackageNotFoundError, packages_distributions, version
+
+    for distribution in packages_distributions().get(module, []):
+        try:
+            return version(distribution)
+        except PackageNotFoundError:
+            continue
+    return getattr(sys.modules.get(module), "__version__", None)
+
+
+def importable_from_here():
+    """Put the current folder on ``sys.path`` (as ``python -m`` does) so that ``--backend MODULE:ATTRIBUTE`` finds
+    a module beside the user's scene; the command line calls this once before resolving a reference."""
+    here = str(Path.cwd())
+    if here not in sys.path and "" not in sys.path:
+        sys.path.insert(0, here)
+
+
+#: the help of every ``--backend`` option
+OPTION_HELP = ("the backend: numpy (the reference), numba, an installed plugin's name, or your own as "
+               "MODULE:ATTRIBUTE, a factory f(scene) -> backend (docs/checking_your_code.md)")
+
+
+def reference_argument(text):
+    """The argparse ``type`` of a ``--backend`` option: ``text`` itself, once it resolves (:func:`resolve`; a
+    ``MODULE:ATTRIBUTE`` may name a module in the current folder). A reference that does not resolve raises
+    :class:`BackendError`, which the command line reports with exit status 2 before any work."""
+    if ":" in text:
+        importable_from_here()
+    resolve(text)
+    return text

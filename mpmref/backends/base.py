@@ -38,6 +38,7 @@ These are the stages of a backend; the conformance harness has its own list of w
 (:data:`mpmref.bench.table2.TABLE2_STAGES`, :data:`mpmref.bench.cpic.TIMED_CPIC_STAGES`).
 """
 
+import inspect
 from contextlib import nullcontext
 from typing import Protocol, runtime_checkable
 
@@ -55,39 +56,78 @@ CPIC_BACKEND_STAGES = ("cpic_contact", "cpic_impulses", "cpic_g2p")
 
 @runtime_checkable
 class Backend(Protocol):
-    """Structural type of a backend (see the module docstring for each stage's meaning)."""
+    """Structural type of a backend (see the module docstring for each stage's meaning). The first line of each
+    method's docstring is what the stage returns; :func:`stage_signature` quotes it in error messages."""
 
     name: str
     scene: object
 
-    def prepare(self, particles): ...
+    def prepare(self, particles):
+        """-> what P2G and G2P of one step share (anything; ``None`` if nothing)"""
 
-    def stress(self, particles): ...
+    def stress(self, particles):
+        """-> Kirchhoff stress tau (n, d, d)"""
 
-    def p2g(self, particles, prepared=None, contact=None, classes=None): ...
+    def p2g(self, particles, prepared=None, contact=None, classes=None):
+        """-> GridState(mass (N,), momentum (N, d), force (N, d))"""
 
-    def grid_update(self, grid_state, dt, time=0.0): ...
+    def grid_update(self, grid_state, dt, time=0.0):
+        """-> (v, v_tilde), both (N, d): node velocity after forces, gravity, walls and colliders; before forces"""
 
-    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None): ...
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
+        """-> new Particles (x, v and the fields the scene evolves)"""
 
-    def return_map(self, particles): ...
+    def return_map(self, particles):
+        """-> Particles after the plastic projection (unchanged for elastic materials)"""
 
-    def running(self, n_particles): ...
+    def running(self, n_particles):
+        """-> a context manager the step's stages run in (mpmref.backends.base.serial_context if nothing to set up)"""
 
-    def wave_speeds(self, particles, idx): ...
+    def wave_speeds(self, particles, idx):
+        """-> P-wave speed (m,) of the particles idx (asynchronous stepping)"""
 
-    def interface_kicks(self, grid_state, dt, kappa): ...
+    def interface_kicks(self, grid_state, dt, kappa):
+        """-> node kicks of conservative level interfaces (asynchronous stepping)"""
 
 
 @runtime_checkable
 class CoupledBackend(Backend, Protocol):
     """A backend that also couples rigid bodies by CPIC (see the module docstring)."""
 
-    def cpic_contact(self, particles, prepared, rigid, dt): ...
+    def cpic_contact(self, particles, prepared, rigid, dt):
+        """-> (particles, Contact): the colored distance field and the particles' tags"""
 
-    def cpic_impulses(self, grid_state, contact, rigid, dt): ...
+    def cpic_impulses(self, grid_state, contact, rigid, dt):
+        """-> (J, L): impulses on the bodies of what incompatible nodes did not receive"""
 
-    def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid): ...
+    def cpic_g2p(self, particles, v_grid, dt, prepared, contact, rigid):
+        """-> (Particles, (J, L)): G2P with ghost velocities and the penalty's impulses"""
+
+
+def stage_signature(stage):
+    """``stage(arguments) -> result`` as the protocol declares it, for messages (e.g. ``p2g(particles,
+    prepared=None, contact=None, classes=None) -> GridState(...)``)."""
+    method = getattr(CoupledBackend, stage)
+    arguments = list(inspect.signature(method).parameters.values())[1:]  # without self
+    returns = (method.__doc__ or "").strip().splitlines()[0]
+    return f"{stage}({', '.join(str(a) for a in arguments)}) {returns}".strip()
+
+
+def required_calls(scene):
+    """How the steppers call each stage for ``scene``: ``{stage: (positional argument count, keyword names)}``.
+
+    Every scene needs the six stages and ``running``; asynchronous stepping adds its two stages and the keyword
+    arguments of conservative interfaces (``classes`` in P2G, ``kicks`` in G2P); rigid bodies add the CPIC stages
+    and P2G's ``contact``. A backend is checked against this before any work (:func:`mpmref.backends.make_backend`).
+    """
+    calls = {"prepare": (1, ()), "stress": (1, ()), "p2g": (2, ()), "grid_update": (3, ()), "g2p": (5, ()),
+             "return_map": (1, ()), "running": (1, ())}
+    if scene.time.stepping == "async":
+        calls.update({"p2g": (2, ("classes",)), "g2p": (5, ("kicks",)), "wave_speeds": (2, ()),
+                      "interface_kicks": (3, ())})
+    if scene.rigid_bodies:
+        calls.update({"p2g": (3, ()), "cpic_contact": (4, ()), "cpic_impulses": (4, ()), "cpic_g2p": (6, ())})
+    return calls
 
 
 def serial_context(n_particles):

@@ -43,7 +43,7 @@ import time
 from dataclasses import asdict, dataclass
 from importlib import metadata
 
-from ..backends import BACKENDS
+from ..backends import BACKENDS, reference_argument
 from ..io.atomic import write_text_atomic
 from .goals import goals_section, render_goals
 from .scenes import table2_cells
@@ -182,11 +182,9 @@ def _dtype_list(text):
 
 
 def _backend_list(text):
-    names = tuple(part.strip() for part in text.split(","))
-    unknown = [n for n in names if n not in BACKENDS]
-    if unknown:
-        raise argparse.ArgumentTypeError(f"unknown backend(s) {unknown}; available: {list(BACKENDS)}")
-    return names
+    """``--backends``: comma-separated backend references (:func:`mpmref.backends.reference_argument`; one that
+    does not resolve stops the command with exit status 2 before any work)."""
+    return tuple(reference_argument(part.strip()) for part in text.split(","))
 
 
 def add_parser(subparsers):
@@ -201,7 +199,8 @@ def add_parser(subparsers):
     p.add_argument("--threads", type=_thread_list, default=(1, 2), help="thread counts, e.g. 1,2 (default)")
     p.add_argument("--dtype", type=_dtype_list, default=("float32", "float64"), help="f32, f64 or f32,f64 (default)")
     p.add_argument("--backends", type=_backend_list, default=BACKENDS,
-                   help=f"mpmref backends, comma separated (default: {','.join(BACKENDS)})")
+                   help=f"backends to time, comma separated: numpy, numba, a plugin's name or MODULE:ATTRIBUTE "
+                   f"(default: {','.join(BACKENDS)})")
     p.add_argument("--vs", choices=("taichi",), help="also compare with a peer code on the same scenes")
     p.add_argument("--only", choices=SECTIONS, help="run one section (peer implies --vs taichi)")
     p.add_argument("--repeats", type=_positive, default=3, help="timed repeats per figure; the median is reported")

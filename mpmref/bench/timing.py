@@ -7,9 +7,9 @@ from ..errors import MpmrefError
 
 
 def thread_counts(backend, threads):
-    """The thread counts a backend runs at: all of ``threads`` for Numba, only 1 for the NumPy reference
-    (it is single-threaded)."""
-    return [1] if backend == "numpy" else list(threads)
+    """The thread counts a backend runs at: all of ``threads`` for Numba, whose threads mpmref sets; only 1 for the
+    NumPy reference (single-threaded) and for any other backend (which sets its own threads)."""
+    return list(threads) if backend == "numba" else [1]
 
 
 def check_threads(backends, threads):

@@ -1,8 +1,11 @@
-"""``mpmref conformance export DIR`` and ``mpmref conformance check --backend NAME``."""
+"""``mpmref conformance export DIR`` and ``mpmref conformance check --backend NAME|MODULE:ATTRIBUTE``.
+
+Exit status of ``check``: 0 every case passed, 1 a case failed, 2 a backend reference that does not resolve.
+"""
 
 from pathlib import Path
 
-from ..backends import BACKENDS
+from ..backends import OPTION_HELP, reference_argument
 from .cases import DEFAULT_RTOL, make_cases
 from .report import check
 from .stages import ALL_CONFORMANCE_STAGES
@@ -48,7 +51,9 @@ def add_parser(subparsers):
     _add_selection(export_parser)
     export_parser.set_defaults(func=cmd_export)
     check_parser = actions.add_parser("check", help="run a backend on every case and print the error table")
-    check_parser.add_argument("--backend", required=True, choices=BACKENDS, help="backend to check")
+    check_parser.add_argument("--backend", required=True, type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
+                              help="the backend to check: " + OPTION_HELP + "; a factory may return an object "
+                              "with only some stages, or a dict {stage: callable}, and the others are skipped")
     check_parser.add_argument("--rtol", type=float, default=None,
                               help="pass threshold on the relative error (default: "
                               + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")

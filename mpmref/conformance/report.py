@@ -10,7 +10,7 @@ from functools import partial
 import numpy as np
 from tqdm import tqdm
 
-from ..backends import make_backend
+from ..backends import resolve
 from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
 from .cpic import RUNNERS, has_cpic
@@ -158,19 +158,20 @@ def _stage_callables(stages):
 def stage_functions(candidate, scene):
     """The candidate's stage callables for ``scene`` as ``{stage: callable}`` (see :mod:`mpmref.conformance`).
 
-    ``candidate`` is a backend name of :data:`mpmref.backends.BACKENDS`; a mapping of stage names to
-    callables that take the scene first; or a factory ``factory(scene)`` returning an object with stage
-    methods or a mapping of stage names to callables.
+    ``candidate`` is a backend reference of :mod:`mpmref.backends` (a built-in or plugin name, or
+    ``"MODULE:ATTRIBUTE"``, resolved to what it names), a factory ``factory(scene)`` returning an object with stage
+    methods or a mapping of stage names to callables, or a mapping of stage names to callables that take the
+    scene first. Unlike :func:`mpmref.backends.make_backend`, a candidate may lack stages: those are skipped.
+    (A backend object is made for one scene, and every case has its own: give its factory.)
     """
-    if isinstance(candidate, str):
-        return _stage_callables(make_backend(candidate, scene))
-    if isinstance(candidate, Mapping):
-        _check_stage_names(candidate)
-        return {stage: partial(fn, scene) for stage, fn in candidate.items()}
-    if callable(candidate):
-        return _stage_callables(candidate(scene))
-    raise TypeError(f"a candidate is a backend name, a mapping of stage callables or a factory(scene); "
-                    f"got {type(candidate).__name__}")
+    found = resolve(candidate)
+    if isinstance(found, Mapping):
+        _check_stage_names(found)
+        return {stage: partial(fn, scene) for stage, fn in found.items()}
+    if callable(found):
+        return _stage_callables(found(scene))
+    raise TypeError(f"a candidate is a backend reference, a factory(scene) or a mapping of stage callables; got "
+                    f"{type(found).__name__} (a backend object is made for one scene: give its factory)")
 
 
 def _run_case(fn, case, rtol):
