@@ -9,6 +9,7 @@ import argparse
 import contextlib
 import importlib
 import math
+import os
 import shlex
 import sys
 import time
@@ -25,6 +26,8 @@ COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
 COMMAND_GROUP = "mpmref.commands"
 #: exit status after Ctrl-C (128 + SIGINT), as shells report it
 INTERRUPTED = 130
+#: exit status when standard output is closed early (128 + SIGPIPE), as shells report it
+BROKEN_PIPE = 141
 
 
 class OptionError(Exception):
@@ -222,6 +225,9 @@ def main(argv=None):
     except KeyboardInterrupt:
         print("mpmref: interrupted", file=sys.stderr)
         return INTERRUPTED
+    except BrokenPipeError:  # the reader of standard output went away (`mpmref ... | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return BROKEN_PIPE
 
 
 if __name__ == "__main__":

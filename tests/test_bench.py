@@ -15,6 +15,7 @@ import pytest
 import mpmref.peers
 from mpmref import MpmrefError, Scene, SceneBuilder
 from mpmref.backends import make_backend
+from mpmref.errors import BackendError
 from mpmref.steppers import substep
 from mpmref.bench import SCHEMA, SECTIONS, BenchOptions, add_parser, options_from_args, run_bench
 from mpmref.bench.peer import clear_of_walls, frobenius_max, mean_position_bound, run_peer
@@ -173,9 +174,11 @@ def test_options_from_the_command_line():
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
     assert opts.dtypes == ("float32",) and opts.threads == (1, 2, 4) and opts.table2_cells == 100
     assert options_from_args(parse([])).table2_cells == 50
-    for bad in (["--dtype", "f16"], ["--threads", "0"], ["--backends", "cuda"]):
+    for bad in (["--dtype", "f16"], ["--threads", "0"]):
         with pytest.raises(SystemExit):
             parse(bad)
+    with pytest.raises(BackendError, match="unknown backend 'cuda'"):  # the command line's exit status 2
+        parse(["--backends", "numpy,cuda"])
 
 
 def test_the_sections_are_registered_once_and_the_cli_the_json_and_the_tables_follow(monkeypatch):

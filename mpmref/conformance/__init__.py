@@ -9,7 +9,8 @@ Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend
 ----------------------------------------------------------------------------------
 * ``stress(particles) -> tau (n, d, d)``: Kirchhoff stress of every particle, through its material;
 * ``return_map(particles) -> Particles``: plastic projection (identity for elastic materials);
-* ``p2g(particles) -> GridState(mass (N,), momentum (N, d), force (N, d))``, the stress computed inside;
+* ``p2g(particles) -> GridState(mass (N,), momentum (N, d), force (N, d))``, the stress computed inside, or given
+  as ``p2g(particles, stress=tau)`` to a P2G that has a ``stress`` parameter;
 * ``grid_update(grid_state, dt, time) -> (v, v_tilde)``, both (N, d);
 * ``g2p(particles, v, v_tilde, dt) -> Particles``;
 * ``step(particles, dt, time) -> Particles``: P2G, grid update, G2P and return map.
@@ -21,11 +22,12 @@ outputs; ``make_cases`` gives their cases when asked for them (``stages=ALL_CONF
 
 Grid arrays have one row per node in C order (node ``(i_0, .., i_{d-1})`` is row ``sum_a i_a stride_a``,
 ``stride_a = prod_{b>a} (cells_b + 1)``, at ``origin + i dx``). Particle outputs are compared on the
-fields a stage may change (``x, v, C, F, J, Jp, modes``, those allocated).
+fields a stage may change (``x, v, C, F, J, Jp, modes``, those allocated); ``F``, ``J`` and ``Jp`` only on the
+particles whose material evolves them (:mod:`.diagnosis`).
 
 A candidate is one of
 ---------------------
-* a backend name of :data:`mpmref.backends.BACKENDS` (``"numba"``);
+* a backend reference of :mod:`mpmref.backends` (``"numba"``, an installed plugin's name, ``"MODULE:ATTRIBUTE"``);
 * a factory ``factory(scene)`` returning an object with stage methods (a backend class is one) or a
   mapping ``{stage name: callable}``; it is called once per distinct scene;
 * a mapping ``{stage name: callable}`` whose callables take the scene first, e.g.
@@ -35,23 +37,25 @@ Stages a candidate does not provide are skipped and listed as such; a stage that
 
 Which cases, and why not the full cross product
 -----------------------------------------------
-Each stage is checked on the axes its result depends on, in 2D and 3D, on an 8^d-cell unit box with
-64 (2D) or 128 (3D) particles at least two cells from the domain faces (:mod:`.cases`):
+Each stage is checked on the axes its result depends on, in 2D and 3D, with 64 (2D) or 128 (3D) particles at
+least two cells from the domain faces, on a box whose cell counts per axis, cell size and origin, and with a Δt
+and a time, that each case draws from its name (:mod:`.cases`):
 
 * ``stress``: each material alone and all five together (per-particle material dispatch). The stress does
   not depend on the scheme, kernel or boundary.
 * ``return_map``: snow, sand and all five together; for the elastic materials it is the identity, which
   the full-step cases check.
 * ``p2g`` and ``g2p``: every valid scheme x force x kernel (20 combinations), with a solid and the fluid
-  mixed so that both the ``F`` and the ``J`` update run. The material only enters P2G through the
-  stress, which has its own cases.
+  mixed so that both the ``F`` and the ``J`` update run; then each material alone and all five together
+  (MLS-MPM), so that a code with one material has cases. The material only enters P2G through the stress,
+  which has its own cases.
 * ``grid_update``: each wall type on all faces (sticky, slip, separate with friction, open), a different
   type on each face, and one collider of each shape (two moving, at ``time > 0``) with open walls. The
   grid update does not depend on the scheme or the material.
 * ``step``: every valid method (as for P2G) and each material set (with MLS-MPM), with gravity and the
   mixed walls: the stages composed, return map included.
 
-That is 162 float64 cases instead of 20 x 6 x 6 x 2 per stage. The states are physically sensible: ``F``
+That is 198 float64 cases instead of 20 x 6 x 6 x 2 per stage. The states are physically sensible: ``F``
 a random rotation times a near-identity stretch with ``det F > 0.3`` (some inside, some outside the
 plastic yield surfaces), ``J`` and ``Jp`` near 1, velocities of order 1, ``C`` of order 4 (the grid's
 velocity gradients), PolyPIC modes scaled by ``dx^-degree``; the grid update gets a random grid state
@@ -62,7 +66,8 @@ The error
 For each output array, ``max|candidate - reference| / max|reference|`` over all its entries (with a
 denominator of 1 where the reference is all zero; shape mismatch or a non-finite value: ``inf``); a
 case's error is the largest over its outputs and it passes when that is ``<= rtol`` (default 1e-12 in
-float64). See :func:`.report.relative_error`.
+float64). See :func:`.report.relative_error`. A failed case names its worst particle or node and, when the
+error is one factor everywhere, that factor (:mod:`.diagnosis`).
 """
 
 from .cases import Case, make_cases, valid_methods

@@ -1,9 +1,12 @@
 """Conformance cases: which scenes each stage is checked on, and the seeded random state of each case.
 
-Every case is one stage on one scene. The scene is an 8^d-cell unit box declared as a plain dict (the
-TOML structure, so that it can be written to ``manifest.json``); the state is drawn from a generator
-seeded by the case's name, so a case is the same on every machine and adding cases changes no other.
-Why each stage varies only some axes is explained in :mod:`mpmref.conformance`.
+Every case is one stage on one scene. The scene is declared as a plain dict (the TOML structure, so that it can be
+written to ``manifest.json``): a box of 8 to 13 cells per axis (each axis its own count), a cell size drawn
+log-uniformly over two and a half decades and an origin off zero (:func:`case_grid`). The state, Δt and the time
+are drawn from generators seeded by the case's name, so a case is the same on every machine and adding cases
+changes no other; Δt spans nearly four decades of CFL number inside the stable range (:func:`draw_step`), because
+one Δt in every case cannot tell a stage that ignores its Δt from one that uses it. Why each stage varies only
+some axes is explained in :mod:`mpmref.conformance`.
 """
 
 import zlib
@@ -19,22 +22,36 @@ from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
 from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
-from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, particles_from,
-                     run_stage)
+from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, STAGES_WITH_DT,
+                     STAGES_WITH_TIME, composed_step, particles_from, run_stage)
 
-CELLS = 8
+#: cells per axis of a case's grid: each axis draws its own count in this range (:func:`case_grid`)
+CELL_RANGE = (8, 13)
+#: a case's cell size is drawn log-uniformly in this range
+DX_RANGE = (0.02, 5.0)
+#: the cell size at which the state's velocities are of order 1; they scale with the cell size, so that a
+#: state moves the same number of cells per second on every grid
+REFERENCE_DX = 1.0 / 8
 #: particles stay at least this many cells away from every face of the domain
 EDGE_CELLS = 2
 N_PARTICLES = {2: 64, 3: 128}
-#: smallest per-axis kernel weight a particle may have (see :func:`random_positions`)
-MIN_WEIGHT = 1.0e-4
-DT = 1.0e-3
-TIME = 0.05
+#: smallest per-axis kernel weight a particle may have (see :func:`random_positions`). 1e-4 was enough on the unit
+#: box of 8 cells; with the drawn grids and steps, two 3D PolyPIC steps (classic force) moved their modes by
+#: 1.0e-13 and 1.3e-13 for a 1e-15 input change (a top mode's norm is a product of per-axis factors, one per
+#: axis); at 1e-3 the largest over every case is 4.1e-14
+MIN_WEIGHT = 1.0e-3
+#: the CFL number of a case, Δt (c + 4 s) / Δx, is drawn log-uniformly in this range (:func:`draw_step`)
+CFL_RANGE = (1.0e-4, 0.5)
+#: the time of a case (where colliders move) is drawn log-uniformly in this range
+TIME_RANGE = (1.0e-4, 0.2)
+#: Δt and time of the CPIC cases, whose bodies are declared in the coordinates of the unit box of 8 cells
+CPIC_DT, CPIC_TIME = 1.0e-3, 0.05
 GRAVITY = [0.3, -9.8, 0.5]
 #: default pass threshold on the relative error, per dtype. In float32 the reference itself lies within
-#: 1e-6 of the float64 result on the same inputs (9.2e-7 measured, PolyPIC modes); 1e-5 leaves ten times
-#: that for the candidate's own rounding.
-DEFAULT_RTOL = {"float64": 1.0e-12, "float32": 1.0e-5}
+#: 3.7e-6 of the float64 result on the same inputs (3.6e-6 measured, PolyPIC modes after a classic-force step;
+#: 9.2e-7 on the unit box of 8 cells, where dx = 1/8 and the origin are exact in float32); 5e-5 leaves more than
+#: ten times that for the candidate's own rounding (the Numba backend in float32: 3.6e-6 at most).
+DEFAULT_RTOL = {"float64": 1.0e-12, "float32": 5.0e-5}
 
 MATERIALS = {
     "fixed_corotated": {"type": "fixed_corotated", "E": 1.0e3, "nu": 0.3, "rho": 1.0},
@@ -56,38 +73,74 @@ UNIFORM_WALLS = {"sticky": {"type": "sticky"}, "slip": {"type": "slip"},
 
 
 # ------------------------------------------------------------------------------------------ scenes
+def case_grid(label, dim):
+    """The grid of the case called ``label`` (its name without the dtype): ``{"origin", "size", "dx"}`` as the
+    scene's ``[grid]`` declares it, drawn from a generator seeded by the label.
+
+    Each axis has its own number of cells in :data:`CELL_RANGE` (at least two axes differ, so a code that
+    assumes a square grid or swaps the strides fails), the cell size is log-uniform in :data:`DX_RANGE`, and the
+    origin puts between 35 % and 65 % of the box below zero on each axis (a code that forgets the origin fails;
+    positions stay within about half the box of zero, so float32 cases keep the precision of the unit box).
+    """
+    rng = np.random.default_rng(zlib.crc32(f"grid-{label}".encode()))
+    cells = rng.integers(CELL_RANGE[0], CELL_RANGE[1] + 1, size=dim)
+    if np.all(cells == cells[0]):
+        cells[-1] = CELL_RANGE[0] + (cells[0] - CELL_RANGE[0] + 1) % (CELL_RANGE[1] - CELL_RANGE[0] + 1)
+    dx = float(np.exp(rng.uniform(*np.log(DX_RANGE))))
+    size = cells * dx
+    origin = -size * rng.uniform(0.35, 0.65, dim)
+    return {"origin": origin.tolist(), "size": size.tolist(), "dx": dx}
+
+
+def in_box(grid, unit):
+    """The point of the case's box at the fractions ``unit`` (per axis) of its size."""
+    return (np.asarray(grid["origin"]) + np.asarray(unit, dtype=float) * np.asarray(grid["size"])).tolist()
+
+
+def unit_box_grid(dim):
+    """The unit box of 8 cells per axis at the origin (the CPIC cases, whose bodies are declared in its
+    coordinates)."""
+    return {"origin": [0.0] * dim, "size": [1.0] * dim, "dx": 1.0 / 8}
+
+
 def mixed_walls(dim):
     """A boundary with a different wall type on each face (catches walls applied to the wrong face)."""
     return {"type": "open", "walls": {k: dict(w) for k, w in MIXED_WALLS.items() if k[0] in "xyz"[:dim]}}
 
 
-def collider_dicts(dim):
-    """One collider of each shape and boundary type for a ``dim``-D scene, two of them moving."""
+def collider_dicts(dim, grid):
+    """One collider of each shape and boundary type, placed in the case's box ``grid`` (:func:`case_grid`), two of
+    them moving (at a few cells per unit time, as the state's velocities)."""
     pad = [0.0] * (dim - 2)
+    speed = grid["dx"] / REFERENCE_DX
+    smallest = min(grid["size"])
     colliders = [
-        {"shape": "plane", "type": "slip", "point": [0.0, 0.3] + pad, "normal": [0.2, 1.0] + pad,
-         "velocity": [0.0, 0.1] + pad},
-        {"shape": "disk" if dim == 2 else "sphere", "type": "separate", "friction": 0.4, "center": [0.5] * dim,
-         "radius": 0.2, "velocity": [1.0, -0.5] + pad},
-        {"shape": "box", "type": "sticky", "lower": [0.7] * dim, "upper": [0.9] * dim},
+        {"shape": "plane", "type": "slip", "point": in_box(grid, [0.0, 0.3] + pad), "normal": [0.2, 1.0] + pad,
+         "velocity": [0.0, 0.1 * speed] + pad},
+        {"shape": "disk" if dim == 2 else "sphere", "type": "separate", "friction": 0.4,
+         "center": in_box(grid, [0.5] * dim), "radius": 0.2 * smallest, "velocity": [speed, -0.5 * speed] + pad},
+        {"shape": "box", "type": "sticky", "lower": in_box(grid, [0.7] * dim), "upper": in_box(grid, [0.9] * dim)},
     ]
     if dim == 3:
-        colliders.append({"shape": "cylinder", "type": "separate", "friction": 0.1, "point": [0.2, 0.75, 0.0],
-                          "axis": [0.0, 0.0, 1.0], "radius": 0.15})
+        colliders.append({"shape": "cylinder", "type": "separate", "friction": 0.1,
+                          "point": in_box(grid, [0.2, 0.75, 0.0]), "axis": [0.0, 0.0, 1.0], "radius": 0.15 * smallest})
     return colliders
 
 
-def scene_dict(dim, materials, method=None, boundary=None, colliders=(), dtype="float64"):
-    """The declaration of a case's scene: unit box of ``CELLS`` cells per axis, gravity, the given materials.
+def scene_dict(dim, materials, method=None, boundary=None, colliders=(), dtype="float64", grid=None):
+    """The declaration of a case's scene: the box ``grid`` (default: the unit box of 8 cells per axis), gravity,
+    the given materials.
 
     ``boundary`` defaults to :func:`mixed_walls`. The one body only makes the scene valid; the cases draw
     their own particles.
     """
-    return {"name": "conformance", "dim": dim, "dtype": dtype, "grid": {"size": 1.0, "cells": CELLS},
+    grid = grid or unit_box_grid(dim)
+    return {"name": "conformance", "dim": dim, "dtype": dtype, "grid": dict(grid),
             "method": dict(method or {}), "materials": {name: dict(MATERIALS[name]) for name in materials},
-            "bodies": [{"shape": "box", "material": materials[0], "lower": [0.25] * dim, "upper": [0.75] * dim}],
+            "bodies": [{"shape": "box", "material": materials[0], "lower": in_box(grid, [0.25] * dim),
+                        "upper": in_box(grid, [0.75] * dim)}],
             "gravity": GRAVITY[:dim], "boundary": boundary or mixed_walls(dim),
-            "colliders": [dict(c) for c in colliders], "time": {"dt": DT}}
+            "colliders": [dict(c) for c in colliders], "time": {"dt": CPIC_DT}}
 
 
 def valid_methods():
@@ -138,10 +191,10 @@ def random_deformation_gradients(rng, n, dim, min_det=0.3):
     return F
 
 
-def random_modes(rng, n, dim, support, dx):
-    """PolyPIC coefficients scaled by ``dx^-degree``, so that each mode adds O(0.1) to a node's velocity."""
+def random_modes(rng, n, dim, support, dx, speed=1.0):
+    """PolyPIC coefficients scaled by ``dx^-degree``, so that each mode adds O(0.1) ``speed`` to a node's velocity."""
     degree = higher_modes(dim, support).sum(axis=1)
-    return 0.1 * rng.standard_normal((n, len(degree), dim)) / (dx ** degree)[None, :, None]
+    return 0.1 * speed * rng.standard_normal((n, len(degree), dim)) / (dx ** degree)[None, :, None]
 
 
 def random_positions(scene, rng, n):
@@ -151,11 +204,12 @@ def random_positions(scene, rng, n):
     Where a particle's outermost weight vanishes (at cell centres for the quadratic B-spline, on nodes for
     the cubic), PolyPIC's top mode norms vanish too and G2P divides by them: there a 1e-15 relative change of
     the inputs moved the output modes by up to 2.5e-7 relative, so no threshold near round-off could be
-    asked of a correct implementation. With the margin the same perturbation moves every output by < 1e-13.
+    asked of a correct implementation. With the margin the same perturbation moves every output by < 1e-13
+    (4.1e-14 at most, measured on every case).
     """
     grid = scene.grid
     lo = grid.origin + EDGE_CELLS * grid.dx
-    hi = grid.origin + (np.array(grid.cells) - EDGE_CELLS) * grid.dx
+    hi = grid.origin + (np.array(grid.cells) - EDGE_CELLS) * grid.dx  # each axis its own count
     x = np.empty((0, scene.dim))
     while len(x) < n:
         trial = lo + (hi - lo) * rng.random((n, scene.dim))
@@ -164,20 +218,27 @@ def random_positions(scene, rng, n):
     return x[:n]
 
 
+def speed_scale(scene):
+    """The velocity scale of a case's state: 1 at :data:`REFERENCE_DX`, proportional to the cell size (a state
+    moves as many cells per unit time on every grid)."""
+    return scene.grid.dx / REFERENCE_DX
+
+
 def random_particles(scene, rng):
     """A particle state for ``scene`` as a flat dict.
 
     Positions from :func:`random_positions`; random materials of the scene; volume a quarter cell (2D) or
-    an eighth (3D) within ±20 %; mass ``rho * vol0``; velocities N(0, 1); ``C`` N(0, 4^2); ``F`` from
-    :func:`random_deformation_gradients`; ``J`` in [0.9, 1.1]; ``Jp`` in [0.7, 1.2]; PolyPIC modes from
-    :func:`random_modes`. ``C``, ``F``, ``J``, ``Jp`` and ``modes`` only where the scene needs them.
+    an eighth (3D) within ±20 %; mass ``rho * vol0``; velocities N(0, 1) times :func:`speed_scale`; ``C``
+    N(0, 4^2); ``F`` from :func:`random_deformation_gradients`; ``J`` in [0.9, 1.1]; ``Jp`` in [0.7, 1.2];
+    PolyPIC modes from :func:`random_modes`. ``C``, ``F``, ``J``, ``Jp`` and ``modes`` only where the scene
+    needs them.
     """
-    grid, dim = scene.grid, scene.dim
+    grid, dim, speed = scene.grid, scene.dim, speed_scale(scene)
     n = N_PARTICLES[dim]
     material = rng.integers(len(scene.materials), size=n).astype(np.int32)
     vol0 = grid.dx**dim / 2**dim * rng.uniform(0.8, 1.2, n)
     rho = np.array([m.rho for m in scene.material_list])[material]
-    flat = {"x": random_positions(scene, rng, n), "v": rng.standard_normal((n, dim)), "mass": rho * vol0,
+    flat = {"x": random_positions(scene, rng, n), "v": speed * rng.standard_normal((n, dim)), "mass": rho * vol0,
             "vol0": vol0, "material": material}
     if scene.transfer.affine:
         flat["C"] = 4.0 * rng.standard_normal((n, dim, dim))
@@ -188,23 +249,42 @@ def random_particles(scene, rng):
     if scene.tracks("Jp"):
         flat["Jp"] = rng.uniform(0.7, 1.2, n)
     if scene.transfer.polypic:
-        flat["modes"] = random_modes(rng, n, dim, scene.kernel.support, grid.dx)
+        flat["modes"] = random_modes(rng, n, dim, scene.kernel.support, grid.dx, speed)
     return flat
 
 
 def random_grid(scene, rng):
     """Grid state after a P2G: a quarter of the nodes empty, the others with mass in [0.2, 1.5] x rho dx^d,
-    velocity N(0, 1) and force mass x N(0, 50^2) (so that dt f / m is a few percent of v)."""
-    n_nodes, dim = scene.grid.n_nodes, scene.dim
+    velocity N(0, 1) and force mass x N(0, 50^2), both times :func:`speed_scale`."""
+    n_nodes, dim, speed = scene.grid.n_nodes, scene.dim, speed_scale(scene)
     mass = scene.grid.dx**dim * rng.uniform(0.2, 1.5, n_nodes) * (rng.random(n_nodes) >= 0.25)
-    return {"grid_mass": mass, "grid_momentum": mass[:, None] * rng.standard_normal((n_nodes, dim)),
-            "grid_force": mass[:, None] * 50.0 * rng.standard_normal((n_nodes, dim))}
+    return {"grid_mass": mass, "grid_momentum": mass[:, None] * speed * rng.standard_normal((n_nodes, dim)),
+            "grid_force": mass[:, None] * 50.0 * speed * rng.standard_normal((n_nodes, dim))}
 
 
-def reference_grid_velocities(scene, flat):
+def draw_step(label, scene):
+    r"""Δt of the case called ``label``: :math:`\Delta t = \mathrm{CFL}\,\Delta x / (c + 4 s)` with the CFL number
+    log-uniform in :data:`CFL_RANGE` (nearly four decades, all inside the stable range of every scheme,
+    docs/stability.md), :math:`c` the scene's largest rest wave speed and :math:`s` the state's
+    :func:`speed_scale` (four standard deviations bound the drawn speeds). Seeded by the label."""
+    cfl = np.exp(np.random.default_rng(zlib.crc32(f"dt-{label}".encode())).uniform(*np.log(CFL_RANGE)))
+    return float(cfl * scene.grid.dx / (scene.max_wave_speed() + 4.0 * speed_scale(scene)))
+
+
+def cfl_number(scene):
+    """The CFL number of a case's scene as :func:`draw_step` drew it: ``time.dt (c + 4 s) / dx``."""
+    return scene.time.dt * (scene.max_wave_speed() + 4.0 * speed_scale(scene)) / scene.grid.dx
+
+
+def draw_time(seed):
+    """The time of a case (log-uniform in :data:`TIME_RANGE`): where the moving colliders are."""
+    return float(np.exp(np.random.default_rng([seed, 1]).uniform(*np.log(TIME_RANGE))))
+
+
+def reference_grid_velocities(scene, flat, dt, time):
     """``grid_v`` and ``grid_v_tilde`` of the reference P2G and grid update of the particles ``flat``."""
     backend = make_backend("numpy", scene)
-    v, v_tilde = backend.grid_update(backend.p2g(particles_from(flat)), DT, TIME)
+    v, v_tilde = backend.grid_update(backend.p2g(particles_from(flat)), dt, time)
     return {"grid_v": v, "grid_v_tilde": v_tilde}
 
 
@@ -248,6 +328,11 @@ class Case:
     def rtol(self):
         return DEFAULT_RTOL[self.dtype]
 
+    @property
+    def materials(self):
+        """The material types of the case's scene (a set)."""
+        return {m["type"] for m in self.scene_dict["materials"].values()}
+
     def scene(self):
         return Scene.from_dict(self.scene_dict)
 
@@ -256,17 +341,18 @@ class Case:
         scene, rng = self.scene(), np.random.default_rng(self.seed)
         if self.stage in CPIC_CONFORMANCE_STAGES:
             return _as_dtype(cpic_inputs(self.stage, scene, rng), self.dtype)
-        if self.stage == "grid_update":
-            flat = random_grid(scene, rng)
-        else:
-            flat = random_particles(scene, rng)
+        flat = random_grid(scene, rng) if self.stage == "grid_update" else random_particles(scene, rng)
+        dt, time = scene.time.dt, draw_time(self.seed)
         if self.stage == "g2p":
-            flat.update(reference_grid_velocities(scene, flat))
-        if self.stage in ("grid_update", "g2p", "step"):
-            flat["dt"] = np.array(DT)
-        if self.stage in ("grid_update", "step"):
-            flat["time"] = np.array(TIME)
-        return _as_dtype(flat, self.dtype)
+            flat.update(reference_grid_velocities(scene, flat, dt, time))
+        if self.stage in STAGES_WITH_DT:
+            flat["dt"] = np.array(dt)
+        if self.stage in STAGES_WITH_TIME:
+            flat["time"] = np.array(time)
+        flat = _as_dtype(flat, self.dtype)
+        if self.stage == "p2g":  # the optional input of a P2G that takes the stress (docs/conformance.md)
+            flat["tau"] = make_backend("numpy", scene).stress(particles_from(flat))
+        return flat
 
     def reference(self, inputs=None):
         """The NumPy reference's outputs of the stage on ``inputs`` (default: :meth:`inputs`), a flat dict."""
@@ -289,7 +375,7 @@ def cpic_inputs(stage, scene, rng):
     """A CPIC stage's inputs: :func:`random_particles`, previous tags and bodies (:func:`.cpic.random_cpic_state`),
     ``dt``, ``time`` and, for ``cpic_g2p``, the reference's ``grid_v`` of that state."""
     flat = random_cpic_state(scene, rng, random_particles(scene, rng))
-    flat["dt"], flat["time"] = np.array(DT), np.array(TIME)
+    flat["dt"], flat["time"] = np.array(CPIC_DT), np.array(CPIC_TIME)
     if stage == "cpic_g2p":
         flat["grid_v"] = reference_grid_velocity(scene, flat)
     return flat
@@ -335,44 +421,65 @@ def _per_body_cases(stage, dim):
     return [_cpic_case(stage, "mls-mls-quadratic-per-body", per_body, dim)]
 
 
+def drawn_case(stage, dim, variant, dtype, materials, method=None, boundary=None, colliders=False):
+    """A case whose grid (:func:`case_grid`) and Δt (:func:`draw_step`, the scene's ``time.dt``) are drawn from its
+    name; ``colliders``: one of each shape in its box (:func:`collider_dicts`)."""
+    label = f"{stage}-{dim}d-{variant}"
+    grid = case_grid(label, dim)
+    declared = scene_dict(dim, materials, method, boundary, collider_dicts(dim, grid) if colliders else (), dtype,
+                          grid)
+    declared["time"] = {"dt": draw_step(label, Scene.from_dict(declared))}
+    return Case(stage, dim, variant, declared, dtype)
+
+
 def _material_cases(stage, dim, dtype, set_names):
-    return [Case(stage, dim, name, scene_dict(dim, MATERIAL_SETS[name], dtype=dtype), dtype) for name in set_names]
+    return [drawn_case(stage, dim, name, dtype, MATERIAL_SETS[name]) for name in set_names]
 
 
 def _method_cases(stage, dim, dtype):
-    return [Case(stage, dim, method_label(m), scene_dict(dim, TRANSFER_MATERIALS, method=m, dtype=dtype), dtype)
-            for m in valid_methods()]
+    return [drawn_case(stage, dim, method_label(m), dtype, TRANSFER_MATERIALS, method=m) for m in valid_methods()]
 
 
 def _grid_update_cases(dim, dtype):
     boundaries = {**UNIFORM_WALLS, "mixed": mixed_walls(dim)}
-    cases = [Case("grid_update", dim, name, scene_dict(dim, ("fixed_corotated",), boundary=b, dtype=dtype), dtype)
+    cases = [drawn_case("grid_update", dim, name, dtype, ("fixed_corotated",), boundary=b)
              for name, b in boundaries.items()]
-    colliders = scene_dict(dim, ("fixed_corotated",), boundary=UNIFORM_WALLS["open"], colliders=collider_dicts(dim),
-                           dtype=dtype)
-    return cases + [Case("grid_update", dim, "colliders", colliders, dtype)]
+    return cases + [drawn_case("grid_update", dim, "colliders", dtype, ("fixed_corotated",),
+                               boundary=UNIFORM_WALLS["open"], colliders=True)]
+
+
+def _transfer_cases(stage, dim, dtype):
+    """Every method with the solid and the fluid together, then each material alone and all five together (with
+    MLS-MPM): a code with one material checks its transfers on that material's cases."""
+    return _method_cases(stage, dim, dtype) + _material_cases(stage, dim, dtype, MATERIAL_SETS)
 
 
 _STAGE_CASES = {
     "stress": lambda dim, dtype: _material_cases("stress", dim, dtype, MATERIAL_SETS),
     "return_map": lambda dim, dtype: _material_cases("return_map", dim, dtype, PLASTIC_SETS),
-    "p2g": lambda dim, dtype: _method_cases("p2g", dim, dtype),
+    "p2g": partial(_transfer_cases, "p2g"),
     "grid_update": _grid_update_cases,
-    "g2p": lambda dim, dtype: _method_cases("g2p", dim, dtype),
-    "step": lambda dim, dtype: _method_cases("step", dim, dtype) + _material_cases("step", dim, dtype, MATERIAL_SETS),
+    "g2p": partial(_transfer_cases, "g2p"),
+    "step": partial(_transfer_cases, "step"),
     **{stage: partial(_cpic_cases, stage) for stage in CPIC_CONFORMANCE_STAGES},
 }
 
 
-def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64"):
+def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", materials=None):
     """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`).
 
     The default is the six stages of every backend; the CPIC stages (:data:`.stages.CPIC_CONFORMANCE_STAGES`, 2D and
-    float64 only) are included when asked for, e.g. ``stages=ALL_CONFORMANCE_STAGES``.
+    float64 only) are included when asked for, e.g. ``stages=ALL_CONFORMANCE_STAGES``. ``materials`` (material
+    types, e.g. ``("fluid",)``) keeps the cases whose materials are all among them, and the grid update's (which
+    does not see the material): what a code with only those constitutive models can run.
     """
     unknown = sorted(set(stages) - set(ALL_CONFORMANCE_STAGES))
     if unknown:
         raise ValueError(f"unknown stages {unknown}: the stages are {list(ALL_CONFORMANCE_STAGES)}")
     if dtype not in DEFAULT_RTOL:
         raise ValueError(f"unknown dtype {dtype!r}: use one of {list(DEFAULT_RTOL)}")
-    return [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]
+    unknown = sorted(set(materials or ()) - set(MATERIALS))
+    if unknown:
+        raise ValueError(f"unknown material types {unknown}: the types are {list(MATERIALS)}")
+    cases = [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]
+    return cases if materials is None else [c for c in cases if c.stage == "grid_update" or c.materials <= set(materials)]

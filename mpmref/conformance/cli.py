@@ -6,7 +6,7 @@ Exit status of ``check``: 0 every case passed, 1 a case failed, 2 a backend refe
 from pathlib import Path
 
 from ..backends import OPTION_HELP, reference_argument
-from .cases import DEFAULT_RTOL, make_cases
+from .cases import DEFAULT_RTOL, MATERIALS, make_cases
 from .report import check
 from .stages import ALL_CONFORMANCE_STAGES
 from .vectors import export
@@ -19,10 +19,13 @@ def _add_selection(parser):
                         help="stages to include (default: all; the CPIC stages have 2D float64 cases only)")
     parser.add_argument("--dtype", choices=tuple(DEFAULT_RTOL), default="float64",
                         help="floating-point type of the states (default: float64)")
+    parser.add_argument("--material", nargs="+", choices=tuple(MATERIALS), metavar="TYPE",
+                        help="only the cases whose materials are all among these types (and the grid update's), "
+                        f"for a code with only some constitutive models; types: {', '.join(MATERIALS)}")
 
 
 def _selected_cases(args):
-    return make_cases(dims=tuple(args.dim), stages=tuple(args.stage), dtype=args.dtype)
+    return make_cases(dims=tuple(args.dim), stages=tuple(args.stage), dtype=args.dtype, materials=args.material)
 
 
 def cmd_export(args):

@@ -14,6 +14,7 @@ from ..backends import resolve
 from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
 from .cpic import RUNNERS, has_cpic
+from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
 from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, run_stage
 
 
@@ -32,8 +33,12 @@ def relative_error(candidate, reference):
     return error if math.isfinite(error) else math.inf
 
 
-def compare_outputs(got, expected):
-    """Per-output relative errors of ``got`` against ``expected`` and a note on missing or misshapen outputs."""
+def compare_outputs(got, expected, rows=None):
+    """Per-output relative errors of ``got`` against ``expected`` and a note on missing or misshapen outputs.
+
+    ``rows`` (:func:`.diagnosis.compared_rows`) restricts ``F``, ``J`` and ``Jp`` to the particles whose material
+    evolves them; a misshapen output is compared whole (and fails)."""
+    rows = rows or {}
     errors, problems = {}, []
     for name, ref in expected.items():
         value = got.get(name)
@@ -41,9 +46,11 @@ def compare_outputs(got, expected):
             errors[name] = math.inf
             problems.append(f"no output {name}")
             continue
-        errors[name] = relative_error(value, ref)
         if np.shape(value) != np.shape(ref):
+            errors[name] = math.inf
             problems.append(f"{name} has shape {np.shape(value)}, expected {np.shape(ref)}")
+            continue
+        errors[name] = relative_error(restrict(name, value, rows), restrict(name, ref, rows))
     return errors, "; ".join(problems)
 
 
@@ -59,6 +66,8 @@ class CaseResult:
     errors: dict
     rtol: float
     note: str = ""
+    where: str = ""  # the worst output's worst particle or node (:func:`.diagnosis.worst_place`)
+    ratio: float | None = None  # the worst output is this factor times the reference everywhere, if it is
 
     @property
     def error(self):
@@ -126,7 +135,12 @@ class Report:
 
 def _case_line(result):
     status = "ok  " if result.passed else "FAIL"
-    note = f"  {result.note}" if result.note else ""
+    details = [result.note] if result.note else []
+    if not result.passed and result.where:
+        details.append(f"worst at {result.where}")
+    if not result.passed and result.ratio is not None:
+        details.append(f"× {result.ratio:.6g} everywhere")
+    note = f"  {'; '.join(details)}" if details else ""
     return f"  {status} {result.case.name:<40} {result.worst_output:<14} {result.error:.3e}{note}"
 
 
@@ -181,8 +195,15 @@ def _run_case(fn, case, rtol):
         got = run_stage(case.stage, fn, inputs)
     except Exception as exc:  # a candidate that raises is a failed case to report, not a crash of the harness
         return CaseResult(case, {}, rtol, note=f"raised {type(exc).__name__}: {exc}")
-    errors, note = compare_outputs(got, expected)
-    return CaseResult(case, errors, rtol, note)
+    scene = case.scene()
+    rows = compared_rows(scene, inputs)
+    errors, note = compare_outputs(got, expected, rows)
+    result = CaseResult(case, errors, rtol, note)
+    worst = result.worst_output
+    if result.passed or worst not in got:
+        return result
+    return CaseResult(case, errors, rtol, note, where=worst_place(worst, got[worst], expected[worst], rows, scene, inputs),
+                      ratio=uniform_ratio(worst, got[worst], expected[worst], rows))
 
 
 def check(candidate, cases=None, rtol=None, progress=False):

@@ -8,9 +8,11 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
   scene needs them, ``C (n,d,d)``, ``F (n,d,d)``, ``J (n,)``, ``Jp (n,)``, ``modes (n,M,d)``;
 * grid nodes (C order, see :mod:`mpmref.conformance`): ``grid_mass (N,)``, ``grid_momentum (N,d)``,
   ``grid_force (N,d)``, ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
-* scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``.
+* scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
+  P2G cases (for a P2G that takes the stress, :func:`takes_stress`).
 """
 
+import inspect
 from contextlib import nullcontext
 
 import numpy as np
@@ -23,6 +25,9 @@ CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "c
 #: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies
 #: (:mod:`mpmref.conformance.cpic`)
 ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
+#: the stages that take a time step ``dt``, and those that take the ``time`` (where the colliders are)
+STAGES_WITH_DT = ("grid_update", "g2p", "step")
+STAGES_WITH_TIME = ("grid_update", "step")
 PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
 #: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
 EVOLVING_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
@@ -47,8 +52,19 @@ def _particle_stage(fn, flat):
 
 
 def _p2g(fn, flat):
-    gs = fn(particles_from(flat))
+    """P2G of the particles; a P2G with a ``stress`` argument is given the reference's Kirchhoff stress ``tau`` of
+    the inputs, so that a code can check its transfer without every constitutive model (docs/conformance.md)."""
+    given = {"stress": np.array(flat["tau"])} if "tau" in flat and takes_stress(fn) else {}
+    gs = fn(particles_from(flat), **given)
     return {"grid_mass": gs.mass, "grid_momentum": gs.momentum, "grid_force": gs.force}
+
+
+def takes_stress(fn):
+    """Whether the P2G callable ``fn`` declares a parameter named ``stress``."""
+    try:
+        return "stress" in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 def _grid_update(fn, flat):

@@ -14,17 +14,25 @@ from pathlib import Path
 import numpy as np
 
 from ..io.atomic import atomic_path, write_text_atomic
+from ..physics.materials import evolved_fields
 from ..physics.polypic import higher_modes
 from .cases import make_cases
 
 FORMAT = "mpmref-conformance"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: per-axis cells, dt and time per case, in_tau, materials' "evolves"
 MANIFEST = "manifest.json"
 CONVENTIONS = {
     "nodes": "grid arrays have one row per node in C order: node (i_0, ..., i_{d-1}), 0 <= i_a <= cells_a, "
              "is row sum_a i_a * stride_a with stride_a = prod_{b > a} (cells_b + 1); it sits at origin + i * dx",
     "particles": "particle arrays have one row per particle, in the same order in inputs and outputs",
     "material": "in_material is an index into resolved.materials",
+    "evolves": "resolved.materials[k].evolves lists the deformation fields (F, J, Jp) that material k's particles carry; "
+               "out_F, out_J and out_Jp are compared only on the rows of particles whose material evolves them (a "
+               "fluid's F, a solid's J mean nothing); x, v, C and modes on every row",
+    "dt": "dt and time of a case are also in the manifest entry (dt: the scene's time.dt); they vary from case to case "
+          "(dt over nearly four decades of CFL number), so a stage that ignores its dt argument fails",
+    "tau": "in_tau of a p2g case is the reference's Kirchhoff stress of the input particles: a P2G that takes the "
+           "stress as an input can use it instead of computing it (outputs are the same)",
     "modes": "axis 1 of in_modes / out_modes follows resolved.polypic_modes (per-axis polynomial degrees)",
     "error": "max|candidate - reference| / max|reference| over every entry of an output array (denominator 1 "
              "where the reference is all zero); a case passes when its largest output error is <= rtol",
@@ -49,7 +57,8 @@ def _jsonable(value):
 
 def _material_entry(name, declared, material):
     lame = {"mu": material.mu, "lam": material.lam} if hasattr(material, "mu") else {}
-    return {"name": name, "type": declared["type"], **asdict(material), **lame}
+    return {"name": name, "type": declared["type"], **asdict(material), **lame,
+            "evolves": list(evolved_fields(material))}
 
 
 def _collider_entry(collider):
@@ -114,8 +123,9 @@ def write_case(out_dir, case):
               **{f"out_{k}": np.asarray(a) for k, a in outputs.items()}}
     file = f"{case.name}.npz"
     _write_npz(Path(out_dir) / file, arrays)
+    steps = {k: float(inputs[k]) for k in ("dt", "time") if k in inputs}
     return {"name": case.name, "file": file, "stage": case.stage, "dim": case.dim, "dtype": case.dtype,
-            "rtol": case.rtol, "seed": case.seed,
+            "rtol": case.rtol, "seed": case.seed, **steps,
             "arrays": {k: {"shape": list(a.shape), "dtype": a.dtype.name} for k, a in arrays.items()},
             "scene": case.scene_dict, "resolved": resolved_scene(case)}
 

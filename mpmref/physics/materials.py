@@ -255,13 +255,20 @@ def material_groups(materials, particles):
     return groups
 
 
-def state_args(material, particles, sel):
-    """The per-particle state a material's functions take: ``(J,)``, ``(F,)`` or ``(F, Jp)`` for plastic ones."""
+def evolved_fields(material):
+    """The deformation fields a material's particles carry and evolve: ``("J",)`` for the fluid, ``("F",)`` for the
+    elastic solids, ``("F", "Jp")`` for the plastic ones. The other fields a scene allocates (a fluid's ``F`` in a
+    scene with solids, a solid's ``J``) mean nothing for its particles; the conformance harness compares only these
+    (besides ``x``, ``v`` and the scheme's ``C`` or modes, which every particle evolves)."""
     if material.tracks == "J":
-        return (particles.J[sel],)
-    if getattr(material, "plastic", False):
-        return (particles.F[sel], particles.Jp[sel])
-    return (particles.F[sel],)
+        return ("J",)
+    return ("F", "Jp") if getattr(material, "plastic", False) else ("F",)
+
+
+def state_args(material, particles, sel):
+    """The per-particle state a material's functions take (its :func:`evolved_fields`): ``(J,)``, ``(F,)`` or
+    ``(F, Jp)`` for plastic ones."""
+    return tuple(getattr(particles, name)[sel] for name in evolved_fields(material))
 
 
 def wave_speed_of(material, particles, sel):
