@@ -8,7 +8,6 @@ particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints t
 import argparse
 import contextlib
 import importlib
-import math
 import shlex
 import sys
 import time
@@ -16,8 +15,9 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
+from . import arguments
 from .backends import OPTION_HELP, reference_argument
-from .errors import BackendError, MpmrefError, SceneError
+from .errors import ArgumentError, BackendError, MpmrefError, SceneError
 
 #: modules of this package that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
 COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
@@ -38,26 +38,26 @@ class _Parser(argparse.ArgumentParser):
         raise OptionError(f"{message} (see '{self.prog} --help')")
 
 
-def _count(text):
-    """``--steps``: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; allowed: an integer >= 0") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative; allowed: an integer >= 0")
-    return value
+def _option_value(parse, check, kind):
+    """An argparse ``type``: ``text`` parsed by ``parse`` (``int`` or ``float``) and checked by ``check``, one of the
+    definitions of :mod:`mpmref.arguments` that the Python API checks its arguments with."""
+    def convert(text):
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+        try:
+            return check(value)
+        except ArgumentError as exc:
+            raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: {exc.allowed}") from None
+
+    return convert
 
 
-def _end_time(text):
-    """``--t-end``: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number; allowed: a finite number >= 0") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: a finite number >= 0 (simulated time)")
-    return value
+#: ``--steps``: an integer >= 0
+_count = _option_value(int, arguments.step_count, "an integer")
+#: ``--t-end``: a finite number >= 0 (simulated time)
+_end_time = _option_value(float, arguments.end_time, "a number")
 
 
 def _parser():

@@ -6,6 +6,7 @@ from functools import cached_property
 
 import numpy as np
 
+from . import arguments
 from .backends import describe, make_backend
 from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
@@ -142,8 +143,11 @@ class Simulation:
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
         again); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
-        (:func:`mpmref.emitters.emit`).
+        (:func:`mpmref.emitters.emit`). A ``dt`` that is not a finite number > 0, or a ``t_end`` that is not after the
+        current time, raises :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
         """
+        dt = None if dt is None else arguments.time_step(dt)
+        t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
         synchronous = self.stepper.name == "sync"
         if self.scene.emitters:  # releases due now join before the step (docs/scenes.md, [[emitters]])
             self.state = emit(self.scene, self.state, self._releases)
@@ -226,8 +230,12 @@ class Simulation:
         """Run until ``steps`` more steps are done or time ``t_end`` is reached (default: the scene's).
 
         Writes outputs every ``scene.output.every`` steps (and at the start and end) when the simulation
-        has an output folder. Returns a summary dict (steps, wall time, particle-steps/s, drifts).
+        has an output folder. Returns a summary dict (steps, wall time, particle-steps/s, drifts). Negative
+        ``steps`` or a ``t_end`` before the current time (or not finite) raise :class:`~mpmref.errors.ArgumentError`
+        (a ``ValueError``) before any work.
         """
+        steps = None if steps is None else arguments.step_count(steps)
+        t_end = None if t_end is None else arguments.end_time(t_end, self.time)
         steps, t_end = self._resolve_stop(steps, t_end)
         first = self.diagnostics()
         if self.output is not None and self.step_count == 0 and not self.output.rows:

@@ -190,3 +190,35 @@ def test_frames_follow_particles_by_id_through_deletion_and_emission(tmp_path):
         assert set(ids.tolist()) == set(positions)
         for i, point in zip(ids.tolist(), frame.points):
             np.testing.assert_array_equal(point[:2], positions[i])
+
+
+BAD_STEP_ARGUMENTS = [
+    ("step", {"dt": -0.01}, "dt"), ("step", {"dt": 0.0}, "dt"), ("step", {"dt": float("nan")}, "dt"),
+    ("step", {"dt": float("inf")}, "dt"), ("step", {"t_end": "now"}, "t_end"),
+    ("run", {"steps": -3}, "steps"), ("run", {"steps": 2.5}, "steps"), ("run", {"t_end": "before"}, "t_end"),
+    ("run", {"t_end": float("nan")}, "t_end"), ("run", {"t_end": float("inf")}, "t_end"),
+]
+
+
+@pytest.mark.parametrize("method, kwargs, name", BAD_STEP_ARGUMENTS,
+                         ids=[f"{m}-{'-'.join(f'{k}={v}' for k, v in kw.items())}" for m, kw, _ in BAD_STEP_ARGUMENTS])
+def test_step_and_run_refuse_bad_arguments_naming_them_before_any_work(method, kwargs, name):
+    """A step backwards, a step of zero, a NaN or infinite step or end, negative steps, an end in the past: a
+    ValueError naming the argument, and the simulation is where it was (no step counted, nothing moved)."""
+    from mpmref.errors import ArgumentError
+
+    sim = Simulation(jelly_with_loner(dt=1e-3))
+    sim.run(steps=2)
+    now, x = sim.time, sim.x.copy()
+    kwargs = {k: {"now": now, "before": 0.5 * now}.get(v, v) for k, v in kwargs.items()}
+    with pytest.raises(ValueError) as info:
+        getattr(sim, method)(**kwargs)
+    assert isinstance(info.value, ArgumentError) and info.value.name == name
+    assert str(info.value).startswith(f"{name} = ")
+    assert sim.step_count == 2 and sim.time == now and np.array_equal(sim.x, x)
+
+
+def test_run_to_the_current_time_or_zero_steps_does_nothing_and_is_allowed():
+    sim = Simulation(jelly_with_loner(dt=1e-3))
+    sim.run(steps=2)
+    assert sim.run(t_end=sim.time)["steps"] == 0 and sim.run(steps=0)["steps"] == 0 and sim.step_count == 2
