@@ -226,20 +226,24 @@ class Simulation:
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
-    def run(self, steps=None, t_end=None, progress=False):
+    def run(self, steps=None, t_end=None, progress=False, record=False):
         """Run until ``steps`` more steps are done or time ``t_end`` is reached (default: the scene's).
 
-        Writes outputs every ``scene.output.every`` steps (and at the start and end) when the simulation
-        has an output folder. Returns a summary dict (steps, wall time, particle-steps/s, drifts). Negative
-        ``steps`` or a ``t_end`` before the current time (or not finite) raise :class:`~mpmref.errors.ArgumentError`
-        (a ``ValueError``) before any work.
+        When the simulation has an output folder, writes a frame (and the checkpoint) every ``scene.output.every``
+        steps and a row of ``diagnostics.csv`` every ``scene.output.diagnostics_every`` steps, both also at the
+        start and the end. Returns a summary dict (steps, wall time, particle-steps/s, drifts); with ``record``, its
+        ``"series"`` holds the diagnostics rows of this run at the same cadence (its first state, every
+        ``diagnostics_every`` steps, its last state), with or without an output folder. Negative ``steps`` or a
+        ``t_end`` before the current time (or not finite) raise :class:`~mpmref.errors.ArgumentError` (a
+        ``ValueError``) before any work.
         """
         steps = None if steps is None else arguments.step_count(steps)
         t_end = None if t_end is None else arguments.end_time(t_end, self.time)
         steps, t_end = self._resolve_stop(steps, t_end)
         first = self.diagnostics()
+        series = [first] if record else None
         if self.output is not None and self.step_count == 0 and not self.output.rows:
-            self.write_output()
+            self._write(frame=True, row=first)
         bar = _progress(steps, t_end, self.time, progress)
         start, done, particle_steps = _time.perf_counter(), 0, 0
         try:
@@ -248,14 +252,28 @@ class Simulation:
                 done += 1
                 particle_steps += self.last_updates
                 bar.update(1 if steps is not None else dt)
-                if self.output is not None and self.step_count % self.scene.output.every == 0:
-                    self.write_output()
+                self._write_due(series)
         finally:
             bar.close()
         wall = _time.perf_counter() - start
-        if self.output is not None and self.step_count % self.scene.output.every != 0:
-            self.write_output()
-        return _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self.state))
+        if done:
+            self._write_due(series, end=True)
+        summary = _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self.state))
+        return summary if series is None else {**summary, "series": series}
+
+    def _write_due(self, series, end=False):
+        """What is due at the current step: the frame (and checkpoint) every ``output.every`` steps and the
+        diagnostics row every ``output.diagnostics_every`` steps, written to the output folder (if any) and the row
+        appended to ``series`` (when recording). With ``end``, the ones the last step was not due for."""
+        spec = self.scene.output
+        frame, row = self.step_count % spec.every == 0, self.step_count % spec.diagnostics_every == 0
+        if end:
+            frame, row = not frame, not row
+        values = self.diagnostics() if row and (self.output is not None or series is not None) else None
+        if series is not None and values is not None:
+            series.append(values)
+        if self.output is not None:
+            self._write(frame=frame, row=values)
 
     def step_clipped(self, t_end):
         """One step, shortened if the stepper can so as not to pass ``t_end``."""
@@ -343,14 +361,21 @@ class Simulation:
 
     def write_output(self):
         """Write a particle frame (and grid frame), a diagnostics row and, if enabled, a checkpoint."""
+        self._write(frame=True, row=self.diagnostics())
+
+    def _write(self, frame, row):
+        """Write a frame when ``frame``, the diagnostics ``row`` (a dict) unless it is ``None``, then, after a frame,
+        the checkpoint if enabled (it carries every row written so far, so a resumed run writes the same rows)."""
         out = self.output
-        rigid = self.state.rigid
-        polylines = None if rigid is None else [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
-                                                for b in current_shapes(self.scene.rigid_bodies, rigid)]
-        out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
-                        self.grid_data() if self.scene.output.grid else None, polylines)
-        out.write_diagnostics(self.diagnostics())
-        if self.scene.output.checkpoint:
+        if frame:
+            rigid = self.state.rigid
+            polylines = None if rigid is None else [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
+                                                    for b in current_shapes(self.scene.rigid_bodies, rigid)]
+            out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
+                            self.grid_data() if self.scene.output.grid else None, polylines)
+        if row is not None:
+            out.write_diagnostics(row)
+        if frame and self.scene.output.checkpoint:
             out.save_checkpoint(self.state, self._meta("output"))
 
     def save_checkpoint(self, reason="interrupted"):
