@@ -127,12 +127,18 @@ class Simulation:
     def n_particles(self):
         return self.particles.n
 
+    @property
+    def inertia(self):
+        r"""The affine inertia :math:`D_p = D` of the scene's kernel (:math:`\Delta x^2/4` quadratic, :math:`\Delta x^2/3`
+        cubic), or ``None`` where it is not constant (the linear hat)."""
+        factor = self.scene.kernel.inertia_factor
+        return None if factor is None else factor * self.scene.grid.dx**2
+
     def diagnostics(self):
         """Mass, momentum, angular momentum and energies of the current state (dict)."""
         kernel, grid = self.scene.kernel, self.scene.grid
-        inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
         norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
-        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, inertia, norms)
+        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, self.inertia, norms)
         return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted, "clamped": self.clamped,
                 **self.stepper.diagnostics(self.state)}
 
@@ -274,6 +280,21 @@ class Simulation:
             series.append(values)
         if self.output is not None:
             self._write(frame=frame, row=values)
+
+    @property
+    def compiles(self):
+        """Whether :meth:`warm_up` has anything to compile (a compiled backend, or asynchronous bookkeeping)."""
+        return hasattr(self.backend, "warm_up") or hasattr(self.stepper, "warm_up")
+
+    def warm_up(self):
+        """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene, so that a timed
+        run that follows does not time compilation; the state is not changed."""
+        from .steppers.pipeline import substep
+
+        if hasattr(self.backend, "warm_up"):
+            self.backend.warm_up(self.particles, substep)
+        if hasattr(self.stepper, "warm_up"):
+            self.stepper.warm_up(self.particles)
 
     def step_clipped(self, t_end):
         """One step, shortened if the stepper can so as not to pass ``t_end``."""
