@@ -298,3 +298,30 @@ def test_the_drift_scales_bound_the_momenta_and_are_them_for_a_rigid_spin():
         speed = np.linalg.norm(sim.v, axis=1)
         assert momentum_scale(sim.particles) == pytest.approx(float(sim.mass @ speed), rel=1e-14)
         assert momentum_scale(sim.particles) >= math.hypot(d["momentum_x"], d["momentum_y"])
+
+
+# ----------------------------------------------------------------------------------- the chapter
+def test_the_chapter_documents_every_option_and_shows_the_scene_file_it_studies(capsys):
+    import re
+
+    chapter = (ROOT / "docs" / "studying_your_scene.md").read_text(encoding="utf-8")
+    with pytest.raises(SystemExit):
+        main(["study", "--help"])
+    options = set(re.findall(r"--[a-z][a-z-]*", capsys.readouterr().out)) - {"--help"}
+    assert options and not [o for o in sorted(options) if f"`{o}" not in chapter]
+    block = chapter.split("```toml\n", 1)[1].split("```", 1)[0]
+    assert tomllib.loads(block) == tomllib.loads((ROOT / "docs" / "breathing_disk.toml").read_text())
+
+
+@pytest.mark.slow
+def test_the_chapters_four_grid_convergence_study_reads_as_the_chapter_says(tmp_path):
+    """docs/studying_your_scene.md, "A convergence study": the energy excursion is first order by Richardson's
+    estimate while the fit against the finest run reads high; the energy change at the end time gives estimates
+    that disagree once 128 cells are added; the radius of gyration is not monotone."""
+    study = run_study(ROOT / "docs" / "breathing_disk.toml", {"grid.cells": [16, 32, 64, 128]}, out=tmp_path,
+                      measures=["verification.study.measures:shape"], ledger=False)
+    order = {row["measure"]: row for row in study["orders"]}
+    excursion, change = order["energy_excursion"], order["energy_change"]
+    assert abs(excursion["richardson"] - 1.0) < 0.2 and excursion["order"] > excursion["richardson"] + 0.2
+    assert abs(change["order"] - change["richardson"]) > 1.0
+    assert "not monotone" in order["radius_of_gyration"]["note"]

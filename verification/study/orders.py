@@ -21,7 +21,7 @@ a refinement series :math:`h_1 > h_2 > \dots > h_n`, and each measure :math:`q` 
 
   where :math:`q_R` estimates the limit :math:`h \to 0`. It is undefined (with a note saying why) when the
   ratios differ, when two levels agree exactly, or when the differences change sign (the levels are not in the
-  asymptotic range).
+  asymptotic range); values that are not monotone over all the levels are noted likewise.
 
 Both assume :math:`q_k \approx q^* + C h_k^p`. Against the finest run each error carries the finest run's own,
 :math:`e_k = C(h_k^p - h_n^p)`, which biases the fit upwards on few levels: on three levels halving :math:`h` the two
@@ -128,7 +128,10 @@ def order(series, key, name, eps, drift=False):
     why = _why_no_fit(h[fit], errors[fit])
     if not why:
         out["order"], out["intercept"] = fit_slope(h[fit], errors[fit])
-    return {**out, "note": "; ".join(n for n in (why, out["note"]) if n)}
+    steps = np.diff(q)
+    bent = ("the values are not monotone over the levels, so the coarse ones are not in the asymptotic range"
+            if np.any(steps[:-1] * steps[1:] < 0) and "not monotone" not in out["note"] else "")
+    return {**out, "note": "; ".join(n for n in (why, out["note"], bent) if n)}
 
 
 def _round_off(errors, q, eps, drift):
@@ -153,7 +156,11 @@ def _why_no_fit(h, errors):
 
 
 def richardson(h, q):
-    """Richardson's order and extrapolated value from the three finest levels (the module docstring)."""
+    """Richardson's order and extrapolated value from the three finest levels (the module docstring), or ``nan``
+    with a note saying why there is none.
+
+    Docs: docs/studying_your_scene.md#observed-orders
+    """
     none = {"richardson": math.nan, "extrapolated": math.nan}
     if len(h) < 3:
         return {**none, "note": "Richardson's estimate needs three levels"}

@@ -144,7 +144,8 @@ def plot_series(out, runs):
     for ax, key, what in zip(axes, ("momentum_drift", "angular_momentum_drift"), ("|P(t) − P(0)| / S_P",
                                                                                   "|L(t) − L(0)| / S_L")):
         for r in done:
-            ax.plot(r["series"]["time"], np.maximum(r["series"][key], 1e-300), label=label(r["params"]))
+            drift = np.array(r["series"][key])
+            ax.plot(r["series"]["time"], np.where(drift > 0, drift, np.nan), ".-", label=label(r["params"]))
         ax.set_yscale("log")
         ax.set_xlabel("time")
         ax.set_ylabel(what)
@@ -152,9 +153,9 @@ def plot_series(out, runs):
     axes[0].legend(fontsize=7, framealpha=0.6)
     drifts = save_figure(fig, out / "drifts.png", caption=(
         "Drift of the linear (left) and angular (right) momentum of every run, relative to the sums of the "
-        "particles' contributions, on a log scale. Look for round-off (1e-16 to 1e-13) where a scheme conserves "
-        "the quantity and nothing external acts; gravity and walls change momentum, and PIC and FLIP lose "
-        "angular momentum."))
+        "particles' contributions, on a log scale (a drift of exactly zero is not drawn). Look for round-off "
+        "(1e-16 to 1e-13) where a scheme conserves the quantity and nothing external acts; gravity and walls "
+        "change momentum, and PIC and FLIP lose angular momentum."))
     return [energy, drifts]
 
 
@@ -170,14 +171,17 @@ def plot_ledger(out, runs):
         ax.bar(np.arange(len(done)) + (i - len(TERMS) / 2 + 0.5) * width,
                [r["metrics"][f"ledger_{term}"] for r in done], width, label=term)
     ax.set_xticks(range(len(done)), [label(r["params"]) for r in done], rotation=30, ha="right", fontsize=7)
-    ax.set_ylabel("energy booked / E(0)")
+    largest = max(abs(r["metrics"][f"ledger_{t}"]) for r in done for t in TERMS)
+    ax.set_yscale("symlog", linthresh=max(1e-4 * largest, 1e-300))
+    ax.set_ylabel("energy booked / E(0) (symmetric log scale)")
     ax.axhline(0.0, color="k", lw=0.6)
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=7, ncol=4, framealpha=0.6)
     fig.tight_layout()
     return [save_figure(fig, out / "ledger.png", caption=(
         "Where the energy went in each run: the energy ledger's terms at the end, relative to the initial energy "
-        "(they add up to the run's energy change). Look for which stage carries the change: P2G and G2P "
+        "(they add up to the run's energy change), on a symmetric log scale, linear within 1e-4 of the largest "
+        "term. Look for which stage carries the change: P2G and G2P "
         "transfers (dissipation of the transfer scheme), the boundary (walls and colliders), plasticity, or "
         "integration (the time integrator's own error, which falls with the step)."))]
 

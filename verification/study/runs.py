@@ -164,7 +164,10 @@ def scales(sim):
 
 def drift_series(rows, momentum_scale_, angular_scale):
     """The drifts of the module docstring per diagnostics row, with ``time``, ``step``, ``total_energy`` and, with
-    the ledger, ``ledger_<term>`` over :math:`E(0)`: columns (lists of floats)."""
+    the ledger, ``ledger_<term>`` over :math:`E(0)`: columns (lists of floats).
+
+    Docs: docs/studying_your_scene.md#what-each-run-measures
+    """
     column = lambda key: np.array([row[key] for row in rows], dtype=np.float64)  # noqa: E731
     vector = lambda prefix: np.stack([column(k) for k in rows[0] if k.startswith(prefix)], axis=1)  # noqa: E731
     energy, mass = column("total_energy"), column("mass")
