@@ -256,8 +256,9 @@ def test_a_failed_run_is_reported_the_others_kept_and_a_second_study_runs_only_i
 
 
 def test_frames_are_written_per_run_and_a_plan_validates_every_combination_first(tmp_path):
-    study = run_study(JELLY, {"grid.cells": [16]}, 0.002, out=tmp_path, frames=True, ledger=False)
-    run = study["runs"][0]
+    study = run_study(JELLY, {}, 0.002, out=tmp_path, frames=True, ledger=False)   # nothing varied: one run
+    run, = study["runs"]
+    assert run["params"] == {} and study["orders"] == []
     assert (tmp_path / run["frames"] / "particles.pvd").is_file() and "ledger_integration" not in run["metrics"]
     with pytest.raises(SceneError) as info:       # the second combination is bad: found before the first runs
         make_plan(JELLY, {"grid.cells": [16, 32], "bodies[0].ppc": [4, 5]}, 0.01, "numpy", tmp_path / "x")
@@ -325,3 +326,20 @@ def test_the_chapters_four_grid_convergence_study_reads_as_the_chapter_says(tmp_
     assert abs(excursion["richardson"] - 1.0) < 0.2 and excursion["order"] > excursion["richardson"] + 0.2
     assert abs(change["order"] - change["richardson"]) > 1.0
     assert "not monotone" in order["radius_of_gyration"]["note"]
+
+
+def test_the_runs_go_to_a_dask_cluster_and_functions_that_cannot_travel_are_refused_first(tmp_path):
+    import distributed
+
+    from verification.study.measures import shape
+
+    with pytest.raises(ArgumentError) as info:
+        run_study(JELLY, {"grid.cells": [16, 32]}, 0.002, out=tmp_path, measures=[lambda sim: {"one": 1.0}],
+                  executor=Executor(workers=2))
+    assert info.value.name == "measure" and not (tmp_path / "runs").exists()
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        study = run_study(JELLY, {"grid.cells": [16, 32]}, 0.002, out=tmp_path, measures=[shape], ledger=False,
+                          executor=Executor(scheduler=cluster.scheduler_address))
+    assert "dask.distributed" in study["executor"]
+    assert [r["metrics"]["center_x"] == pytest.approx(0.5) for r in study["runs"]] == [True, True]

@@ -14,6 +14,7 @@ done, and running it again runs only the rest. ``docs/studying_your_scene.md`` i
 """
 
 import os
+import pickle
 import time
 
 from mpmref.backends import describe, make_backend
@@ -72,6 +73,7 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out="reports/study
     exact_fn = None if exact is None else load(exact, "exact")
     info = describe(backend, make_backend(backend, plan.runs[0]["scene"]))
     executor = executor or Executor(workers=1)
+    _check_portable({"measure": list(measures), "setup": [setup]}, executor)
     results = _execute(plan, executor, overwrite, progress)
     records = [_record(r, result, exact_fn) for r, result in zip(plan.runs, results)]
     user = list(dict.fromkeys(k for r in records for k in r.get("metrics", {}) if k not in METRICS
@@ -84,6 +86,22 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out="reports/study
             "machine": machine()}
     paths = write_report(out, meta, records, orders)
     return {**meta, "runs": records, "orders": orders, "paths": [str(p) for p in paths]}
+
+
+def _check_portable(functions, executor):
+    """Functions given as objects travel to the workers by name: refuse one that does not (a lambda, a function
+    defined inside another) before any run, unless the runs stay in this process."""
+    if executor.scheduler is None and executor.workers <= 1:
+        return
+    for option, given in functions.items():
+        for fn in given:
+            if fn is None or isinstance(fn, str):
+                continue
+            try:
+                pickle.dumps(fn)
+            except (pickle.PicklingError, AttributeError, TypeError):
+                raise ArgumentError(option, _name(fn), "a function defined at the top level of an importable module "
+                                    "when the runs go to other processes (or run them here: Executor(workers=1))") from None
 
 
 def _execute(plan, executor, overwrite, progress):

@@ -195,9 +195,10 @@ def index_html(meta, runs, orders, figures, out):
     verdict = (f"<div class='verdict {'pass' if ok else 'fail'}'><strong>{len(runs) - len(failed)} of {len(runs)} "
                f"runs finished</strong> — {reused} reused from an earlier study, {len(failed)} failed; "
                f"{len(orders)} orders measured.</div>")
-    settings = "".join(f"<li>{e(k)}: {e(str(v))}</li>" for k, v in meta.items() if k not in ("machine", "vary"))
+    settings = "".join(f"<li>{e(k)}: {e(_setting(v))}</li>" for k, v in meta.items() if k not in ("machine", "vary"))
     machine = "".join(f"<li>{e(k)}: {e(str(v))}</li>" for k, v in meta["machine"].items())
-    vary = "; ".join(f"<code>{e(':'.join(v['keys']))}</code> = {e(', '.join(map(str, v['levels'])))}"
+    vary = "; ".join(f"<code>{e(':'.join(v['keys']))}</code> = "
+                     f"{e(', '.join(':'.join(map(str, level)) for level in v['levels']))}"
                      for v in meta["vary"]) or "nothing (one run of the scene as it is)"
     body = (f"<h1>mpmref study: {e(meta['scene_name'])}</h1>{verdict}"
             f"<p class='meta'>Scene <code>{e(meta['scene'])}</code>; varied: {vary}; to t = {meta['t_end']}. "
@@ -208,6 +209,15 @@ def index_html(meta, runs, orders, figures, out):
             f"<h2 id='figures'>Figures</h2><div class='figures'>{_figures_html(figures, out)}</div>"
             f"<h2 id='runs'>Runs</h2>{_runs_html(runs)}")
     return page(f"mpmref study: {meta['scene_name']}", body)
+
+
+def _setting(value):
+    """A setting of ``results.json`` as the page shows it: the backend with its class and version, lists joined."""
+    if isinstance(value, dict) and "class" in value:
+        return f"{value['backend']} ({value['class']}, version {value['version'] or 'not given'})"
+    if isinstance(value, list):
+        return ", ".join(map(str, value)) or "none"
+    return "none" if value is None else str(value)
 
 
 def _failures_html(failed):
