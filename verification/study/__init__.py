@@ -31,7 +31,7 @@ from .variations import Variation, label, parse_vary
 __all__ = ["run_study", "make_plan", "parse_vary", "Variation"]
 
 
-def run_study(scene, vary=(), t_end=None, *, backend="numpy", out="reports/study", measures=(), exact=None,
+def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures=(), exact=None,
               setup=None, frames=False, overwrite=False, ledger=True, executor=None, progress=None):
     """Run a study of ``scene`` and write its report into ``out``; returns what ``results.json`` holds (with its
     ``paths``).
@@ -47,8 +47,8 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out="reports/study
         Every run's end time (default: the scene's ``time.t_end``).
     backend : str
         A backend reference (:mod:`mpmref.backends`), resolved again in each worker.
-    out : path
-        The report folder.
+    out : path, optional
+        The report folder (default: ``reports/study/<scene name>``).
     measures : sequence
         ``MODULE:FUNCTION`` references (or, in a study run in this process, functions) ``f(sim) -> {name: value}``,
         called on each finished simulation.
@@ -84,7 +84,7 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out="reports/study
             "backend": info, "measures": [_name(m) for m in measures], "exact": _name(exact), "setup": _name(setup),
             "ledger": ledger, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
             "machine": machine()}
-    paths = write_report(out, meta, records, orders)
+    paths = write_report(plan.out, meta, records, orders)
     return {**meta, "runs": records, "orders": orders, "paths": [str(p) for p in paths]}
 
 

@@ -20,7 +20,6 @@ from pathlib import Path
 from mpmref.backends import OPTION_HELP, importable_from_here, reference_argument
 from mpmref.cli import OptionError, end_time_option, option_value
 from mpmref.errors import ArgumentError
-from mpmref.scene.builder import read_scene_file
 
 from ..executor import Executor
 from . import run_study
@@ -82,17 +81,17 @@ def add_parser(subparsers):
 
 def cmd_study(args):
     """Run the study of ``args`` and write its report; returns the exit code."""
-    out = args.out or Path("reports") / "study" / read_scene_file(args.scene)["name"]
-    if out.exists() and not out.is_dir():
-        raise OptionError(f"--out {out}: this is an existing file; name a folder")
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        raise OptionError(f"--out {args.out}: this is an existing file; name a folder")
     bar = _ProgressBar(not args.no_progress)
     try:
-        study = run_study(args.scene, args.vary, args.t_end, backend=args.backend, out=out, measures=args.measure,
+        study = run_study(args.scene, args.vary, args.t_end, backend=args.backend, out=args.out, measures=args.measure,
                           exact=args.exact, setup=args.setup, frames=args.frames, overwrite=args.overwrite,
                           ledger=not args.no_ledger, executor=Executor(scheduler=args.scheduler, workers=args.workers),
                           progress=bar.update)
     except KeyboardInterrupt:
-        print(f"mpmref study: interrupted; the finished runs are kept in {out / 'runs'}, and the same command "
+        folder = args.out or Path("reports") / "study" / "<scene name>"
+        print(f"mpmref study: interrupted; the finished runs are kept in {folder / 'runs'}, and the same command "
               "runs the others", file=sys.stderr)
         return INTERRUPTED
     finally:

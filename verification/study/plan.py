@@ -31,7 +31,8 @@ class Plan:
 
     ``runs``: per run, ``params`` ({key: value}), ``spec`` (its :class:`~verification.study.runs.RunSpec`),
     ``scene`` (the validated :class:`~mpmref.scene.Scene`) and ``abscissa`` ({resolution key: (name, h)},
-    :func:`verification.study.orders.abscissa`); ``eps``: machine epsilon of the scenes' dtype.
+    :func:`verification.study.orders.abscissa`); ``eps``: machine epsilon of the scenes' dtype; ``out``: the
+    report folder.
     """
 
     scene_name: str
@@ -39,13 +40,15 @@ class Plan:
     variations: list
     runs: list
     eps: float
+    out: Path
 
 
 def make_plan(scene, vary, t_end, backend, out, measures=(), setup=None, frames=False, ledger=True):
     """The :class:`Plan` of a study of ``scene`` (a TOML path, or declarations as nested dicts).
 
     ``vary``: :class:`~verification.study.variations.Variation` objects, or ``{key: values}`` (a tuple of linked
-    keys with tuples of values); ``t_end``: the end time of every run (default: the scene's ``time.t_end``). Raises
+    keys with tuples of values); ``t_end``: the end time of every run (default: the scene's ``time.t_end``); ``out``:
+    the report folder (default: ``reports/study/<scene name>``). Raises
     :class:`~mpmref.errors.SceneError` for a run that is not a valid scene and
     :class:`~mpmref.errors.ArgumentError` for a reference that does not resolve or a missing end time.
     """
@@ -58,7 +61,8 @@ def make_plan(scene, vary, t_end, backend, out, measures=(), setup=None, frames=
         load(setup, "setup")
     if t_end is not None:
         t_end = arguments.end_time(t_end, name="t_end")
-    out, runs = Path(out), []
+    out = Path(out) if out is not None else Path("reports") / "study" / str(declarations.get("name", "scene"))
+    runs = []
     for params in combinations(variations):
         data, run = run_scene(declarations, params, base_dir, extra=lambda d: study_output(d, ledger))
         end = t_end if t_end is not None else run.time.t_end
@@ -72,7 +76,7 @@ def make_plan(scene, vary, t_end, backend, out, measures=(), setup=None, frames=
         runs.append({"id": identity, "params": params, "spec": spec, "scene": run,
                      "abscissa": {k: a for k in params if (a := abscissa(k, run)) is not None}})
     eps = max(float(np.finfo(r["scene"].dtype).eps) for r in runs)
-    return Plan(runs[0]["scene"].name, source, variations, runs, eps)
+    return Plan(runs[0]["scene"].name, source, variations, runs, eps, out)
 
 
 def _declarations(scene):
