@@ -132,7 +132,7 @@ def run(spec):
         return {"params": dict(spec.params), "error": traceback.format_exc()}
     text = json.dumps(jsonable(result), indent=1, allow_nan=False)
     write_text_atomic(spec.result, text + "\n")
-    return json.loads(text)
+    return json.loads(text, object_hook=_non_finite)  # as a later study reads it back (finished)
 
 
 def measure(spec):

@@ -131,8 +131,9 @@ def assign(data, key, value):
         if isinstance(part, int):
             if not isinstance(node, list) or part >= len(node):
                 count = len(node) if isinstance(node, list) else 0
-                raise SceneError(dotted(here), None, f"an entry of the scene (it has {count}: index 0 to "
-                                 f"{count - 1}); --vary {key} names one it does not have")
+                has = f"{count}, indices 0 to {count - 1}" if count else "none"
+                raise SceneError(dotted(here), None, f"an entry the scene has (it has {has}); --vary {key} names "
+                                 "one it does not have")
         elif not isinstance(node, dict):
             raise SceneError(dotted(here[:-1]), node, f"a table, so that --vary {key} can set a key in it")
         elif part not in node:
