@@ -24,10 +24,10 @@ def _default_numba_cache():
 _default_numba_cache()
 
 from .errors import (  # noqa: E402 - after the cache folder is set
-    AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError, SceneError)
+    AllParticlesLeftError, ArgumentError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError, SceneError)
 from .scene import Scene, SceneBuilder  # noqa: E402
 from .simulation import Simulation  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["Scene", "SceneBuilder", "Simulation", "SceneError", "InstabilityError", "NonFiniteError",
+__all__ = ["Scene", "SceneBuilder", "Simulation", "SceneError", "ArgumentError", "InstabilityError", "NonFiniteError",
            "DomainExitError", "AllParticlesLeftError", "MpmrefError"]

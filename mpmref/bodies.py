@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SceneError
+from .physics.interface import skew_from_axial
 from .physics.polypic import higher_modes
 from .state import Particles
 
@@ -98,23 +99,38 @@ def sample_body(body, dim, dx, base_dir="."):
     return pts, volume
 
 
-def _rigid_velocity(pts, p, dim):
-    """Initial velocity ``v0 + omega x (x - centre)`` and its (constant) gradient."""
+def initial_velocity(pts, p):
+    r"""A body's initial velocity at ``pts`` and its (constant) gradient: the affine field
+
+    .. math::
+
+        v(x) = v_0 + \omega \times (x - c) + G\,(x - c), \qquad \nabla v = W(\omega) + G,
+
+    with :math:`v_0` the body's ``velocity``, :math:`\omega` its ``angular_velocity`` (:math:`W(\omega)\,r = \omega
+    \times r`, the skew matrix whose axial vector in the sense of :func:`mpmref.diagnostics.affine_spin` is
+    :math:`2\omega`), :math:`G` its ``velocity_gradient`` (d × d; :math:`G = sI` is a uniform expansion at rate
+    :math:`s`) and :math:`c` its ``rotation_center`` (default: the centroid of ``pts``).
+
+    The affine schemes start from :math:`C_p = \nabla v` (:func:`sample_particles`), the one value consistent with
+    this field: APIC's G2P sets :math:`C_p = B_p D_p^{-1}`, which for grid velocities sampled from an affine field
+    is its gradient exactly (Jiang et al. 2015, *The affine particle-in-cell method*, §5; with this start a P2G of
+    :math:`m_p(v_p + C_p(x_i - x_p))` gives every node :math:`v(x_i)` exactly, so the first transfer changes
+    nothing); MLS-MPM takes the same :math:`C_p` as its velocity gradient (Hu et al. 2018, §4); PolyPIC's linear
+    modes are :math:`C_p` (stored as ``C``, :mod:`mpmref.physics.polypic`) and its higher modes are zero for a
+    linear field.
+    """
     center = p["rotation_center"] if p["rotation_center"] is not None else pts.mean(axis=0)
-    r = pts - center
-    w = p["angular_velocity"]
-    if dim == 2:
-        grad = np.array([[0.0, -w], [w, 0.0]])
-    else:
-        grad = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    return p["velocity"] + r @ grad.T, grad
+    omega = np.asarray(p["angular_velocity"], dtype=np.float64)
+    grad = skew_from_axial(2.0 * omega[None])[0] + p["velocity_gradient"]
+    return p["velocity"] + (pts - center) @ grad.T, grad
 
 
 def sample_particles(scene):
     """Sample every body of ``scene`` and return a :class:`~mpmref.state.Particles` of the scene's dtype.
 
-    ``C`` is allocated only for affine schemes and starts at the gradient of the initial velocity field
-    (exact for a rigid rotation); PolyPIC's higher ``modes`` start at zero; ``F`` starts at the
+    ``C`` is allocated only for affine schemes and starts at the gradient of each body's affine initial velocity
+    field (:func:`initial_velocity`: translation, spin and ``velocity_gradient``); PolyPIC's higher ``modes`` start at
+    zero; ``F`` starts at the
     identity, ``J`` and ``Jp`` at one. Raises
     :class:`~mpmref.errors.SceneError` if a body has particles outside the grid's valid region.
     """
@@ -131,7 +147,7 @@ def sample_particles(scene):
                              f"particles inside the grid's valid region {lo.tolist()} .. {hi.tolist()} "
                              f"(the {scene.method.kernel} kernel's stencil must fit on the grid)")
         material = scene.materials[body.material]
-        v, grad = _rigid_velocity(pts, body.params, dim)
+        v, grad = initial_velocity(pts, body.params)
         n = len(pts)
         parts["x"].append(pts)
         parts["v"].append(v)

@@ -1,14 +1,13 @@
 """Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite] [--backend B]``.
 
-Exit status: 0 success; 2 a bad scene, command-line option or backend reference (one line on stderr naming the
-field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
+Exit status: 0 success; 2 a bad scene, command-line option, argument or backend reference (one line on stderr naming
+the field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
 particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
 """
 
 import argparse
 import contextlib
 import importlib
-import math
 import os
 import shlex
 import sys
@@ -17,8 +16,9 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
+from . import arguments
 from .backends import OPTION_HELP, reference_argument
-from .errors import BackendError, MpmrefError, SceneError
+from .errors import ArgumentError, BackendError, MpmrefError, SceneError
 
 #: modules of this package that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
 COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
@@ -41,26 +41,27 @@ class _Parser(argparse.ArgumentParser):
         raise OptionError(f"{message} (see '{self.prog} --help')")
 
 
-def _count(text):
-    """``--steps``: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer; allowed: an integer >= 0") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative; allowed: an integer >= 0")
-    return value
+def option_value(parse, check, kind, problem="is out of range"):
+    """An argparse ``type``: ``text`` parsed by ``parse`` (``int``, ``float``, ``str``) and checked by ``check``, which
+    raises :class:`~mpmref.errors.ArgumentError` (such as the definitions of :mod:`mpmref.arguments` that the Python
+    API checks its arguments with); either failure becomes one line naming the option (exit status 2)."""
+    def convert(text):
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+        try:
+            return check(value)
+        except ArgumentError as exc:
+            raise argparse.ArgumentTypeError(f"{text} {problem}; allowed: {exc.allowed}") from None
+
+    return convert
 
 
-def _end_time(text):
-    """``--t-end``: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number; allowed: a finite number >= 0") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text} is out of range; allowed: a finite number >= 0 (simulated time)")
-    return value
+#: ``--steps``: an integer >= 0
+count_option = option_value(int, arguments.step_count, "an integer")
+#: ``--t-end``: a finite number >= 0 (simulated time)
+end_time_option = option_value(float, arguments.end_time, "a number")
 
 
 def _parser():
@@ -69,8 +70,8 @@ def _parser():
     run = sub.add_parser("run", help="run a scene file and write a ParaView series")
     run.add_argument("scene", type=Path, help="scene TOML file")
     stop = run.add_mutually_exclusive_group()
-    stop.add_argument("--steps", type=_count, help="total number of steps (overrides time.steps / time.t_end)")
-    stop.add_argument("--t-end", type=_end_time, help="end time (overrides time.steps / time.t_end)")
+    stop.add_argument("--steps", type=count_option, help="total number of steps (overrides time.steps / time.t_end)")
+    stop.add_argument("--t-end", type=end_time_option, help="end time (overrides time.steps / time.t_end)")
     run.add_argument("--out", type=Path, help="output folder (default: reports/<scene name>)")
     again = run.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
@@ -147,17 +148,11 @@ def _open_simulation(scene, args, out_dir):
 def _warm_up(sim):
     """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene before the timed
     run, saying so and how long it took."""
-    from .steppers.pipeline import substep
-
-    backend, stepper = getattr(sim.backend, "warm_up", None), getattr(sim.stepper, "warm_up", None)
-    if backend is None and stepper is None:
+    if not sim.compiles:
         return
     print("mpmref: compiling kernels for this scene…", end="", file=sys.stderr, flush=True)
     start = time.perf_counter()
-    if backend is not None:
-        backend(sim.particles, substep)
-    if stepper is not None:
-        stepper(sim.particles)
+    sim.warm_up()
     print(f" done in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
 
 
@@ -218,6 +213,9 @@ def main(argv=None):
         return 2
     except BackendError as exc:
         print(f"mpmref: invalid backend: {exc}", file=sys.stderr)
+        return 2
+    except ArgumentError as exc:
+        print(f"mpmref: invalid argument: {exc}", file=sys.stderr)
         return 2
     except MpmrefError as exc:
         print(f"mpmref: {type(exc).__name__}: {exc}", file=sys.stderr)

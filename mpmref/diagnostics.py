@@ -47,6 +47,41 @@ def angular_momentum(particles, inertia):
     return L
 
 
+def momentum_scale(particles):
+    r""":math:`\sum_p m_p |v_p|` (float64): the largest :math:`|P|` the particles' momenta can add up to, so the
+    scale against which a change of linear momentum is small or large. Unlike :math:`|P|` it is not zero when the
+    momenta cancel (a spinning disk), only when every particle is at rest."""
+    m = particles.mass.astype(np.float64)
+    return float(np.sum(m * np.linalg.norm(particles.v.astype(np.float64), axis=1)))
+
+
+def angular_momentum_scale(particles, inertia):
+    r"""The largest :math:`|L|` that the parts of :func:`angular_momentum` can add up to, the scale of a change of
+    angular momentum (float64). With the centre of mass :math:`x_c`, its velocity :math:`v_c = P/M` and
+    :math:`L = x_c \times P + \sum_p m_p (x_p - x_c) \times (v_p - v_c) + D \sum_p m_p \operatorname{spin}(C_p)`,
+
+    .. math::
+
+        S_L = |x_c \times P| + \sum_p m_p\, |(x_p - x_c) \times (v_p - v_c)|
+              + D \sum_p m_p\, |\operatorname{spin}(C_p)|,
+
+    which is :math:`|L|` itself for a rigid rotation about the centre of mass, whatever the origin, and zero only
+    when every particle is at rest (and, for the affine schemes, carries no spin)."""
+    m = particles.mass.astype(np.float64)
+    x, v = particles.x.astype(np.float64), particles.v.astype(np.float64)
+    center, velocity = m @ x / m.sum(), m @ v / m.sum()
+    total = float(np.sum(_magnitude(cross(center[None], m.sum() * velocity[None]))))
+    total += float(np.sum(m * _magnitude(cross(x - center, v - velocity))))
+    if particles.C is not None:
+        total += inertia * float(np.sum(m * _magnitude(affine_spin(particles.C.astype(np.float64)))))
+    return total
+
+
+def _magnitude(a):
+    """Per particle, the magnitude of a 2D scalar (n,) or a 3D vector (n, 3)."""
+    return np.abs(a) if a.ndim == 1 else np.linalg.norm(a, axis=1)
+
+
 def elastic_energy(particles, materials):
     r"""Total stored energy :math:`\sum_p V_p^0 \Psi(F_p)` (or :math:`\Psi(J_p)` for fluids)."""
     total = 0.0

@@ -109,3 +109,21 @@ class BackendError(MpmrefError):
 
     Raised before any work (:func:`mpmref.backends.make_backend`); the command line reports it with exit status 2.
     """
+
+
+class ArgumentError(MpmrefError, ValueError):
+    """An argument of the Python API is out of its range (a ``ValueError``), e.g. ``Simulation.step(dt=-0.01)``.
+
+    Parameters
+    ----------
+    name : str
+        The argument, e.g. ``"dt"``.
+    value : object
+        The value given.
+    allowed : str
+        What would have been accepted (:mod:`mpmref.arguments`).
+    """
+
+    def __init__(self, name, value, allowed):
+        self.name, self.value, self.allowed = name, value, allowed
+        super().__init__(f"{name} = {value!r} is invalid: allowed {allowed}")

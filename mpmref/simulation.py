@@ -6,6 +6,7 @@ from functools import cached_property
 
 import numpy as np
 
+from . import arguments
 from .backends import describe, make_backend
 from .bodies import sample_particles
 from .diagnostics import diagnostics, polypic_mode_norms
@@ -126,12 +127,18 @@ class Simulation:
     def n_particles(self):
         return self.particles.n
 
+    @property
+    def inertia(self):
+        r"""The affine inertia :math:`D_p = D` of the scene's kernel (:math:`\Delta x^2/4` quadratic, :math:`\Delta x^2/3`
+        cubic), or ``None`` where it is not constant (the linear hat)."""
+        factor = self.scene.kernel.inertia_factor
+        return None if factor is None else factor * self.scene.grid.dx**2
+
     def diagnostics(self):
         """Mass, momentum, angular momentum and energies of the current state (dict)."""
         kernel, grid = self.scene.kernel, self.scene.grid
-        inertia = None if kernel.inertia_factor is None else kernel.inertia_factor * grid.dx**2
         norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
-        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, inertia, norms)
+        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, self.inertia, norms)
         return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted, "clamped": self.clamped,
                 **self.stepper.diagnostics(self.state)}
 
@@ -142,8 +149,11 @@ class Simulation:
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
         again); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
-        (:func:`mpmref.emitters.emit`).
+        (:func:`mpmref.emitters.emit`). A ``dt`` that is not a finite number > 0, or a ``t_end`` that is not after the
+        current time, raises :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
         """
+        dt = None if dt is None else arguments.time_step(dt)
+        t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
         synchronous = self.stepper.name == "sync"
         if self.scene.emitters:  # releases due now join before the step (docs/scenes.md, [[emitters]])
             self.state = emit(self.scene, self.state, self._releases)
@@ -222,16 +232,24 @@ class Simulation:
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
-    def run(self, steps=None, t_end=None, progress=False):
+    def run(self, steps=None, t_end=None, progress=False, record=False):
         """Run until ``steps`` more steps are done or time ``t_end`` is reached (default: the scene's).
 
-        Writes outputs every ``scene.output.every`` steps (and at the start and end) when the simulation
-        has an output folder. Returns a summary dict (steps, wall time, particle-steps/s, drifts).
+        When the simulation has an output folder, writes a frame (and the checkpoint) every ``scene.output.every``
+        steps and a row of ``diagnostics.csv`` every ``scene.output.diagnostics_every`` steps, both also at the
+        start and the end. Returns a summary dict (steps, wall time, particle-steps/s, drifts); with ``record``, its
+        ``"series"`` holds the diagnostics rows of this run at the same cadence (its first state, every
+        ``diagnostics_every`` steps, its last state), with or without an output folder. Negative ``steps`` or a
+        ``t_end`` before the current time (or not finite) raise :class:`~mpmref.errors.ArgumentError` (a
+        ``ValueError``) before any work.
         """
+        steps = None if steps is None else arguments.step_count(steps)
+        t_end = None if t_end is None else arguments.end_time(t_end, self.time)
         steps, t_end = self._resolve_stop(steps, t_end)
         first = self.diagnostics()
+        series = [first] if record else None
         if self.output is not None and self.step_count == 0 and not self.output.rows:
-            self.write_output()
+            self._write(frame=True, row=first)
         bar = _progress(steps, t_end, self.time, progress)
         start, done, particle_steps = _time.perf_counter(), 0, 0
         try:
@@ -240,14 +258,43 @@ class Simulation:
                 done += 1
                 particle_steps += self.last_updates
                 bar.update(1 if steps is not None else dt)
-                if self.output is not None and self.step_count % self.scene.output.every == 0:
-                    self.write_output()
+                self._write_due(series)
         finally:
             bar.close()
         wall = _time.perf_counter() - start
-        if self.output is not None and self.step_count % self.scene.output.every != 0:
-            self.write_output()
-        return _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self.state))
+        if done:
+            self._write_due(series, end=True)
+        summary = _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self.state))
+        return summary if series is None else {**summary, "series": series}
+
+    def _write_due(self, series, end=False):
+        """What is due at the current step: the frame (and checkpoint) every ``output.every`` steps and the
+        diagnostics row every ``output.diagnostics_every`` steps, written to the output folder (if any) and the row
+        appended to ``series`` (when recording). With ``end``, the ones the last step was not due for."""
+        spec = self.scene.output
+        frame, row = self.step_count % spec.every == 0, self.step_count % spec.diagnostics_every == 0
+        if end:
+            frame, row = not frame, not row
+        values = self.diagnostics() if row and (self.output is not None or series is not None) else None
+        if series is not None and values is not None:
+            series.append(values)
+        if self.output is not None:
+            self._write(frame=frame, row=values)
+
+    @property
+    def compiles(self):
+        """Whether :meth:`warm_up` has anything to compile (a compiled backend, or asynchronous bookkeeping)."""
+        return hasattr(self.backend, "warm_up") or hasattr(self.stepper, "warm_up")
+
+    def warm_up(self):
+        """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene, so that a timed
+        run that follows does not time compilation; the state is not changed."""
+        from .steppers.pipeline import substep
+
+        if hasattr(self.backend, "warm_up"):
+            self.backend.warm_up(self.particles, substep)
+        if hasattr(self.stepper, "warm_up"):
+            self.stepper.warm_up(self.particles)
 
     def step_clipped(self, t_end):
         """One step, shortened if the stepper can so as not to pass ``t_end``."""
@@ -335,14 +382,21 @@ class Simulation:
 
     def write_output(self):
         """Write a particle frame (and grid frame), a diagnostics row and, if enabled, a checkpoint."""
+        self._write(frame=True, row=self.diagnostics())
+
+    def _write(self, frame, row):
+        """Write a frame when ``frame``, the diagnostics ``row`` (a dict) unless it is ``None``, then, after a frame,
+        the checkpoint if enabled (it carries every row written so far, so a resumed run writes the same rows)."""
         out = self.output
-        rigid = self.state.rigid
-        polylines = None if rigid is None else [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
-                                                for b in current_shapes(self.scene.rigid_bodies, rigid)]
-        out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
-                        self.grid_data() if self.scene.output.grid else None, polylines)
-        out.write_diagnostics(self.diagnostics())
-        if self.scene.output.checkpoint:
+        if frame:
+            rigid = self.state.rigid
+            polylines = None if rigid is None else [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
+                                                    for b in current_shapes(self.scene.rigid_bodies, rigid)]
+            out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),
+                            self.grid_data() if self.scene.output.grid else None, polylines)
+        if row is not None:
+            out.write_diagnostics(row)
+        if frame and self.scene.output.checkpoint:
             out.save_checkpoint(self.state, self._meta("output"))
 
     def save_checkpoint(self, reason="interrupted"):

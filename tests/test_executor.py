@@ -22,3 +22,10 @@ def test_dask_scheduler_runs_the_same_sweep_in_order():
         executor = Executor(scheduler=cluster.scheduler_address)
         assert executor.map(math.factorial, ITEMS) == EXPECTED
         assert "dask.distributed" in executor.describe()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_each_result_is_reported_as_it_arrives_with_its_index(workers):
+    seen = []
+    results = Executor(workers=workers).map(math.factorial, ITEMS, on_result=lambda i, r: seen.append((i, r)))
+    assert results == EXPECTED and sorted(seen) == list(enumerate(EXPECTED))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import pyvista as pv
 
-from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
+from mpmref import DomainExitError, NonFiniteError, Scene, SceneBuilder, Simulation
 from mpmref.cli import main
 from mpmref.io.checkpoint import load_checkpoint
 
@@ -190,3 +190,86 @@ def test_frames_follow_particles_by_id_through_deletion_and_emission(tmp_path):
         assert set(ids.tolist()) == set(positions)
         for i, point in zip(ids.tolist(), frame.points):
             np.testing.assert_array_equal(point[:2], positions[i])
+
+
+BAD_STEP_ARGUMENTS = [
+    ("step", {"dt": -0.01}, "dt"), ("step", {"dt": 0.0}, "dt"), ("step", {"dt": float("nan")}, "dt"),
+    ("step", {"dt": float("inf")}, "dt"), ("step", {"t_end": "now"}, "t_end"),
+    ("run", {"steps": -3}, "steps"), ("run", {"steps": 2.5}, "steps"), ("run", {"t_end": "before"}, "t_end"),
+    ("run", {"t_end": float("nan")}, "t_end"), ("run", {"t_end": float("inf")}, "t_end"),
+]
+
+
+@pytest.mark.parametrize("method, kwargs, name", BAD_STEP_ARGUMENTS,
+                         ids=[f"{m}-{'-'.join(f'{k}={v}' for k, v in kw.items())}" for m, kw, _ in BAD_STEP_ARGUMENTS])
+def test_step_and_run_refuse_bad_arguments_naming_them_before_any_work(method, kwargs, name):
+    """A step backwards, a step of zero, a NaN or infinite step or end, negative steps, an end in the past: a
+    ValueError naming the argument, and the simulation is where it was (no step counted, nothing moved)."""
+    from mpmref.errors import ArgumentError
+
+    sim = Simulation(jelly_with_loner(dt=1e-3))
+    sim.run(steps=2)
+    now, x = sim.time, sim.x.copy()
+    kwargs = {k: {"now": now, "before": 0.5 * now}.get(v, v) for k, v in kwargs.items()}
+    with pytest.raises(ValueError) as info:
+        getattr(sim, method)(**kwargs)
+    assert isinstance(info.value, ArgumentError) and info.value.name == name
+    assert str(info.value).startswith(f"{name} = ")
+    assert sim.step_count == 2 and sim.time == now and np.array_equal(sim.x, x)
+
+
+def test_run_to_the_current_time_or_zero_steps_does_nothing_and_is_allowed():
+    sim = Simulation(jelly_with_loner(dt=1e-3))
+    sim.run(steps=2)
+    assert sim.run(t_end=sim.time)["steps"] == 0 and sim.run(steps=0)["steps"] == 0 and sim.step_count == 2
+
+
+def cadence_scene(steps=23):
+    """The loner jelly writing frames every 10 steps and diagnostics rows every 3."""
+    return Scene.from_dict({**jelly_with_loner(dt=1e-3, steps=steps).source, "output": {"every": 10,
+                                                                                          "diagnostics_every": 3}})
+
+
+def test_diagnostics_rows_have_their_own_cadence_independent_of_frames(tmp_path):
+    """Rows every output.diagnostics_every steps, frames every output.every, both at the start and the end; the
+    rows run() records without an output folder are the rows of diagnostics.csv, value for value."""
+    import csv
+
+    scene = cadence_scene()
+    assert scene.output.diagnostics_every == 3 and scene.output.every == 10
+    Simulation(scene, out_dir=tmp_path).run()
+    with open(tmp_path / "diagnostics.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["step"]) for r in rows] == [0, 3, 6, 9, 12, 15, 18, 21, 23]
+    assert sorted(p.name for p in tmp_path.glob("particles_*.vtu")) == [
+        "particles_000000.vtu", "particles_000010.vtu", "particles_000020.vtu", "particles_000023.vtu"]
+    series = Simulation(scene).run(record=True)["series"]
+    assert [{k: repr(float(v)) for k, v in r.items()} for r in series] == \
+           [{k: repr(float(v)) for k, v in r.items()} for r in rows]
+
+
+def test_a_run_resumed_between_rows_and_frames_writes_the_same_rows(tmp_path):
+    """The checkpoint (every 10 steps) carries the rows written so far (every 3): killed at step 14, resumed
+    from step 10, the run writes diagnostics.csv and particles.pvd exactly as an uninterrupted one."""
+    scene = cadence_scene()
+    Simulation(scene, out_dir=tmp_path / "full").run()
+    part = Simulation(scene, out_dir=tmp_path / "part")
+    step = part.step_clipped
+
+    def killed_at_14(t_end):
+        if part.step_count == 14:
+            raise KeyboardInterrupt
+        return step(t_end)
+
+    part.step_clipped = killed_at_14
+    with pytest.raises(KeyboardInterrupt):
+        part.run()
+    resumed = Simulation.resume(scene, tmp_path / "part")
+    assert resumed.step_count == 10
+    resumed.run()
+    for name in ("diagnostics.csv", "particles.pvd"):
+        assert (tmp_path / "full" / name).read_text() == (tmp_path / "part" / name).read_text()
+
+
+def test_the_default_diagnostics_cadence_is_the_frames_one():
+    assert jelly_with_loner(dt=1e-3).output.diagnostics_every == 5

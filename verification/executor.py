@@ -1,14 +1,14 @@
 """One executor for every parameter sweep: local processes by default, a Dask cluster on request.
 
-Sweeps (convergence levels, stability bisections, speed-vs-accuracy grids) are lists of independent
-runs. ``Executor.map(fn, items)`` runs ``fn(item)`` for each item and returns the results in the order
-of ``items``. ``fn`` must be a module-level function and ``items`` picklable, so the same sweep runs
+Sweeps (convergence levels, stability bisections, speed-vs-accuracy grids, the runs of ``mpmref study``) are
+lists of independent runs. ``Executor.map(fn, items)`` runs ``fn(item)`` for each item and returns the results in
+the order of ``items`` (and can report each result as it arrives). ``fn`` must be a module-level function and ``items`` picklable, so the same sweep runs
 unchanged in a local process pool or on a ``dask.distributed`` cluster.
 """
 
 import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 #: Local workers start from a fork server, a clean process started once: forking the main process is
 #: unsafe after it has run a parallel Numba kernel (GNU OpenMP aborts the child), and spawning a fresh
@@ -34,18 +34,38 @@ class Executor:
         self.scheduler = scheduler
         self.workers = workers if workers is not None else (os.cpu_count() or 1)
 
-    def map(self, fn, items):
-        """``[fn(item) for item in items]``, evaluated where this executor runs work."""
+    def map(self, fn, items, on_result=None):
+        """``[fn(item) for item in items]``, evaluated where this executor runs work.
+
+        ``on_result(index, result)``, if given, is called in this process as each result arrives (in the order
+        they finish: a progress bar, or saving what is done before the whole sweep is)."""
         items = list(items)
+        results = [None] * len(items)
+        for index, result in self._completed(fn, items):
+            results[index] = result
+            if on_result is not None:
+                on_result(index, result)
+        return results
+
+    def _completed(self, fn, items):
+        """``(index, fn(items[index]))`` pairs as the runs finish."""
         if self.scheduler is not None:
             from dask.distributed import Client
+            from dask.distributed import as_completed as arrived
 
             with Client(self.scheduler) as client:
-                return client.gather(client.map(fn, items, pure=False))
+                futures = client.map(fn, items, pure=False)
+                index = {future.key: i for i, future in enumerate(futures)}
+                for future in arrived(futures):
+                    yield index[future.key], future.result()
+            return
         if self.workers <= 1 or len(items) <= 1:
-            return [fn(item) for item in items]
+            yield from ((i, fn(item)) for i, item in enumerate(items))
+            return
         with ProcessPoolExecutor(max_workers=min(self.workers, len(items)), mp_context=_CONTEXT) as pool:
-            return list(pool.map(fn, items))
+            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+            for future in as_completed(futures):
+                yield futures[future], future.result()
 
     def describe(self):
         """Where the work runs, for reports."""

@@ -66,7 +66,7 @@ def _status(ok):
     return "pass" if ok else "fail"
 
 
-def _figure(src, caption):
+def figure_html(src, caption):
     """A figure that opens at full size when clicked, with its caption."""
     return (f"<figure><a href='{e(src)}'><img src='{e(src)}' alt='{e(caption)}' loading='lazy'></a>"
             f"<figcaption>{e(caption)}</figcaption></figure>")
@@ -123,7 +123,7 @@ def _failures(records):
 def _case_card(record):
     o = record.outcome
     main = record.main_figure
-    figure = (_figure(f"{o.name}/{main[0].as_posix()}", main[1]) if main is not None
+    figure = (figure_html(f"{o.name}/{main[0].as_posix()}", main[1]) if main is not None
               else "<p>(This case writes no figure.)</p>")
     n = len(record.figures)
     more = (f"All {n} figures, " if n > 1 else "") + "the checks, parameters, VTK series and tables"
@@ -170,7 +170,7 @@ def case_html(record, series, tables):
         parts.append("<h2>Failures</h2>" + _checks_table([_check_row(c) for c in failing], with_case=False))
     if record.figures:
         parts.append("<h2>Figures</h2><div class='figures'>"
-                     + "".join(_figure(p.as_posix(), caption) for p, caption in record.figures) + "</div>")
+                     + "".join(figure_html(p.as_posix(), caption) for p, caption in record.figures) + "</div>")
     if record.findings:
         parts.append("<h2>Findings (measured, not judged)</h2>"
                      + _findings_table([(o.name, f) for f in record.findings], with_case=False))

@@ -327,7 +327,7 @@ def index_html(records, meta):
 SCHEMA = "mpmref-verify/1"
 
 
-def _number(x):
+def json_number(x):
     """A float for JSON: itself when finite, else ``"nan"``, ``"inf"`` or ``"-inf"`` (JSON has no such numbers)."""
     x = float(x)
     return x if math.isfinite(x) else str(x)
@@ -354,10 +354,10 @@ def results(records, meta):
                    "error": r.outcome.error,
                    "figures": [{"path": f"{r.name}/{p.as_posix()}", "caption": c} for p, c in r.figures]}
                   for r in records],
-        "checks": [{"case": r.name, "name": c.name, "figure": _number(c.value), "relation": c.relation,
-                    "bound": _number(c.bound), "verdict": "pass" if c.passed else "FAIL", "reason": c.reason}
+        "checks": [{"case": r.name, "name": c.name, "figure": json_number(c.value), "relation": c.relation,
+                    "bound": json_number(c.bound), "verdict": "pass" if c.passed else "FAIL", "reason": c.reason}
                    for r in records for c in r.outcome.checks],
-        "findings": [{"case": r.name, "name": f.name, "figure": _number(f.value), "sentence": f.sentence}
+        "findings": [{"case": r.name, "name": f.name, "figure": json_number(f.value), "sentence": f.sentence}
                      for r in records for f in r.findings],
     }
 

@@ -6,7 +6,7 @@ import numpy as np
 from ..physics.boundary import BOUNDARY_TYPES
 from ..physics.colliders import Ball, Box, Collider, Cylinder, Plane
 from .specs import BodySpec, EmitterSpec
-from .validation import choice, fail, integer, number, section, vector
+from .validation import choice, fail, integer, matrix, number, section, vector
 
 SHAPES = ("box", "disk", "sphere", "points", "mesh")
 SAMPLINGS = ("regular", "jittered", "random")
@@ -15,7 +15,7 @@ EMITTER_KEYS = {"shape", "material", "center", "radius", "velocity", "ppc", "sam
                 "until"}
 BODY_KEYS = {
     "shape", "material", "lower", "upper", "center", "radius", "positions", "file", "ppc", "sampling",
-    "seed", "count", "particle_volume", "velocity", "angular_velocity", "rotation_center",
+    "seed", "count", "particle_volume", "velocity", "angular_velocity", "rotation_center", "velocity_gradient",
 }
 
 
@@ -49,6 +49,7 @@ def _parse_body(b, i, dim, materials):
     else:
         p["angular_velocity"] = vector(b, "angular_velocity", path, 3, default=[0.0, 0.0, 0.0])
     p["rotation_center"] = vector(b, "rotation_center", path, dim)
+    p["velocity_gradient"] = matrix(b, "velocity_gradient", path, dim, default=np.zeros((dim, dim)))
     return BodySpec(index=i, shape=shape, material=material, params=p)
 
 
@@ -112,7 +113,8 @@ def _parse_emitter(e, i, dim, materials, grid, kernel, time):
          "ppc": integer(e, "ppc", path, default=2**dim, lo=1, hi=64),
          "sampling": choice(e, "sampling", path, SAMPLINGS, default="regular"),
          "seed": integer(e, "seed", path, default=0, lo=0), "count": None, "particle_volume": None,
-         "angular_velocity": 0.0 if dim == 2 else np.zeros(3), "rotation_center": None}
+         "angular_velocity": 0.0 if dim == 2 else np.zeros(3), "rotation_center": None,
+         "velocity_gradient": np.zeros((dim, dim))}
     if p["sampling"] == "regular" and round(p["ppc"] ** (1.0 / dim)) ** dim != p["ppc"]:
         fail(f"{path}.ppc", p["ppc"], f"a perfect {'square' if dim == 2 else 'cube'} for regular sampling")
     lo = grid.origin + kernel.low_margin * grid.dx

@@ -66,10 +66,7 @@ class Scene:
     @classmethod
     def from_toml(cls, path):
         """Read and validate a TOML scene file; relative file paths resolve next to it."""
-        path = Path(path)
-        data = _load_scene_file(path)
-        data.setdefault("name", path.stem)
-        return cls.from_dict(data, base_dir=path.parent)
+        return cls.from_dict(read_scene_file(path), base_dir=Path(path).parent)
 
     @classmethod
     def from_dict(cls, data, base_dir=None):
@@ -129,6 +126,15 @@ class Scene:
     def fingerprint(self):
         """A stable JSON text of the declared scene (used to match checkpoints to scenes)."""
         return json.dumps(self.source, sort_keys=True, default=str)
+
+
+def read_scene_file(path):
+    """The declarations of a TOML scene file as nested dicts, not yet validated (:meth:`Scene.from_dict` validates
+    them), with ``name`` defaulting to the file's stem; what is not a readable UTF-8 TOML file is a
+    :class:`SceneError`."""
+    data = _load_scene_file(Path(path))
+    data.setdefault("name", Path(path).stem)
+    return data
 
 
 def _load_scene_file(path):

@@ -171,11 +171,13 @@ def parse_time(t):
 
 
 def parse_output(o, time):
-    """The ``[output]``: how often, which particle fields, whether grid fields and checkpoints are written, and
+    """The ``[output]``: how often frames and checkpoints (``every``) and diagnostics rows (``diagnostics_every``,
+    by default ``every``) are written, which particle fields, whether grid fields and checkpoints are written, and
     whether ``diagnostics.csv`` books the energy ledger (synchronous stepping only; ``time`` is the parsed
     ``[time]``)."""
-    section(o, "output", {"every", "fields", "grid", "grid_region", "checkpoint", "energy_ledger"})
+    section(o, "output", {"every", "diagnostics_every", "fields", "grid", "grid_region", "checkpoint", "energy_ledger"})
     every = integer(o, "every", "output", default=50, lo=1)
+    diagnostics_every = integer(o, "diagnostics_every", "output", default=every, lo=1)
     fields_ = o.get("fields", list(OUTPUT_FIELDS))
     if not isinstance(fields_, list) or any(f not in OUTPUT_FIELDS for f in fields_):
         fail("output.fields", fields_, f"a list drawn from {list(OUTPUT_FIELDS)}")
@@ -188,4 +190,4 @@ def parse_output(o, time):
         fail("output.energy_ledger", ledger, "false with time.stepping = 'async' (the ledger books the stages of a "
              "synchronous step; asynchronous stepping has none that covers every particle)")
     return OutputSpec(every=every, fields=tuple(fields_), grid=grid, checkpoint=checkpoint, grid_region=region,
-                      energy_ledger=ledger)
+                      energy_ledger=ledger, diagnostics_every=diagnostics_every)

@@ -74,7 +74,12 @@ class TimeSpec:
 
 @dataclass(frozen=True)
 class OutputSpec:
+    """What a run with an output folder writes: a frame (and the checkpoint) every ``every`` steps, a row of
+    ``diagnostics.csv`` every ``diagnostics_every`` steps (both also at the start and the end), the particle
+    ``fields``, the ``grid`` frames over ``grid_region``, and the ``energy_ledger`` columns."""
+
     every: int
+    diagnostics_every: int
     fields: tuple
     grid: bool
     checkpoint: bool

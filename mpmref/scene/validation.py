@@ -105,3 +105,18 @@ def vector(data, key, path, dim, default=None, required=False, positive=False):
     if not ok or (positive and min(value) <= 0):
         fail(full, value, f"a list of {dim} finite{' positive' if positive else ''} numbers")
     return np.array(value, dtype=np.float64)
+
+
+def matrix(data, key, path, dim, default=None):
+    """``data[key]`` as a (``dim``, ``dim``) float64 array: a list of ``dim`` rows of ``dim`` finite numbers each, or
+    ``default`` (as an array) when it is absent."""
+    if key not in data:
+        return None if default is None else np.array(default, dtype=np.float64)
+    value = data[key]
+    ok = isinstance(value, (list, tuple)) and len(value) == dim and all(
+        isinstance(row, (list, tuple)) and len(row) == dim
+        and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in row)
+        for row in value)
+    if not ok:
+        fail(_full(path, key), value, f"a {dim} x {dim} matrix: a list of {dim} rows of {dim} finite numbers each")
+    return np.array(value, dtype=np.float64)
