@@ -4,7 +4,9 @@ Public API: :class:`Scene`, :class:`SceneBuilder`, :class:`Simulation` and the e
 :mod:`mpmref.errors`.
 """
 
+import ctypes
 import os
+import sys
 from pathlib import Path
 
 
@@ -21,7 +23,30 @@ def _default_numba_cache():
     os.environ["NUMBA_CACHE_DIR"] = str(folder)
 
 
+def _threads_that_wait_quietly():
+    """Make the Numba backend's worker threads sleep, not spin, while they wait: load the TBB library of the
+    ``tbb`` package if this environment has it, so that Numba's threading layer is TBB, and ask any OpenMP
+    runtime loaded later for its passive wait policy (Numba's fallback layer).
+
+    On a machine where another process holds a core, OpenMP's default (active) wait spins on it: two threads
+    were measured up to 2.3 times slower than one (docs/performance.md, "Threads on a shared machine"). The
+    ``tbb`` wheel puts its library in ``<prefix>/lib``, which the dynamic loader does not search in a virtual
+    environment, so it is loaded here by path before Numba looks for it. ``NUMBA_THREADING_LAYER`` and
+    ``OMP_WAIT_POLICY``, when set, are left as they are; must run before Numba starts its threads.
+    """
+    os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+    if os.environ.get("NUMBA_THREADING_LAYER", "default") not in ("default", "tbb"):
+        return
+    for library in sorted(Path(sys.prefix, "lib").glob("libtbb.so.1[2-9]*")):
+        try:
+            ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)
+            return
+        except OSError:
+            continue
+
+
 _default_numba_cache()
+_threads_that_wait_quietly()
 
 from .errors import (  # noqa: E402 - after the cache folder is set
     AllParticlesLeftError, ArgumentError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError, SceneError)

@@ -26,6 +26,13 @@ def step_count(value, name="steps"):
     return int(value)
 
 
+def thread_count(value, name="threads"):
+    """A number of threads: an integer >= 1."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ArgumentError(name, value, "an integer >= 1")
+    return int(value)
+
+
 def end_time(value, now=0.0, name="t_end", after=False):
     """An end time: a finite number >= ``now``, the current simulated time (a run never goes backwards); with
     ``after``, > ``now`` (the end of a step, which must advance)."""

@@ -60,6 +60,23 @@ def option_value(parse, check, kind, problem="is out of range"):
 
 #: ``--steps``: an integer >= 0
 count_option = option_value(int, arguments.step_count, "an integer")
+#: ``--threads``: an integer >= 1
+threads_option = option_value(int, arguments.thread_count, "an integer")
+
+
+def add_threads_option(parser):
+    """Add ``--threads N`` (the Numba backend's thread count) to a command that runs a backend."""
+    parser.add_argument("--threads", type=threads_option, metavar="N",
+                        help="threads of the Numba backend (default: one per core; the summary says how many ran)")
+
+
+def apply_threads(count):
+    """Use ``count`` threads in the Numba backend here and in the worker processes started from now on
+    (:func:`mpmref.backends.numba.threads.use_threads`); ``None`` leaves Numba's default."""
+    if count is not None:
+        from .backends.numba.threads import use_threads
+
+        use_threads(count)
 #: ``--t-end``: a finite number >= 0 (simulated time)
 end_time_option = option_value(float, arguments.end_time, "a number")
 
@@ -79,6 +96,7 @@ def _parser():
                        help="replace the run already in the output folder (its frames, diagnostics and checkpoints)")
     run.add_argument("--backend", default="numpy", type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
                      help=OPTION_HELP + " (default: numpy)")
+    add_threads_option(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=cmd_run)
     for module in COMMAND_MODULES:
@@ -104,7 +122,8 @@ def _format_summary(summary, out_dir, backend=None):
     ]
     if backend is not None:
         version = f" {backend['version']}" if backend["version"] else " (no version given)"
-        lines.insert(0, f"backend          {backend['backend']} ({backend['class']}{version})")
+        execution = f", {backend['execution']}" if backend["execution"] else ""
+        lines.insert(0, f"backend          {backend['backend']} ({backend['class']}{version}){execution}")
     if "particle_updates" in summary:
         lines.insert(3, f"particle updates {summary['particle_updates']} ({summary['ghost_updates']} of them ghosts); "
                         f"updates saved against sync: {summary['updates_saved']:.2f}x (sync at the finest step, "
@@ -165,6 +184,8 @@ def resume_command(args, out_dir):
         words += ["--t-end", repr(args.t_end)]
     if args.backend != "numpy":
         words += ["--backend", args.backend]
+    if args.threads is not None:
+        words += ["--threads", str(args.threads)]
     return shlex.join(words + (["--no-progress"] if args.no_progress else []))
 
 
@@ -174,6 +195,7 @@ def cmd_run(args):
     scene = Scene.from_toml(args.scene)
     out_dir = args.out or Path("reports") / scene.name
     _check_out(out_dir, args.resume, args.overwrite)
+    apply_threads(args.threads)
     sim = _open_simulation(scene, args, out_dir)
     _warm_up(sim)
     steps = None if args.steps is None else max(0, args.steps - sim.step_count)

@@ -31,3 +31,13 @@ def backend(request):
 def candidate(request):
     """Every backend but the NumPy reference, each to be compared with it."""
     return request.param
+
+
+@pytest.fixture(autouse=True)
+def no_chosen_thread_count(monkeypatch):
+    """No test inherits a thread count chosen by another (``--threads`` in an in-process command line sets it for
+    the process): each starts with none chosen (an empty value), and the value before it is restored after it;
+    tests that compare thread counts set them with Numba themselves."""
+    from mpmref.backends.numba.threads import THREADS_VARIABLE
+
+    monkeypatch.setenv(THREADS_VARIABLE, "")

@@ -95,9 +95,9 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
     out, err = capsys.readouterr()
-    sections = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic")
+    sections = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "busy")
     for i, section in enumerate(sections, 1):
-        assert f"[{i}/7] {section}: started" in err and f"[{i}/7] {section}: finished in " in err
+        assert f"[{i}/8] {section}: started" in err and f"[{i}/8] {section}: finished in " in err
     assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
@@ -150,7 +150,8 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert record["ratio"] == pytest.approx(record["coupled"]["median_s"] / record["plain"]["median_s"])
     assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
     assert "CPIC: a step with 3 bodies" in out
-    assert "Goals" in out and len(results["goals"]) == 14 and all("met" in g for g in results["goals"])
+    assert results["busy"]["results"] == []  # the Numba backend's threads only
+    assert "Goals" in out and len(results["goals"]) == 15 and all("met" in g for g in results["goals"])
 
 
 def test_table2_ratios_divide_mpm_by_mls():
@@ -168,7 +169,7 @@ def test_table2_ratios_divide_mpm_by_mls():
 
 def test_options_from_the_command_line():
     assert options_from_args(parse(["--vs", "taichi"])).sections == (
-        "table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "peer")
+        "table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "busy", "peer")
     assert options_from_args(parse(["--only", "cpic"])).sections == ("cpic",)
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
@@ -382,3 +383,20 @@ def test_async_case_reports_updates_wall_times_and_the_cost_of_a_level_update():
     assert "stork2d" in render_async({"results": [r]})
     goal = next(g for g in goals({"async": {"results": [r]}}) if g.name.startswith("stork2d:"))
     assert goal.figure == r["wall_ratio"] and goal.bound == 1.5
+
+
+def test_busy_section_times_one_and_two_threads_with_and_without_a_busy_core():
+    """Each run a process of its own (the trap shows only there): medians of the runs, the ratio two over one, the
+    threading layer, and the goal read off the busy row. The figures are not judged here (benchmarks, not tests)."""
+    from mpmref.bench.busy import render_busy, run_busy
+    from mpmref.bench.goals import goals_section
+
+    section = run_busy(quick=True, backends=("numba",), repeats=1, log=lambda line: None)
+    assert section["steps"] == 10 and section["particles"] == 8192 and section["threading_layer"]
+    assert [r["load"] for r in section["results"]] == ["as it is", "one core busy"]
+    for r in section["results"]:
+        assert all(len(r["times_s"][k]) == 1 and r["median_s"][k] > 0 for k in ("1", "2"))
+        assert r["ratio"] == pytest.approx(r["median_s"]["2"] / r["median_s"]["1"])
+    goal = next(g for g in goals_section({"busy": section}) if "one core busy" in g["name"])
+    assert goal["figure"] == section["results"][1]["ratio"] and goal["bound"] == 1.3 and goal["at_most"]
+    assert "one core busy" in render_busy(section)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mpmref import Scene, Simulation
-from mpmref.backends.numba import backend as numba_backend
+from mpmref.backends.numba import threads as numba_threads
 from mpmref.backends.numpy import NumpyBackend
 from mpmref.cli import main
 from mpmref.conformance import CPIC_CONFORMANCE_STAGES, check, make_cases
@@ -141,7 +141,7 @@ def run_with_threads(threads, scene, steps):
 
 
 def test_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch):
-    monkeypatch.setattr(numba_backend, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
+    monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     scene = plate_scene()
     one, two = run_with_threads(1, scene, 40), run_with_threads(2, scene, 40)
     assert one.particles.near.sum() > 20 and np.abs(one.rigid.impulse).max() > 0  # the coupling acted

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mpmref import Scene, Simulation
-from mpmref.backends.numba import backend as numba_backend
+from mpmref.backends.numba import threads as numba_threads
 from mpmref.conformance import CPIC_CONFORMANCE_STAGES, check, make_cases
 
 from test_cpic_numba import AllCompatible, ForgetfulTags, assert_state_follows
@@ -116,7 +116,7 @@ def test_numba_3d_trajectory_with_bodies_follows_the_reference(candidate):
 
 @pytest.mark.slow
 def test_3d_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch):
-    monkeypatch.setattr(numba_backend, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
+    monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     states = []
     for threads in (1, 2):
         before = numba.get_num_threads()

@@ -15,7 +15,7 @@ from mpmref import Scene
 from mpmref.backends import make_backend
 from mpmref.errors import BackendError
 from mpmref.steppers import substep
-from mpmref.backends.numba import backend as numba_backend
+from mpmref.backends.numba import threads as numba_threads
 from mpmref.bodies import sample_particles
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -81,7 +81,7 @@ def test_p2g_goes_by_slabs_only_when_each_colour_has_enough(scene, by_slabs):
 ], ids=["mpm88", "snow88", "layer-by-slabs", "3d-mls-fluid", "3d-polypic-cubic"])
 def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene, monkeypatch):
     """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count."""
-    monkeypatch.setattr(numba_backend, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
+    monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     backend = make_backend("numba", scene)
     particles = sample_particles(scene)
     stirred = particles.v + 0.5 * np.random.default_rng(7).standard_normal(particles.v.shape)

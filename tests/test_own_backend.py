@@ -60,7 +60,7 @@ def test_a_backend_is_taken_as_a_name_a_reference_a_factory_a_class_or_an_object
         assert np.array_equal(sim.x, expected.x) and np.array_equal(sim.v, expected.v)
         assert isinstance(sim.backend, MyBackend)
     assert describe(REFERENCE, make_backend(REFERENCE, scene)) == {
-        "backend": REFERENCE, "class": "my_mpm_backend.backend.MyBackend", "version": "0.1.0"}
+        "backend": REFERENCE, "class": "my_mpm_backend.backend.MyBackend", "version": "0.1.0", "execution": None}
 
 
 def test_bad_references_are_refused_naming_what_is_wrong():
@@ -244,7 +244,7 @@ def test_verify_runs_a_case_on_the_users_backend_and_names_it(tmp_path):
     assert run.returncode == 0, run.stdout + run.stderr
     results = json.loads((tmp_path / "v" / "results.json").read_text())
     assert results["backend"] == {"backend": REFERENCE, "class": "my_mpm_backend.backend.MyBackend",
-                                  "version": "0.1.0"}
+                                  "version": "0.1.0", "execution": None}
     assert results["cases"][0]["backends"] == [REFERENCE]
     assert f"Backend under test: `{REFERENCE}`" in (tmp_path / "v" / "report.md").read_text()
 

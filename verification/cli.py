@@ -20,6 +20,7 @@ from pathlib import Path
 
 from mpmref import SceneBuilder
 from mpmref.backends import OPTION_HELP, make_backend, reference_argument
+from mpmref.cli import add_threads_option, apply_threads
 
 from . import registry, warmup
 from .common import failed
@@ -46,6 +47,7 @@ def add_parser(subparsers):
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"report folder (default: {DEFAULT_OUT})")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run sweeps on this dask.distributed scheduler")
     p.add_argument("--workers", type=int, help="local worker processes for sweeps (default: CPU cores)")
+    add_threads_option(p)
     p.add_argument("--no-progress", action="store_true", help="no per-case progress lines on standard error")
     return p
 
@@ -58,6 +60,7 @@ def cmd_verify(args):
         print(f"mpmref verify: unknown case(s) {', '.join(unknown)}; available: {', '.join(registry.available())}",
               file=sys.stderr)
         return 2
+    apply_threads(args.threads)
     backend = check_backend(args.backend)
     executor = Executor(scheduler=args.scheduler, workers=args.workers)
     start = time.perf_counter()

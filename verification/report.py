@@ -118,7 +118,9 @@ def machine():
             "os": platform.platform(), "python": sys.version.split()[0], "numpy": np.__version__}
     numba = sys.modules.get("numba")
     if numba is not None:
-        info.update({"numba": numba.__version__, "numba threads": numba.get_num_threads()})
+        from mpmref.backends.numba.threads import describe_threads
+
+        info.update({"numba": numba.__version__, "numba threads": describe_threads()})
     return info
 
 

@@ -179,17 +179,20 @@ def _accepts(method, positional, keywords):
 
 
 def describe(reference, backend):
-    """``{"backend": label, "class": ..., "version": ...}`` of the backend ``reference`` named, as made, for reports:
-    the backend's ``version`` attribute if it has one, else the version of the installed distribution that
-    provides its module (mpmref's own for the built-in backends), else that module's ``__version__``, else
-    ``None``."""
+    """``{"backend": label, "class": ..., "version": ..., "execution": ...}`` of the backend ``reference`` named, as
+    made, for reports: the backend's ``version`` attribute if it has one, else the version of the installed
+    distribution that provides its module (mpmref's own for the built-in backends), else that module's
+    ``__version__``, else ``None``; and what its optional ``describe_execution()`` says of how it runs (the Numba
+    backend: its threads), else ``None``."""
     cls = type(backend)
     module = cls.__module__.split(".")[0]
     version = getattr(backend, "version", None)
     if version is None:
         version = _distribution_version(module)
+    execution = getattr(backend, "describe_execution", None)
     return {"backend": label(reference), "class": f"{cls.__module__}.{cls.__qualname__}",
-            "version": None if version is None else str(version)}
+            "version": None if version is None else str(version),
+            "execution": execution() if callable(execution) else None}
 
 
 @lru_cache(maxsize=None)

@@ -26,6 +26,9 @@ Sections of the JSON document (each ``null`` when not run):
 * ``cpic``: ``case`` (cells, particles, bodies, segments, dt, steps), ``goal`` and ``results`` (backend,
   threads, dtype, particles, ``coupled`` and ``plain`` timings of whole steps with and without the rigid
   bodies, ``ratio``, ``coupled_stages_s``; :mod:`mpmref.bench.cpic`).
+* ``busy``: ``scene``, ``particles``, ``steps``, ``threading_layer`` and ``results`` (per ``load``, ``"as it is"`` and
+  ``"one core busy"``: ``times_s`` and ``median_s`` on 1 and 2 threads, ``ratio`` two over one;
+  :mod:`mpmref.bench.busy`).
 * ``goals``: one record per performance goal (:mod:`mpmref.bench.goals`): ``name``, ``figure`` (``null``
   when this run did not measure it), ``bound``, ``at_most``, ``where``, ``met``.
 * ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``

@@ -70,6 +70,11 @@ def _domain(results):
     return big["step_s"] / small["step_s"], big.get("peak_bytes")
 
 
+def _busy(results):
+    r = _first((results.get("busy") or {}).get("results", []), load="one core busy")
+    return (None, "") if r is None else (r["ratio"], f"{results['busy']['threading_layer']} threading layer")
+
+
 def _cpic(results):
     r = _first((results.get("cpic") or {}).get("results", []), backend=BACKEND)
     return (None, "") if r is None else (r["ratio"], f"{r['threads']} thread(s), float64")
@@ -100,6 +105,8 @@ def goals(results):
                     at_most=True))
     out.append(Goal(f"{DOMAIN_BIG}^3 domain: peak memory (MB)", None if peak is None else peak / 1e6,
                     DOMAIN_MEMORY / 1e6, at_most=True))
+    figure, where = _busy(results)
+    out.append(Goal("mpm88 example, one core busy: 2 threads / 1 thread, time", figure, 1.3, True, where))
     figure, where = _cpic(results)
     out.append(Goal("CPIC step / step without bodies", figure, 1.5, True, where))
     for case, bound in ASYNC_GOALS:

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from .asynchronous import render_async, run_async
+from .busy import render_busy, run_busy
 from .cpic import render_cpic, run_cpic
 from .domain import render_domain, run_domain
 from .peer import run_peer
@@ -78,6 +79,10 @@ def _async(o, log):
     return run_async(o.quick, o.backends, o.threads, o.repeats, log)
 
 
+def _busy(o, log):
+    return run_busy(o.quick, o.backends, o.repeats, log)
+
+
 def _cpic(o, log):
     return run_cpic(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
 
@@ -93,6 +98,7 @@ SECTIONS = (
     Section("peer", _peer, render_peer, default=False),
     Section("async", _async, render_async, default=False),
     Section("cpic", _cpic, render_cpic),
+    Section("busy", _busy, render_busy),
 )
 
 #: the sections by name

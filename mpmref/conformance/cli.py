@@ -6,6 +6,7 @@ Exit status of ``check``: 0 every case passed, 1 a case failed, 2 a backend refe
 from pathlib import Path
 
 from ..backends import OPTION_HELP, reference_argument
+from ..cli import add_threads_option, apply_threads
 from .cases import DEFAULT_RTOL, MATERIALS, make_cases
 from .report import check
 from .stages import ALL_CONFORMANCE_STAGES
@@ -39,6 +40,7 @@ def cmd_export(args):
 def cmd_check(args):
     """Check a backend against the reference (progress bar on standard error unless ``--no-progress``); print
     the table on standard output; exit status 0 if every case passed, else 1."""
+    apply_threads(args.threads)
     report = check(args.backend, _selected_cases(args), rtol=args.rtol, progress=not args.no_progress)
     print(report.table(verbose=args.verbose))
     return 0 if report.passed else 1
@@ -61,6 +63,7 @@ def add_parser(subparsers):
                               help="pass threshold on the relative error (default: "
                               + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")
     check_parser.add_argument("--verbose", action="store_true", help="list every case, not only the failed ones")
+    add_threads_option(check_parser)
     check_parser.add_argument("--no-progress", action="store_true",
                               help="no progress bar (it goes to standard error; the table to standard output)")
     _add_selection(check_parser)

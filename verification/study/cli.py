@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from mpmref.backends import OPTION_HELP, importable_from_here, reference_argument
-from mpmref.cli import OptionError, end_time_option, option_value
+from mpmref.cli import OptionError, add_threads_option, apply_threads, end_time_option, option_value
 from mpmref.errors import ArgumentError
 
 from ..executor import Executor
@@ -72,6 +72,7 @@ def add_parser(subparsers):
     p.add_argument("--scheduler", metavar="ADDRESS", help="run the runs on this dask.distributed scheduler")
     p.add_argument("--workers", type=option_value(int, _workers, "an integer"), metavar="N",
                    help="local worker processes (default: CPU cores; 1 runs in this process)")
+    add_threads_option(p)
     p.add_argument("--no-ledger", action="store_true",
                    help="do not book the energy ledger (it about doubles a NumPy run's time)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on standard error")
@@ -83,6 +84,7 @@ def cmd_study(args):
     """Run the study of ``args`` and write its report; returns the exit code."""
     if args.out is not None and args.out.exists() and not args.out.is_dir():
         raise OptionError(f"--out {args.out}: this is an existing file; name a folder")
+    apply_threads(args.threads)
     bar = _ProgressBar(not args.no_progress)
     try:
         study = run_study(args.scene, args.vary, args.t_end, backend=args.backend, out=args.out, measures=args.measure,
@@ -104,8 +106,10 @@ def summary(study):
     """The lines printed at the end: runs, failures, orders, files."""
     runs = study["runs"]
     failed = [r for r in runs if r["error"]]
+    backend = study["backend"]
+    execution = f", {backend['execution']}" if backend.get("execution") else ""
     lines = [f"{len(runs) - len(failed)} of {len(runs)} runs finished ({sum(r['reused'] for r in runs)} reused from "
-             f"an earlier study), {study['wall_s']:.1f} s"]
+             f"an earlier study), {study['wall_s']:.1f} s; backend {backend['backend']}{execution}"]
     lines += [f"FAILED {label(r['params'])}: {r['error'].strip().splitlines()[-1]}" for r in failed]
     for row in study["orders"]:
         if math.isfinite(row["order"]) or math.isfinite(row["richardson"]):

@@ -1,6 +1,5 @@
 """The Numba backend object: the reference's stages, compiled for one scene and run in parallel."""
 
-from contextlib import contextmanager
 from functools import cached_property
 
 import numba
@@ -16,6 +15,7 @@ from .blocks import colour_classes, slab_colours, sort_into_blocks
 from .buffers import BufferPool
 from .kernel_args import Groups, SparseLayout
 from .sparse import BlockLayout
+from .threads import describe_threads, threads_for
 from .stencil import BASE_SHIFT
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
@@ -29,26 +29,6 @@ def dense_with_classes(state):
     if state.class_sums is not None:
         dense.class_sums = np.stack([state.layout.to_dense(c) for c in state.class_sums])
     return dense
-
-#: below this many particles a step runs on one thread: each parallel region costs a fork and a join
-#: (tens of microseconds, far more on a busy machine), which small problems do not repay. The answer is the
-#: same bits either way (see :mod:`.blocks`).
-SERIAL_BELOW = 4096
-
-
-@contextmanager
-def threads_for(n_particles):
-    """Run the enclosed stages on one thread when ``n_particles < SERIAL_BELOW``."""
-    if n_particles >= SERIAL_BELOW:
-        yield
-        return
-    before = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
-
 
 def _or_empty(array, dtype, *shape):
     return array if array is not None else np.empty(shape, dtype=dtype)
@@ -145,6 +125,11 @@ class NumbaBackend:
         self.buffers = BufferPool(self.dtype)
 
     running = staticmethod(threads_for)
+
+    @staticmethod
+    def describe_execution():
+        """How the kernels run, for summaries: ``"2 threads (tbb)"`` (:func:`.threads.describe_threads`)."""
+        return describe_threads()
 
     # ------------------------------------------------------------------ helpers
     def _or_empty(self, array, *shape):
