@@ -28,7 +28,6 @@ asserted (they depend on the machine and its load); the checks concern the error
 """
 
 import os
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,20 +75,11 @@ def _series(problem, scheme, force, kernel):
     return Series(problem, scheme, force, kernel, expected_rate=1.0 if scheme == "pic" else 2.0)
 
 
-@contextmanager
 def numba_threads(backend, threads):
-    """Run the enclosed code with ``threads`` Numba threads when ``backend`` is ``"numba"``."""
-    if backend != "numba":
-        yield
-        return
-    import numba
+    """A context that runs the enclosed code with ``threads`` Numba threads when ``backend`` is ``"numba"``."""
+    from mpmref.backends.numba.threads import on_threads
 
-    before = numba.get_num_threads()
-    numba.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
+    return on_threads(threads if backend == "numba" else None)
 
 
 def compiled_scenes(params, backend="numpy"):

@@ -51,11 +51,15 @@ def use_threads(count):
     numba.set_num_threads(count)
 
 
-@contextmanager
 def threads_for(n_particles):
-    """Run the enclosed stages of a step of ``n_particles`` on the chosen threads (:func:`chosen_threads`), or on
-    one when ``n_particles < SERIAL_BELOW``; the count before is restored after."""
-    count = 1 if n_particles < SERIAL_BELOW else chosen_threads()
+    """A context that runs the enclosed stages of a step of ``n_particles`` on the chosen threads
+    (:func:`chosen_threads`), or on one when ``n_particles < SERIAL_BELOW`` (:func:`on_threads`)."""
+    return on_threads(1 if n_particles < SERIAL_BELOW else chosen_threads())
+
+
+@contextmanager
+def on_threads(count):
+    """Run the enclosed code on ``count`` Numba threads (``None``: as it is); the count before is restored after."""
     if count is None:
         yield
         return
