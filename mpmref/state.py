@@ -173,7 +173,9 @@ class Grid:
 
 @dataclass
 class GridState:
-    """Grid quantities after P2G: node mass (N,), momentum (N, d) and internal force (N, d).
+    """Grid quantities after P2G: node mass (N,), momentum (N, d) and internal force (N, d); or, after a fused P2G
+    (``p2g_fused`` of :mod:`mpmref.backends.base`), node mass and the momentum after the force
+    (mv)_i + Δt f_i with ``force = None``.
 
     With CPIC, also what particles did not give incompatible nodes (N, d): ``rejected_momentum`` and
     ``rejected_force`` (:func:`mpmref.backends.numpy.transfers.p2g`); ``None`` otherwise. With particle
@@ -188,7 +190,7 @@ class GridState:
 
     mass: np.ndarray
     momentum: np.ndarray
-    force: np.ndarray
+    force: np.ndarray | None = None  # None: a fused P2G's state, whose momentum is (mv)_i + dt f_i
     rejected_momentum: np.ndarray | None = None
     rejected_force: np.ndarray | None = None
     layout: object = None

@@ -38,20 +38,24 @@ class DropsGravity(MyBackend):
 
 
 class WrongMlsInertia(MyBackend):
-    """The MLS force with D_p = Δx²/3 (the cubic B-spline's) whatever the kernel: with the quadratic one (D_p = Δx²/4)
-    every force is 3/4 of the right one; G2P keeps the right D_p."""
+    """The MLS force with D_p = Δx²/3 (the cubic B-spline's) whatever the kernel, in both P2Gs: with the quadratic one
+    (D_p = Δx²/4) every force is 3/4 of the right one; G2P keeps the right D_p."""
+
+    def wrong_inertia(self, particles, prepared):
+        stencil, basis = prepared or self.prepare(particles)
+        return dataclasses.replace(stencil, inertia=stencil.dx * stencil.dx / 3.0), basis
 
     def p2g(self, particles, prepared=None, contact=None, classes=None):
-        stencil, basis = prepared or self.prepare(particles)
-        wrong = dataclasses.replace(stencil, inertia=stencil.dx * stencil.dx / 3.0)
-        return super().p2g(particles, (wrong, basis), contact, classes)
+        return super().p2g(particles, self.wrong_inertia(particles, prepared), contact, classes)
+
+    def p2g_fused(self, particles, dt, prepared=None):
+        return super().p2g_fused(particles, dt, self.wrong_inertia(particles, prepared))
 
 
 class Float32Mass(MyBackend):
-    """P2G that sums the node masses in float32 (momentum and force as the reference)."""
+    """Both P2Gs sum the node masses in float32 (momentum and force as the reference)."""
 
-    def p2g(self, particles, prepared=None, contact=None, classes=None):
-        grid_state = super().p2g(particles, prepared, contact, classes)
+    def float32_mass(self, particles, grid_state):
         grid = self.scene.grid
         stencil = compute_stencil(self.scene.kernel, particles.x, grid.origin, grid.dx)
         mass = np.zeros(grid.n_nodes, dtype=np.float32)
@@ -59,6 +63,12 @@ class Float32Mass(MyBackend):
             node = (stencil.base + offset) @ grid.strides
             np.add.at(mass, node, (stencil.node_weight(offset) * particles.mass).astype(np.float32))
         return dataclasses.replace(grid_state, mass=mass.astype(grid_state.mass.dtype))
+
+    def p2g(self, particles, prepared=None, contact=None, classes=None):
+        return self.float32_mass(particles, super().p2g(particles, prepared, contact, classes))
+
+    def p2g_fused(self, particles, dt, prepared=None):
+        return self.float32_mass(particles, super().p2g_fused(particles, dt, prepared))
 
 
 class PerMaterialFields(MyBackend):

@@ -11,8 +11,8 @@ import pytest
 from mpmref import Scene
 from mpmref.backends import BACKENDS, checked, make_backend
 from mpmref.errors import BackendError
-from mpmref.backends.base import (ASYNC_BACKEND_STAGES, BACKEND_STAGES, CPIC_BACKEND_STAGES, Backend,
-                                  CoupledBackend)
+from mpmref.backends.base import (ASYNC_BACKEND_STAGES, BACKEND_STAGES, CPIC_BACKEND_STAGES, FUSED_BACKEND_STAGES,
+                                  Backend, CoupledBackend, FusedBackend)
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "mpmref"
@@ -40,6 +40,17 @@ def test_every_backend_is_a_coupled_backend_with_the_protocols_arguments(name):
         declared = list(inspect.signature(getattr(CoupledBackend, stage)).parameters)[1:]  # without self
         actual = list(inspect.signature(getattr(backend, stage)).parameters)
         assert actual[:len(declared)] == declared, f"{name}.{stage}{tuple(actual)} against the protocol's {declared}"
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_every_backend_also_folds_the_force_into_p2g_with_the_protocols_arguments(name):
+    """The optional stage of :class:`FusedBackend`, which the steppers use where they can."""
+    assert protocol_methods(FusedBackend, own=True) == set(FUSED_BACKEND_STAGES)
+    backend = make_backend(name, Scene.from_toml(CUT2D))
+    assert isinstance(backend, FusedBackend)
+    for stage in FUSED_BACKEND_STAGES:
+        declared = list(inspect.signature(getattr(FusedBackend, stage)).parameters)[1:]
+        assert list(inspect.signature(getattr(backend, stage)).parameters)[:len(declared)] == declared
 
 
 def test_make_backend_refuses_a_backend_without_a_stage_its_scene_needs():

@@ -161,12 +161,16 @@ def test_index_lists_every_check_with_figure_bound_and_verdict(report_dir):
 
 
 def test_a_broken_transfer_makes_verify_exit_1(monkeypatch, tmp_path, capsys):
-    original = numpy_backend.NumpyBackend.p2g
+    original, original_fused = numpy_backend.NumpyBackend.p2g, numpy_backend.NumpyBackend.p2g_fused
 
     def p2g_without_affine(self, particles, prepared=None):
         return original(self, particles.with_(C=np.zeros_like(particles.C)), prepared)
 
+    def p2g_fused_without_affine(self, particles, dt, prepared=None):  # the P2G the steps run
+        return original_fused(self, particles.with_(C=np.zeros_like(particles.C)), dt, prepared)
+
     monkeypatch.setattr(numpy_backend.NumpyBackend, "p2g", p2g_without_affine)
+    monkeypatch.setattr(numpy_backend.NumpyBackend, "p2g_fused", p2g_fused_without_affine)
     small_momentum_quick(monkeypatch, variants=("mls",))
     assert verify(["momentum", "--quick", "--workers", "1", "--out", str(tmp_path)]) == 1
     assert "FAIL MLS-MPM (APIC, MLS force): angular momentum drift" in capsys.readouterr().out

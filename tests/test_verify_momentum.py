@@ -37,12 +37,16 @@ def test_pic_and_flip_lose_spin_at_the_predicted_rate(result, key):
 
 def test_dropping_the_affine_term_in_p2g_fails_the_angular_momentum_check(monkeypatch):
     """MLS-MPM whose P2G ignores C_p (a broken APIC transfer) must fail angular momentum, not linear."""
-    original = numpy_backend.NumpyBackend.p2g
+    original, original_fused = numpy_backend.NumpyBackend.p2g, numpy_backend.NumpyBackend.p2g_fused
 
     def p2g_without_affine(self, particles, prepared=None):
         return original(self, particles.with_(C=np.zeros_like(particles.C)), prepared)
 
+    def p2g_fused_without_affine(self, particles, dt, prepared=None):  # the P2G the steps run
+        return original_fused(self, particles.with_(C=np.zeros_like(particles.C)), dt, prepared)
+
     monkeypatch.setattr(numpy_backend.NumpyBackend, "p2g", p2g_without_affine)
+    monkeypatch.setattr(numpy_backend.NumpyBackend, "p2g_fused", p2g_fused_without_affine)
     broken = case.checks(case.run(replace(case.Params.quick(), steps=40, variants=("mls",))))
     linear = next(c for c in broken if "linear momentum" in c.name)
     angular = next(c for c in broken if "angular momentum" in c.name)

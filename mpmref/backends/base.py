@@ -33,6 +33,11 @@ step's :class:`Contact`), ``cpic_impulses`` (what incompatible nodes did not rec
 bodies) and ``cpic_g2p`` (G2P with ghost velocities and the penalty). Every backend of
 :data:`mpmref.backends.BACKENDS` is both; :func:`mpmref.backends.make_backend` checks it.
 
+A backend may also have ``p2g_fused(particles, dt, prepared=None)`` (:class:`FusedBackend`): P2G with the step's
+internal force folded into the momentum, (mv)_i + Δt f_i, in one scatter, returned as a
+:class:`~mpmref.state.GridState` whose ``force`` is ``None`` (``grid_update`` then reads the momentum as folded and
+returns no ``v_tilde``). The steppers use it where the scheme allows it and nothing in the run reads the force apart.
+
 These are the stages of a backend; the conformance harness has its own list of what it compares
 (:data:`mpmref.conformance.CONFORMANCE_STAGES`), and the benchmarks name what they time
 (:data:`mpmref.bench.table2.TABLE2_STAGES`, :data:`mpmref.bench.cpic.TIMED_CPIC_STAGES`).
@@ -52,6 +57,8 @@ BACKEND_STAGES = ("prepare", "stress", "p2g", "grid_update", "g2p", "return_map"
 ASYNC_BACKEND_STAGES = ("wave_speeds", "interface_kicks")
 #: the stages of CPIC coupling to rigid bodies
 CPIC_BACKEND_STAGES = ("cpic_contact", "cpic_impulses", "cpic_g2p")
+#: the optional stage of a backend that folds the internal force into P2G (:class:`FusedBackend`)
+FUSED_BACKEND_STAGES = ("p2g_fused",)
 
 
 @runtime_checkable
@@ -104,10 +111,19 @@ class CoupledBackend(Backend, Protocol):
         """-> (Particles, (J, L)): G2P with ghost velocities and the penalty's impulses"""
 
 
+@runtime_checkable
+class FusedBackend(Backend, Protocol):
+    """A backend that can also fold the step's internal force into P2G (optional: the steppers use it when the
+    backend has it and nothing in the run reads the force apart; :func:`mpmref.steppers.pipeline.substep`)."""
+
+    def p2g_fused(self, particles, dt, prepared=None):
+        """-> GridState(mass (N,), momentum (N, d) = (mv)_i + dt f_i, force None)"""
+
+
 def stage_signature(stage):
     """``stage(arguments) -> result`` as the protocol declares it, for messages (e.g. ``p2g(particles,
     prepared=None, contact=None, classes=None) -> GridState(...)``)."""
-    method = getattr(CoupledBackend, stage)
+    method = getattr(CoupledBackend, stage, None) or getattr(FusedBackend, stage)
     arguments = list(inspect.signature(method).parameters.values())[1:]  # without self
     returns = (method.__doc__ or "").strip().splitlines()[0]
     return f"{stage}({', '.join(str(a) for a in arguments)}) {returns}".strip()

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from ..backends import make_backend
-from ..backends.base import BACKEND_STAGES
+from ..backends.base import BACKEND_STAGES, FUSED_BACKEND_STAGES
 from ..bodies import sample_particles
 from ..steppers import substep
 from .scenes import fluid3d_scene, mpm88_scene, throughput_cases
@@ -35,23 +35,27 @@ THREAD_CASE = "large2d"
 
 
 class TimedStages:
-    """A backend whose stage methods (``names``, default the standard stages) add their wall time to
-    ``seconds[stage]`` (everything else passes through)."""
+    """A backend whose stage methods (``names``, default the standard stages and the fused P2G) add their wall time
+    to ``seconds[stage]`` (everything else passes through); the fused P2G is booked as ``"p2g"``, the step's P2G,
+    and ``fused`` says that it ran."""
 
-    def __init__(self, backend, names=BACKEND_STAGES):
+    def __init__(self, backend, names=BACKEND_STAGES + FUSED_BACKEND_STAGES):
         self._backend = backend
         self._names = names
         self.seconds = {}
+        self.fused = False
 
     def __getattr__(self, name):
         attr = getattr(self._backend, name)
         if name not in self._names:
             return attr
+        key = "p2g" if name in FUSED_BACKEND_STAGES else name
+        self.fused |= key != name
 
         def timed(*args, **kwargs):
             start = time.perf_counter()
             result = attr(*args, **kwargs)
-            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+            self.seconds[key] = self.seconds.get(key, 0.0) + time.perf_counter() - start
             return result
         return timed
 
@@ -79,7 +83,7 @@ def stage_times(backend_name, scene, threads, steps):
     per_step = {name: s / steps for name, s in timed.seconds.items()}
     return {"backend": backend_name, "threads": threads, "dtype": str(scene.dtype), "particles": particles.n,
             "steps": steps, "step_s": whole / steps, "stages_s": per_step,
-            "stress_inside_p2g": "stress" not in timed.seconds,
+            "stress_inside_p2g": "stress" not in timed.seconds, "p2g_fused": timed.fused,
             "stress_alone_s": stress_alone / steps if "stress" not in timed.seconds else None}
 
 
@@ -170,7 +174,7 @@ STAGE_LABELS = (("prepare", "sort"), ("stress", "stress"), ("p2g", "P2G"), ("gri
 def render_stages(section):
     """One line per case, backend, dtype and thread count: ms per step of each stage and of the whole step."""
     lines = ["Stages of a step (mean ms per step inside real steps; sort = prepare; * stress computed inside "
-             "P2G, timed alone)",
+             "P2G, timed alone; f: the step's P2G is the fused one, the force folded in)",
              f"{'case':9}{'particles':>10}  {'backend':8}{'dtype':9}{'thr':>4}"
              + "".join(f"{label:>12}" for _, label in STAGE_LABELS) + f"{'step':>10}"]
     for r in section["results"]:
@@ -180,7 +184,8 @@ def render_stages(section):
                 cells.append(f"{r['stress_alone_s'] * 1e3:>11.3f}*")
             else:
                 value = r["stages_s"].get(stage)
-                cells.append(f"{'-':>12}" if value is None else f"{value * 1e3:>12.3f}")
+                fused = stage == "p2g" and r.get("p2g_fused")
+                cells.append(f"{'-':>12}" if value is None else f"{value * 1e3:>11.3f}{'f' if fused else ' '}")
         lines.append(f"{r['case']:9}{r['particles']:>10}  {r['backend']:8}{r['dtype']:9}{r['threads']:>4}"
                      + "".join(cells) + f"{r['step_s'] * 1e3:>10.3f}")
     return "\n".join(lines)

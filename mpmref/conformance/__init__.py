@@ -11,6 +11,7 @@ Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend
 * ``return_map(particles) -> Particles``: plastic projection (identity for elastic materials);
 * ``p2g(particles) -> GridState(mass (N,), momentum (N, d), force (N, d))``, the stress computed inside, or given
   as ``p2g(particles, stress=tau)`` to a P2G that has a ``stress`` parameter;
+* ``p2g_fused(particles, dt) -> GridState(mass, momentum = (mv)_i + Δt f_i)`` (optional);
 * ``grid_update(grid_state, dt, time) -> (v, v_tilde)``, both (N, d);
 * ``g2p(particles, v, v_tilde, dt) -> Particles``;
 * ``step(particles, dt, time) -> Particles``: P2G, grid update, G2P and return map.
@@ -52,10 +53,12 @@ and a time, that each case draws from its name (:mod:`.cases`):
 * ``grid_update``: each wall type on all faces (sticky, slip, separate with friction, open), a different
   type on each face, and one collider of each shape (two moving, at ``time > 0``) with open walls. The
   grid update does not depend on the scheme or the material.
+* ``p2g_fused`` (optional, :class:`mpmref.backends.base.FusedBackend`): the P2G cases without FLIP, compared with
+  the reference's unfused momentum plus Δt times its force;
 * ``step``: every valid method (as for P2G) and each material set (with MLS-MPM), with gravity and the
   mixed walls: the stages composed, return map included.
 
-That is 198 float64 cases instead of 20 x 6 x 6 x 2 per stage. The states are physically sensible: ``F``
+That is 244 float64 cases instead of 20 x 6 x 6 x 2 per stage. The states are physically sensible: ``F``
 a random rotation times a near-identity stretch with ``det F > 0.3`` (some inside, some outside the
 plastic yield surfaces), ``J`` and ``Jp`` near 1, velocities of order 1, ``C`` of order 4 (the grid's
 velocity gradients), PolyPIC modes scaled by ``dx^-degree``; the grid update gets a random grid state

@@ -23,7 +23,7 @@ from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
 from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
 from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, STAGES_WITH_DT,
-                     STAGES_WITH_TIME, composed_step, particles_from, run_stage)
+                     STAGES_WITH_TIME, composed_step, particles_from, run_stage, unfused_then_force)
 
 #: cells per axis of a case's grid: each axis draws its own count in this range (:func:`case_grid`)
 CELL_RANGE = (8, 13)
@@ -366,6 +366,8 @@ def backend_stage(backend, stage):
     their runners of :mod:`mpmref.conformance.cpic` bound to it)."""
     if stage == "step":
         return partial(composed_step, backend)
+    if stage == "p2g_fused":  # the truth is the unfused P2G plus dt times its force, whatever the backend folds
+        return unfused_then_force(backend)
     if stage in CPIC_CONFORMANCE_STAGES:
         return partial(RUNNERS[stage], backend)
     return getattr(backend, stage)
@@ -458,6 +460,7 @@ _STAGE_CASES = {
     "stress": lambda dim, dtype: _material_cases("stress", dim, dtype, MATERIAL_SETS),
     "return_map": lambda dim, dtype: _material_cases("return_map", dim, dtype, PLASTIC_SETS),
     "p2g": partial(_transfer_cases, "p2g"),
+    "p2g_fused": lambda dim, dtype: [c for c in _transfer_cases("p2g_fused", dim, dtype) if not c.scene().transfer.flip],
     "grid_update": _grid_update_cases,
     "g2p": partial(_transfer_cases, "g2p"),
     "step": partial(_transfer_cases, "step"),

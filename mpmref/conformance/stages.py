@@ -7,7 +7,8 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
 * particles: ``x (n,d)``, ``v (n,d)``, ``mass (n,)``, ``vol0 (n,)``, ``material (n,) int32`` and, where the
   scene needs them, ``C (n,d,d)``, ``F (n,d,d)``, ``J (n,)``, ``Jp (n,)``, ``modes (n,M,d)``;
 * grid nodes (C order, see :mod:`mpmref.conformance`): ``grid_mass (N,)``, ``grid_momentum (N,d)``,
-  ``grid_force (N,d)``, ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
+  ``grid_force (N,d)``, ``grid_momentum_after_force (N,d)`` (the fused P2G's (mv)_i + Δt f_i),
+  ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
   P2G cases (for a P2G that takes the stress, :func:`takes_stress`).
 """
@@ -19,14 +20,14 @@ import numpy as np
 
 from ..state import GridState, Particles
 
-CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "grid_update", "g2p", "step")
+CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "p2g_fused", "grid_update", "g2p", "step")
 #: the stages of backends that couple rigid bodies by CPIC (run through :mod:`mpmref.conformance.cpic`)
 CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
 #: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies
 #: (:mod:`mpmref.conformance.cpic`)
 ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
 #: the stages that take a time step ``dt``, and those that take the ``time`` (where the colliders are)
-STAGES_WITH_DT = ("grid_update", "g2p", "step")
+STAGES_WITH_DT = ("p2g_fused", "grid_update", "g2p", "step")
 STAGES_WITH_TIME = ("grid_update", "step")
 PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
 #: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
@@ -67,6 +68,22 @@ def takes_stress(fn):
         return False
 
 
+def _p2g_fused(fn, flat):
+    """P2G with the force folded in: node mass and the momentum after the force, ``grid_momentum_after_force``."""
+    gs = fn(particles_from(flat), float(flat["dt"]))
+    return {"grid_mass": gs.mass, "grid_momentum_after_force": gs.momentum}
+
+
+def unfused_then_force(backend):
+    r"""The truth of the ``p2g_fused`` stage: ``backend``'s (unfused) P2G, then :math:`(mv)_i + \Delta t f_i` from its
+    momentum and force, as a callable ``(particles, dt) -> GridState`` with ``force = None``."""
+    def p2g_fused(particles, dt):
+        gs = backend.p2g(particles)
+        return GridState(mass=gs.mass, momentum=gs.momentum + dt * gs.force)
+
+    return p2g_fused
+
+
 def _grid_update(fn, flat):
     gs = GridState(mass=np.array(flat["grid_mass"]), momentum=np.array(flat["grid_momentum"]),
                    force=np.array(flat["grid_force"]))
@@ -87,7 +104,8 @@ def _flat_stage(fn, flat):
     return fn(flat)
 
 
-_CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "grid_update": _grid_update,
+_CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "p2g_fused": _p2g_fused,
+            "grid_update": _grid_update,
             "g2p": _g2p, "step": _step, **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}
 
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backends.base import FusedBackend
 from ..physics.interface import momentum_share
 from ..physics.kernels import compute_stencil
 from ..physics.rigid_dynamics import apply_impulses, begin_step, end_step
@@ -82,7 +83,12 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
         if rigid is not None:
             rigid = begin_step(scene.rigid_bodies, rigid, time, dt)
             particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
-        grid_state = backend.p2g(particles, prepared) if contact is None else backend.p2g(particles, prepared, contact)
+        if contact is not None:
+            grid_state = backend.p2g(particles, prepared, contact)
+        elif folds_force(backend, hooks, ledger):
+            grid_state = backend.p2g_fused(particles, dt, prepared)
+        else:
+            grid_state = backend.p2g(particles, prepared)
         if hooks.body_force is not None or hooks.grid_folds:
             apply_hooks(hooks, grid_state, particles, scene, time)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
@@ -96,6 +102,15 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
         if ledger is not None:
             ledger.finish(new, rigid)
         return new if contact is None else (new, rigid)
+
+
+def folds_force(backend, hooks, ledger):
+    """Whether a step folds the internal force into P2G (the backend's ``p2g_fused``, a
+    :class:`~mpmref.backends.base.FusedBackend`): when the backend can, the scheme's G2P does not need the grid
+    velocity before the force (not FLIP), and nothing reads the force apart (no hook, no energy ledger; CPIC's
+    coupled P2G is never fused). The result is the same up to round-off (docs/performance.md#the-fused-p2g)."""
+    return (isinstance(backend, FusedBackend) and not backend.scene.transfer.flip and ledger is None
+            and hooks.body_force is None and not hooks.grid_folds)
 
 
 def _observed(ledger, trial, return_map):

@@ -52,6 +52,11 @@ class MyBackend:
     def return_map(self, particles):
         return self.reference.return_map(particles)
 
+    # optional: P2G with the step's internal force folded into the momentum, (m v)_i + dt f_i, in one scatter; the
+    # steppers use it when it is there and nothing in the run reads the force apart (mpmref.backends.base)
+    def p2g_fused(self, particles, dt, prepared=None):
+        return self.reference.p2g_fused(particles, dt, prepared)
+
     # asynchronous stepping (scenes with time.stepping = "async")
     def wave_speeds(self, particles, idx):
         return self.reference.wave_speeds(particles, idx)

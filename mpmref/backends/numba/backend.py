@@ -104,6 +104,7 @@ class NumbaBackend:
         self.transfer = scene.transfer
         self.fluids_only = all(isinstance(m, WeaklyCompressibleFluid) for m in scene.material_list)
         self._p2g = transfers.make_p2g(self.transfer, grid.block, self.fluids_only)
+        self._p2g_fused = transfers.make_p2g(self.transfer, grid.block, self.fluids_only, fused=True)
         self._g2p = transfers.make_g2p(self.transfer, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
@@ -184,22 +185,10 @@ class NumbaBackend:
         blocks = prepared or self.prepare(particles)
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
-        layout = blocks.layout
-        n, d = particles.x.shape
-        stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
         n_classes = 1 if classes is None else N_CLASSES
-        grid, = self.buffers.take("grid", (n_classes * layout.n_rows, 1 + 2 * d))
-        transfers.zero_rows(grid)
-        class_rows = NO_ROWS if classes is None else np.ascontiguousarray(classes, dtype=np.int64) * layout.n_rows
-        chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
-        try:
-            self._p2g(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
-                      self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, stress,
-                      self._or_empty(particles.J, 0), particles.material, self.fluid_params,
-                      self.sparse_layout(layout), self.mode_index, Groups(blocks.order, *blocks.p2g_groups),
-                      class_rows, grid)
-        finally:
-            numba.set_parallel_chunksize(chunk)
+        class_rows = NO_ROWS if classes is None else np.ascontiguousarray(classes, dtype=np.int64) * blocks.layout.n_rows
+        grid = self._scatter(self._p2g, particles, blocks, n_classes, class_rows, 0.0, 2)
+        layout, d = blocks.layout, particles.dim
         class_sums = None
         if classes is not None:
             class_sums = grid.reshape(N_CLASSES, layout.n_rows, 1 + 2 * d)
@@ -208,6 +197,35 @@ class NumbaBackend:
         state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
                           class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
+
+    def p2g_fused(self, particles, dt, prepared=None):
+        """P2G with the internal force folded into the momentum (:func:`.transfers.p2g_kernel` with ``FUSED``; the
+        reference is :func:`mpmref.backends.numpy.transfers.p2g_fused`): node rows of mass and momentum after the
+        force, (1 + d) values where :meth:`p2g` scatters (1 + 2d); a :class:`~mpmref.state.GridState` with
+        ``force = None``, in ``prepared``'s layout or, without it, dense."""
+        blocks = prepared or self.prepare(particles)
+        grid = self._scatter(self._p2g_fused, particles, blocks, 1, NO_ROWS, dt, 1)
+        d = particles.dim
+        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=None, layout=blocks.layout)
+        return state if prepared is not None else state.dense()
+
+    def _scatter(self, kernel, particles, blocks, n_classes, class_rows, dt, vectors):
+        """Run a P2G ``kernel`` over the particles by colour into zeroed pool rows of 1 + ``vectors`` d values per
+        node (and per class); returns the rows."""
+        layout = blocks.layout
+        n, d = particles.x.shape
+        stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
+        grid, = self.buffers.take("grid" if vectors == 2 else "grid_fused", (n_classes * layout.n_rows, 1 + vectors * d))
+        transfers.zero_rows(grid)
+        chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
+        try:
+            kernel(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
+                   self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, stress,
+                   self._or_empty(particles.J, 0), particles.material, self.fluid_params, self.sparse_layout(layout),
+                   self.mode_index, Groups(blocks.order, *blocks.p2g_groups), class_rows, dt, grid)
+        finally:
+            numba.set_parallel_chunksize(chunk)
+        return grid
 
     def sparse_layout(self, layout):
         """The grid's layout as the transfer kernels read it (:class:`.kernel_args.SparseLayout`), for the
@@ -230,21 +248,25 @@ class NumbaBackend:
     def grid_update(self, grid_state, dt, time=0.0):
         """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays) in
         the form of ``grid_state``: the rows of its ``layout``, or dense when it has none."""
-        v, v_tilde = self.buffers.take("grid_velocity", grid_state.momentum.shape, grid_state.momentum.shape)
+        folded = grid_state.force is None  # a fused P2G's state: no v_tilde (see transfers.node_velocity)
+        shape = grid_state.momentum.shape
+        v, v_tilde = (self.buffers.take("grid_velocity_folded", shape, (0, shape[1])) if folded
+                      else self.buffers.take("grid_velocity", shape, shape))
+        force = self._or_empty(grid_state.force, 0, shape[1])
         layout = grid_state.layout
         walls = (self.scene.boundary.width, self.wall_type, self.wall_friction, v, v_tilde)
         if layout is None:
-            transfers.grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
+            transfers.grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity,
                                     self.node_shape, self.strides, *walls)
         else:
-            transfers.block_grid_velocity(grid_state.mass, grid_state.momentum, grid_state.force, dt, self.gravity,
+            transfers.block_grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity,
                                           self.node_shape, self.block, layout.blocks, *walls)
         if self.scene.colliders:
             has_mass = grid_state.mass > 0
             node_x = self.node_x if layout is None else self.origin + layout.node_index * self.dx
             for collider in self.scene.colliders:
                 v = collider.apply(v, node_x, has_mass, time)
-        return v, v_tilde
+        return v, None if folded else v_tilde
 
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
         """New particle state from the grid velocities (a parallel gather).
@@ -259,6 +281,8 @@ class NumbaBackend:
         own pass, so that no other run's G2P compiles it), and the result is ``(particles, (dP, dL))``.
         """
         n, d = particles.x.shape
+        if v_tilde is None:  # after a fused P2G (no FLIP): the kernel does not read it
+            v_tilde = v_grid
         if prepared is None:
             layout = self.prepare(particles).layout
             v_grid, v_tilde = layout.from_dense(v_grid), layout.from_dense(v_tilde)
@@ -310,7 +334,7 @@ class NumbaBackend:
         laws = {(dtype, type(m).__name__) for m in self.scene.material_list}
         cpic = self.scene.cpic
         cpic_kernels = {(dtype, "cpic", self.scene.dim, cpic.fit)} if cpic is not None else set()
-        return {self._p2g, self._g2p, dtype} | laws | cpic_kernels
+        return {self._p2g, self._p2g_fused, self._g2p, dtype} | laws | cpic_kernels
 
     def warm_up(self, particles, step, per_material=2):
         """Compile (or load from Numba's cache) every kernel a step of this scene uses, before a timed run.

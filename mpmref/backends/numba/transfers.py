@@ -47,12 +47,13 @@ def _source_digest():
 SOURCE_DIGEST = _source_digest()
 
 
-def make_p2g(transfer, block, fluids_only):
+def make_p2g(transfer, block, fluids_only, fused=False):
     """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, for a scene
     of ``fluids_only`` or one with solids (FLIP, the tracked deformation and which solids are invisible to
-    P2G, so those variants share one compiled kernel); see :func:`p2g_kernel`."""
+    P2G, so those variants share one compiled kernel), ``fused`` or not (the internal force folded into the
+    momentum); see :func:`p2g_kernel`."""
     return p2g_kernel(transfer.dim, KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine, transfer.polypic,
-                      transfer.mls_force, block, fluids_only)
+                      transfer.mls_force, block, fluids_only, fused)
 
 
 def make_g2p(transfer, block):
@@ -69,12 +70,12 @@ def make_kick_gather(transfer, block):
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
+def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=False):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
     The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout,
-    mode_index, particle_groups, class_rows, grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per
+    mode_index, particle_groups, class_rows, dt, grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per
     node of the active blocks of a :class:`~.sparse.BlockLayout` (``layout`` a
     :class:`~.kernel_args.SparseLayout`: ``origin``, ``dx``, ``inertia``, ``slot_of`` the block-pointer table,
     ``table_strides`` the table's strides; rows located by :func:`block_rows_2d` and :func:`block_rows_3d`):
@@ -97,13 +98,22 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
     conservative interfaces, :mod:`mpmref.physics.interface`), ``class_rows[p]`` is the first row of particle
     ``p``'s class in a ``grid`` that holds one block of rows per class, so the classes are summed apart in
     this one pass; ``class_rows`` is empty otherwise.
+
+    ``FUSED`` (:func:`mpmref.backends.numpy.transfers.p2g_fused`): ``grid`` has rows (1 + d), mass and the momentum
+    after the force :math:`(mv)_i + \Delta t f_i`; with the MLS force the stress joins the affine matrix once per
+    particle, :math:`A_p = m_p C_p + \Delta t Q_p` (formed in a small per-group array: Numba's parallel array
+    analysis refuses a tuple assigned from several producers), and each node takes
+    :math:`w_{ip}(m_p v_p + A_p(x_i - x_p))`; with the classic force it takes :math:`\Delta t Q_p \nabla w_{ip}`
+    beside the momentum (``dt`` is unused otherwise; no particle classes).
+
+    Docs: docs/performance.md#the-fused-p2g
     """
     SOURCES = SOURCE_DIGEST
     N = BLOCK**DIM  # nodes (rows) per block
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
     def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout, mode_index, particle_groups,
-            class_rows, grid):
+            class_rows, dt, grid):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see _source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         order, group_start, groups, colour_start = particle_groups
@@ -114,6 +124,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
             for si in prange(colour_start[colour + 1] - first):
                 group = groups[first + si]
                 fluid_tau = np.empty((DIM, DIM), grid.dtype)  # one allocation per group
+                folded = np.empty((DIM, DIM), grid.dtype)
                 q = np.empty((DIM if POLY else 0, S, S))
                 qnorm = np.empty((DIM if POLY else 0, S))
                 w_arr = np.empty((DIM if POLY else 0, S))
@@ -128,9 +139,16 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
                     else:
                         tau = stress[p]
                     m = mass[p]
-                    Q = matrix(tau, real(-vol0[p] / inertia if MLS_FORCE else -vol0[p]), DIM)
+                    # the force matrix; a fused P2G scales the classic force's by dt (the MLS one joins mC below)
+                    scale = -vol0[p] / inertia if MLS_FORCE else -vol0[p] * (dt if FUSED else 1.0)
+                    Q = matrix(tau, real(scale), DIM)
                     mv = scaled_row(v, p, m, DIM)
-                    if AFFINE:
+                    if FUSED and MLS_FORCE:  # the stress joins the affine matrix once: A_p = m_p C_p + dt Q_p
+                        for a in range(DIM):
+                            for b in range(DIM):
+                                folded[a, b] = (m * C[p, a, b] if AFFINE else 0.0) + real(dt) * Q[a][b]
+                        mC = matrix(folded, real(1.0), DIM)
+                    elif AFFINE:
                         mC = matrix(C[p], m, DIM)
                     else:
                         mC = Q  # unused
@@ -153,7 +171,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
                                 d = (d0[i], d1[j])
                                 fw = (w * d[0], w * d[1]) if MLS_FORCE else (g0[i] * wt1[j], g1[j] * wt0[i])
                                 p2g_node(grid, row_i + r1[j], w, d, fw, (i, j), m, mv, mC, Q, p, modes, q, mode_index,
-                                         AFFINE, POLY)
+                                         AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
                     else:
                         b2, f2, w2, d2, g2, wt2 = axis_stencil(KERNEL, x[p, 2], origin[2], dx, inv_dx, real, S)
                         k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
@@ -179,7 +197,7 @@ def p2g_kernel(DIM, KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY):
                                     else:
                                         fw = (g0[i] * wt1[j] * wt2[l], g1[j] * wt0[i] * wt2[l], g2[l] * w01)
                                     p2g_node(grid, row_ij + r2[l], w, d, fw, (i, j, l), m, mv, mC, Q, p, modes, q,
-                                             mode_index, AFFINE, POLY)
+                                             mode_index, AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
 
     return p2g
 
@@ -321,13 +339,15 @@ def matrix(a, scale, dim):
 
 
 @njit(cache=True, inline="always")
-def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, affine, poly):
+def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, affine, poly, fused, mls_force):
     r"""P2G scatter of one particle to one node ``idx`` of ``grid`` (rows: mass, momentum, force):
     :math:`w_{ip} m_p`, :math:`w_{ip} (m_p v_p + m_p C_p (x_i - x_p) + m_p \sum_r c_{pr} s_r(x_i))` and
     :math:`Q_p\, \mathrm{fw}` (``d`` = :math:`x_i - x_p`; ``fw`` = :math:`w_{ip}(x_i - x_p)` with the MLS
     force matrix :math:`Q_p = -V_p^0\tau_p D_p^{-1}`, or :math:`\nabla w_{ip}` with the classic
     :math:`Q_p = -V_p^0\tau_p`; ``ks`` the node's per-axis stencil index; ``mv``, ``mC``, ``Q`` are the
-    particle's values as tuples)."""
+    particle's values as tuples). ``fused`` (rows: mass, momentum after the force): ``mC`` holds
+    :math:`A_p = m_p C_p + \Delta t Q_p` with the MLS force, and with the classic force ``Q`` holds
+    :math:`\Delta t Q_p`, added to the momentum instead of a force column."""
     dim = len(d)
     grid[idx, 0] += w * m
     for a in range(dim):
@@ -341,11 +361,19 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
                 for c in range(dim):
                     s *= q[c, mode_index[r, c], ks[c]]
                 mom += s * modes[p, r, a]
-        grid[idx, 1 + a] += w * mom
-        f = Q[a][0] * fw[0]
-        for b in range(1, dim):
-            f += Q[a][b] * fw[b]
-        grid[idx, 1 + dim + a] += f
+        if fused and not mls_force:
+            f = Q[a][0] * fw[0]
+            for b in range(1, dim):
+                f += Q[a][b] * fw[b]
+            grid[idx, 1 + a] += w * mom + f
+        elif fused:
+            grid[idx, 1 + a] += w * mom
+        else:
+            grid[idx, 1 + a] += w * mom
+            f = Q[a][0] * fw[0]
+            for b in range(1, dim):
+                f += Q[a][b] * fw[b]
+            grid[idx, 1 + dim + a] += f
 
 
 @lru_cache(maxsize=None)
@@ -588,18 +616,25 @@ def node_velocity(i, mass, momentum, force, dt, gravity, v, v_tilde):
 
     .. math:: \tilde v_i = (mv)_i / m_i, \qquad v_i = \tilde v_i + \Delta t\,(f_i / m_i + g)
 
-    Nodes without mass get zero velocity; returns whether the node has mass.
+    or, with ``force`` empty (a fused P2G's momentum :math:`(mv)_i + \Delta t f_i`), :math:`v_i = ((mv)_i +
+    \Delta t f_i)/m_i + \Delta t g` and no :math:`\tilde v_i`. Nodes without mass get zero velocity; returns
+    whether the node has mass.
     """
     d = momentum.shape[1]
+    folded = force.shape[0] == 0  # a fused P2G's momentum already holds dt f: no v_tilde
     if mass[i] <= 0:
         for a in range(d):
             v[i, a] = 0.0
-            v_tilde[i, a] = 0.0
+            if not folded:
+                v_tilde[i, a] = 0.0
         return False
     inv_m = 1.0 / mass[i]
     for a in range(d):
-        v_tilde[i, a] = momentum[i, a] * inv_m
-        v[i, a] = (momentum[i, a] + dt * force[i, a]) * inv_m + dt * gravity[a]
+        if folded:
+            v[i, a] = momentum[i, a] * inv_m + dt * gravity[a]
+        else:
+            v_tilde[i, a] = momentum[i, a] * inv_m
+            v[i, a] = (momentum[i, a] + dt * force[i, a]) * inv_m + dt * gravity[a]
     return True
 
 

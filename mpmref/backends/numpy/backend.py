@@ -59,6 +59,11 @@ class NumpyBackend:
         return transfers.p2g(particles, tau, self.scene.grid, self.kernel, self.scene.transfer,
                              prepared, contact, classes)
 
+    def p2g_fused(self, particles, dt, prepared=None):
+        """P2G with the internal force folded into the momentum (:func:`.transfers.p2g_fused`)."""
+        return transfers.p2g_fused(particles, self.stress(particles), self.scene.grid, self.kernel, self.scene.transfer,
+                                   dt, prepared)
+
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing (:func:`mpmref.physics.interface.interface_kicks`)."""
         return interface_kicks(grid_state.class_sums, dt, kappa)

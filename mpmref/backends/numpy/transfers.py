@@ -139,6 +139,54 @@ def p2g(particles, tau, grid, kernel, transfer, prepared=None, contact=None, cla
                      class_sums=class_sums)
 
 
+def p2g_fused(particles, tau, grid, kernel, transfer, dt, prepared=None):
+    r"""P2G with the step's internal force folded in: node mass and the momentum after the force,
+    :math:`(mv)_i + \Delta t f_i`, in one scatter (no force array).
+
+    .. math::
+
+        m_i = \sum_p w_{ip} m_p, \qquad
+        (mv)_i + \Delta t f_i = \sum_p w_{ip} \left(m_p v_p + A_p (x_i - x_p)\right)
+        \;\Big[+ \sum_r w_{ip} m_p c_{pr} s_r(x_i)\Big], \qquad
+        A_p = m_p C_p - \Delta t\, V_p^0\, \tau_p D_p^{-1}
+
+    with the MLS force, whose gradient weight :math:`w_{ip} D_p^{-1}(x_i - x_p)` is the APIC momentum's
+    :math:`w_{ip}(x_i - x_p)` times :math:`D_p^{-1}`: the stress joins the affine matrix once per particle (Hu et al.
+    2018 §4, Eq. 18 with APIC's momentum of Jiang et al. 2015 §5; the fused P2G of MLS-MPM implementations, e.g.
+    the 88-line program's ``affine = stress + p_mass * C``). Without an affine scheme (PIC) :math:`A_p` is the
+    force term alone. With the classic force the stress cannot join :math:`A_p` (its weight is :math:`\nabla
+    w_{ip}`, not proportional to :math:`x_i - x_p`), so each node takes :math:`-\Delta t V_p^0 \tau_p \nabla w_{ip}`
+    beside the momentum, in the same scatter. The bracket is PolyPIC's higher modes (:func:`p2g`).
+
+    Equal to :func:`p2g`'s momentum plus :math:`\Delta t` times its force up to round-off (the conformance stage
+    ``p2g_fused`` holds it to 1e-12 relative in float64); not for FLIP, whose G2P needs the grid velocity before the
+    force. Returns a :class:`~mpmref.state.GridState` with ``force = None``, which :func:`grid_update` reads as folded.
+
+    Docs: docs/performance.md#the-fused-p2g
+    """
+    st, basis = prepared or prepare(particles, grid, kernel, transfer)
+    m, d = particles.mass, grid.dim
+    stress_volume = particles.vol0[:, None, None] * tau
+    mls = transfer.force == "mls"
+    A = -dt * stress_volume / st.inertia if mls else np.zeros_like(stress_volume)
+    if transfer.affine:
+        A = A + m[:, None, None] * particles.C
+    sums = np.zeros((grid.n_nodes, 1 + d))  # per node: mass, momentum after the force
+    for offset in st.offsets:
+        w = st.node_weight(offset)
+        p_mom = m[:, None] * particles.v + np.einsum("nab,nb->na", A, st.node_offset_vector(offset))
+        if basis is not None:
+            p_mom = p_mom + m[:, None] * np.einsum("nm,nmd->nd", mode_values(basis[0], offset, basis[1]),
+                                                   particles.modes)
+        node_momentum = w[:, None] * p_mom
+        if not mls:
+            node_momentum = node_momentum - dt * np.einsum("nab,nb->na", stress_volume, st.node_gradient(offset))
+        sums += scatter(node_index(st, offset, grid), np.concatenate([(w * m)[:, None], node_momentum], axis=1),
+                        grid.n_nodes)
+    dtype = particles.x.dtype
+    return GridState(mass=sums[:, 0].astype(dtype), momentum=sums[:, 1:].astype(dtype), force=None)
+
+
 def polypic_basis(stencil, grid):
     """PolyPIC per-axis polynomials, their norms and the higher-mode list for these particles."""
     q, norm = axis_basis(stencil.w, stencil.fx, stencil.dx)
@@ -167,7 +215,9 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     followed by :func:`mpmref.physics.boundary.project_velocity` on each wall's band of nodes and by
     each level-set collider at ``time`` (Hu et al. 2018 Alg. 1, grid operations). Returns
     ``(v, v_tilde)``; ``v_tilde`` (the velocity before forces) is what FLIP needs. Nodes without mass
-    get zero velocity.
+    get zero velocity. A grid state of :func:`p2g_fused` (``force`` is ``None``: its momentum is
+    :math:`(mv)_i + \Delta t f_i`) gives :math:`v_i = ((mv)_i + \Delta t f_i)/m_i + \Delta t g` and no ``v_tilde``
+    (``None``).
 
     Docs: docs/mpm_cycle.md#from-the-continuum-to-the-cycle, docs/mpm_cycle.md#grid-update
 
@@ -180,8 +230,9 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
     """
     has_mass = gs.mass > 0
     inv_m = np.where(has_mass, 1.0 / np.where(has_mass, gs.mass, 1.0), 0.0)[:, None]
-    v_tilde = gs.momentum * inv_m
-    v = (gs.momentum + dt * gs.force) * inv_m + dt * gravity * has_mass[:, None]
+    folded = gs.force is None
+    v_tilde = None if folded else gs.momentum * inv_m
+    v = (gs.momentum if folded else gs.momentum + dt * gs.force) * inv_m + dt * gravity * has_mass[:, None]
     v = v.astype(gs.momentum.dtype)
     for name, mask, normal in bands:
         wall = walls[name]
