@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..backends.base import FusedBackend
+from ..backends.base import FUSED_BACKEND_STAGES
 from ..physics.interface import momentum_share
 from ..physics.kernels import compute_stencil
 from ..physics.rigid_dynamics import apply_impulses, begin_step, end_step
@@ -105,12 +105,13 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
 
 
 def folds_force(backend, hooks, ledger):
-    """Whether a step folds the internal force into P2G (the backend's ``p2g_fused``, a
-    :class:`~mpmref.backends.base.FusedBackend`): when the backend can, the scheme's G2P does not need the grid
+    """Whether a step folds the internal force into P2G (the backend's ``p2g_fused``, the optional stage of
+    :class:`~mpmref.backends.base.FusedBackend`; looked up by name, as an ``isinstance`` test of the protocol costs
+    tens of microseconds a step): when the backend can, the scheme's G2P does not need the grid
     velocity before the force (not FLIP), and nothing reads the force apart (no hook, no energy ledger; CPIC's
     coupled P2G is never fused). The result is the same up to round-off (docs/performance.md#the-fused-p2g)."""
-    return (isinstance(backend, FusedBackend) and not backend.scene.transfer.flip and ledger is None
-            and hooks.body_force is None and not hooks.grid_folds)
+    return (callable(getattr(backend, FUSED_BACKEND_STAGES[0], None)) and not backend.scene.transfer.flip
+            and ledger is None and hooks.body_force is None and not hooks.grid_folds)
 
 
 def _observed(ledger, trial, return_map):

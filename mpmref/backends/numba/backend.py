@@ -11,7 +11,7 @@ from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
 from . import cpic, materials, transfers
-from .blocks import colour_classes, slab_colours, sort_into_blocks
+from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
 from .kernel_args import Groups, SparseLayout
 from .sparse import BlockLayout
@@ -124,6 +124,9 @@ class NumbaBackend:
         self.fluid_params = materials.fluid_parameters(scene.material_list)
         self.wave_params = materials.wave_parameters(scene.material_list)
         self.buffers = BufferPool(self.dtype)
+        self.n_blocks = int(np.prod(grid.blocks_per_axis))
+        #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
+        self._last_sort = (None, None)
 
     running = staticmethod(threads_for)
 
@@ -144,11 +147,19 @@ class NumbaBackend:
 
     def prepare(self, particles):
         """Sort the particles into the grid's blocks and P2G's colour classes of slabs or blocks, and the
-        sparse grid's active blocks (:meth:`.sparse.BlockLayout.from_sort`)."""
-        order, block_start = sort_into_blocks(particles.x, self.origin, self.dx, self.shift, self.block,
-                                              self.blocks_per_axis)
+        sparse grid's active blocks (:meth:`.sparse.BlockLayout.from_sort`). The sort is a function of the
+        particles' blocks alone (:func:`.blocks.counting_sort`), so when every particle is in the block it was in at
+        the last sort, that sort is returned as it is (the particles' blocks are computed every time, in parallel:
+        :func:`.blocks.block_keys`)."""
+        keys = block_keys(particles.x, self.origin, self.dx, self.shift, self.block, self.blocks_per_axis)
+        last_keys, last_blocks = self._last_sort
+        if last_keys is not None and np.array_equal(keys, last_keys):
+            return last_blocks  # the sort depends on the blocks alone (counting_sort): the last one still holds
+        order, block_start = counting_sort(keys, self.n_blocks)
         layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
-        return Blocks(order, block_start, self.blocks_per_axis, layout)
+        blocks = Blocks(order, block_start, self.blocks_per_axis, layout)
+        self._last_sort = (keys, blocks)
+        return blocks
 
     def wave_speeds(self, particles, idx):
         """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, in one compiled
@@ -216,7 +227,7 @@ class NumbaBackend:
         n, d = particles.x.shape
         stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
         grid, = self.buffers.take("grid" if vectors == 2 else "grid_fused", (n_classes * layout.n_rows, 1 + vectors * d))
-        transfers.zero_rows(grid)
+        grid.fill(0.0)  # a memset: memory-bound, so a parallel loop's launch costs more than its second thread gains
         chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
         try:
             kernel(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),

@@ -22,11 +22,8 @@ import numpy as np
 from numba import njit, prange
 
 @njit(parallel=True, cache=True)
-def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
-    """Stable counting sort of particles by block, and the non-empty blocks grouped by colour.
-
-    The block of each particle is computed in parallel; the counts and the stable placement are one serial
-    pass each (their order is what makes the sort stable).
+def block_keys(x, origin, dx, shift, block, blocks_per_axis):
+    """The block (C-order number) of each particle: the block of its stencil's base node, in parallel.
 
     Parameters
     ----------
@@ -35,16 +32,8 @@ def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
     shift : float              ``base = floor((x - origin)/dx - shift)`` (the kernel's base-node rule)
     block : int                cells per block edge
     blocks_per_axis : (d,) int
-
-    Returns
-    -------
-    order : (n,) int           particle indices, block by block
-    block_start : (n_blocks + 1,) int   ``order[block_start[b]:block_start[b+1]]`` are block ``b``'s particles
     """
     n, d = x.shape
-    n_blocks = 1
-    for a in range(d):
-        n_blocks *= blocks_per_axis[a]
     block_of = np.empty(n, dtype=np.int64)
     for p in prange(n):
         b = 0
@@ -52,6 +41,18 @@ def sort_into_blocks(x, origin, dx, shift, block, blocks_per_axis):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
             b = b * blocks_per_axis[a] + base // block
         block_of[p] = b
+    return block_of
+
+
+@njit(cache=True)
+def counting_sort(block_of, n_blocks):
+    """Stable counting sort of particles by their block ``block_of``: ``(order, block_start)``, ``order`` the
+    particle indices block by block and ``order[block_start[b]:block_start[b+1]]`` block ``b``'s particles.
+
+    The counts and the stable placement are one serial pass each (their order is what makes the sort stable), so
+    the result depends on ``block_of`` alone.
+    """
+    n = block_of.shape[0]
     block_start = np.zeros(n_blocks + 1, dtype=np.int64)  # counts first, then their running sum in place
     for p in range(n):
         block_start[block_of[p] + 1] += 1

@@ -47,7 +47,7 @@ class BlockLayout:
 
     @classmethod
     def from_sort(cls, block_start, blocks_per_axis, block, node_shape):
-        """The layout of the particles sorted by :func:`.blocks.sort_into_blocks` (``block_start``)."""
+        """The layout of the particles sorted by :func:`.blocks.counting_sort` (``block_start``)."""
         table_shape = np.asarray(blocks_per_axis, dtype=np.int64) + 1
         slot_of, blocks = active_blocks(block_start, np.asarray(blocks_per_axis, dtype=np.int64), table_shape)
         return cls(block, node_shape, table_shape, slot_of, blocks)

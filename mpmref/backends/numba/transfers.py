@@ -263,14 +263,6 @@ def block_rows_3d(b0, b1, b2, slot_of, table_strides, block):
     return slot_of[t] * n, slot_of[t + s1] * n, slot_of[t + s0] * n, slot_of[t + s0 + s1] * n
 
 
-@njit(parallel=True, cache=True)
-def zero_rows(a):
-    """``a[:] = 0`` for an (N, k) array, in parallel."""
-    for i in prange(a.shape[0]):
-        for c in range(a.shape[1]):
-            a[i, c] = 0.0
-
-
 @njit(cache=True, inline="always")
 def offsets(f, dx, S):
     """Node offsets :math:`(k - f)\\Delta x`, ``k = 0 .. S-1``, of one axis as a tuple."""
