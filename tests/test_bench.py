@@ -20,6 +20,7 @@ from mpmref.steppers import substep
 from mpmref.bench import SCHEMA, SECTIONS, BenchOptions, add_parser, options_from_args, run_bench
 from mpmref.bench.peer import clear_of_walls, frobenius_max, mean_position_bound, run_peer
 from mpmref.bench.report import render_peer
+from mpmref.bench.opcount import predicted_ratio
 from mpmref.bench.table2 import table2_ratios
 from mpmref.bench.scenes import Case, mpm88_scene, table2_cells, table2_particles, table2_scene, throughput_cases
 from mpmref.bodies import sample_particles
@@ -151,7 +152,7 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
     assert "CPIC: a step with 3 bodies" in out
     assert results["busy"]["results"] == []  # the Numba backend's threads only
-    assert "Goals" in out and len(results["goals"]) == 15 and all("met" in g for g in results["goals"])
+    assert "Goals" in out and len(results["goals"]) == 16 and all("met" in g for g in results["goals"])
 
 
 def test_table2_ratios_divide_mpm_by_mls():
@@ -162,9 +163,28 @@ def test_table2_ratios_divide_mpm_by_mls():
                 for (m, s), t in medians.items()]
 
     (ratio,) = table2_ratios(timings(3.0))
+    counted = predicted_ratio(3, "p2g")  # the operation counts' ratio of the transfers alone
     assert ratio == {"backend": "numba", "threads": 2, "dtype": "float32", "p2g": 5.0 / 3.0, "g2p": 2.0,
-                     "p2g_minus_stress": 2.0}
+                     "p2g_minus_stress": 2.0, "predicted_p2g": pytest.approx((1.0 + 2.0 * counted) / 3.0),
+                     "predicted_g2p": predicted_ratio(3, "g2p")}
     assert table2_ratios(timings(0.9))[0]["p2g_minus_stress"] is None  # P2G below its stress: noise
+
+
+def test_the_operation_counts_follow_the_kernels_per_node_work():
+    """Per particle, the classic method adds to each of the S^d nodes the gradient weight (3D: 5 products) and
+    d(2d - 1 + 1) operations of the force in P2G, 2d^2 of the velocity gradient in G2P; the particle arrays moved are
+    the same for both methods, so the predicted time ratio is the operation ratio."""
+    from mpmref.bench.opcount import S, axis_setup, counts
+
+    for dim, gradient in ((2, 2), (3, 5)):
+        c = counts(dim)
+        extra_setup = dim * (axis_setup("mpm") - axis_setup("mls"))
+        assert c[("p2g", "mpm")].flops - c[("p2g", "mls")].flops == (
+            S**dim * (2 * dim * dim + gradient) + extra_setup - 2 * dim * dim)  # MLS folds dt Q into A once: 2d^2
+        assert c[("g2p", "mpm")].flops - c[("g2p", "mls")].flops == (
+            S**dim * (2 * dim * dim + gradient) + extra_setup - dim**3)  # MLS divides B by D in the F update: d^3
+        assert c[("p2g", "mpm")].bytes == c[("p2g", "mls")].bytes and c[("g2p", "mpm")].bytes == c[("g2p", "mls")].bytes
+    assert predicted_ratio(3, "p2g") == pytest.approx(1461 / 837)
 
 
 def test_options_from_the_command_line():

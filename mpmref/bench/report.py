@@ -46,10 +46,12 @@ def _table2_block(by, key, ratio):
     def figure(method, stage, field):
         return seconds(by[(*key, method, stage)][field])
 
-    rows = [f"{'':6}{'MPM':>12}{'MLS-MPM':>12}{'MPM/MLS':>10}"]
+    rows = [f"{'':6}{'MPM':>12}{'MLS-MPM':>12}{'MPM/MLS':>10}{'predicted':>11}"]
     for stage, label in STAGE_ROWS:
         cells = "".join(f"{figure(m, stage, 'median_s'):>12}" for m, _ in METHOD_COLUMNS)
-        rows.append(f"{label:6}{cells}{ratio[stage]:>9.2f}x")
+        predicted = ratio.get(f"predicted_{stage}")
+        guess = "" if predicted is None else f"{predicted:>10.2f}x"
+        rows.append(f"{label:6}{cells}{ratio[stage]:>9.2f}x{guess}")
     firsts = ", ".join(f"{label} " + " / ".join(figure(m, stage, "first_call_s") for m, _ in METHOD_COLUMNS)
                        for stage, label in STAGE_ROWS)
     transfer = "-" if ratio["p2g_minus_stress"] is None else f"{ratio['p2g_minus_stress']:.2f}x"

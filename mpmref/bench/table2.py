@@ -2,14 +2,19 @@
 
 Each backend times four stages on the same particles: ``prepare`` (what P2G and G2P of one step share:
 the kernel stencil for NumPy, the sort into blocks for Numba), ``stress`` (the Kirchhoff stress alone),
-then ``p2g`` (which includes the stress) and ``g2p`` given that preparation, as a step runs them. The
-grid velocities for G2P come from one untimed grid update after P2G. Besides the P2G and G2P ratios,
-``p2g_minus_stress`` compares the transfer part of P2G (median P2G minus median stress): the stress
-is the same work for both methods and can hide the transfer's saving.
+then ``p2g`` (which includes the stress) and ``g2p`` given that preparation, as a step runs them: the fused P2G
+(``p2g_fused``, the force folded into the momentum) where the backend has it, for both methods, so that each is as
+fast as the backend makes it. The grid velocities for G2P come from one untimed grid update after P2G. Besides the
+P2G and G2P ratios, ``p2g_minus_stress`` compares the transfer part of P2G (median P2G minus median stress): the
+stress is the same work for both methods and can hide the transfer's saving. ``predicted_p2g`` and
+``predicted_g2p`` are the ratios the kernels' operation counts predict (:mod:`.opcount`), the P2G one with the
+measured stress included.
 """
 
 from ..backends import make_backend
+from ..backends.base import FUSED_BACKEND_STAGES
 from .memory import memory_probe
+from .opcount import counts, predicted_ratio
 from .scenes import TABLE2_MATERIAL, TABLE2_METHODS, TABLE2_PAD, table2_particles, table2_scene
 from .timing import measure, set_threads, thread_counts
 
@@ -32,11 +37,19 @@ def run_table2(cells, backends, threads, dtypes, repeats, memory=True, log=print
             for backend in backends:
                 log(f"table2: {dim}D {backend} {dtype} {method} ({particles.n} particles)")
                 timings += time_stages(backend, scene, particles, threads, repeats, method)
-    section = {"setup": table2_setup(cells, dim), "timings": timings, "ratios": table2_ratios(timings)}
+    section = {"setup": table2_setup(cells, dim), "timings": timings, "ratios": table2_ratios(timings, dim),
+               "operations": operation_counts(dim)}
     if memory and dim == 3:
         section["memory"] = [memory_probe(b, cells, dtype, max(thread_counts(b, threads)))
                              for b in backends for dtype in dtypes]
     return section
+
+
+def operation_counts(dim):
+    """Floating-point operations and particle bytes per particle of each method's fused P2G and G2P
+    (:func:`.opcount.counts`), for the JSON document."""
+    return [{"stage": stage, "method": method, "flops": c.flops, "bytes_float32": c.bytes,
+             "bytes_float64": counts(dim, 8)[(stage, method)].bytes} for (stage, method), c in counts(dim).items()]
 
 
 def table2_setup(cells, dim=3):
@@ -56,7 +69,7 @@ def time_stages(backend_name, scene, particles, threads, repeats, method):
         set_threads(backend_name, k)
         prep, prepared = measure(lambda: backend.prepare(particles), repeats)
         stress, _ = measure(lambda: backend.stress(particles), repeats)
-        p2g, grid_state = measure(lambda: backend.p2g(particles, prepared), repeats)
+        p2g, grid_state = measure(lambda: stepped_p2g(backend, particles, dt, prepared), repeats)
         v_grid, v_tilde = backend.grid_update(grid_state, dt)
         g2p, _ = measure(lambda: backend.g2p(particles, v_grid, v_tilde, dt, prepared), repeats)
         key = {"backend": backend_name, "threads": k, "dtype": str(scene.dtype), "method": method}
@@ -64,7 +77,13 @@ def time_stages(backend_name, scene, particles, threads, repeats, method):
     return records
 
 
-def table2_ratios(timings):
+def stepped_p2g(backend, particles, dt, prepared):
+    """The P2G a step runs: the fused one where the backend has it (the force folded in), else the plain one."""
+    fused = getattr(backend, FUSED_BACKEND_STAGES[0], None)
+    return fused(particles, dt, prepared) if callable(fused) else backend.p2g(particles, prepared)
+
+
+def table2_ratios(timings, dim=3):
     """MPM over MLS-MPM median time of P2G, G2P and P2G minus the stress, per backend, thread count and dtype.
 
     ``p2g_minus_stress`` is ``None`` when a median P2G is not above its median stress (timing noise).
@@ -78,5 +97,7 @@ def table2_ratios(timings):
         transfer = [of(method, "p2g") - of(method, "stress") for method in ("mpm", "mls")]
         ratios.append({"backend": key[0], "threads": key[1], "dtype": key[2],
                        "p2g": of("mpm", "p2g") / of("mls", "p2g"), "g2p": of("mpm", "g2p") / of("mls", "g2p"),
-                       "p2g_minus_stress": transfer[0] / transfer[1] if min(transfer) > 0 else None})
+                       "p2g_minus_stress": transfer[0] / transfer[1] if min(transfer) > 0 else None,
+                       "predicted_p2g": predicted_ratio(dim, "p2g", of("mls", "p2g"), of("mls", "stress")),
+                       "predicted_g2p": predicted_ratio(dim, "g2p")})
     return ratios
