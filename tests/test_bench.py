@@ -152,7 +152,7 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
     assert "CPIC: a step with 3 bodies" in out
     assert results["busy"]["results"] == []  # the Numba backend's threads only
-    assert "Goals" in out and len(results["goals"]) == 16 and all("met" in g for g in results["goals"])
+    assert "Goals" in out and len(results["goals"]) == 18 and all("met" in g for g in results["goals"])
 
 
 def test_table2_ratios_divide_mpm_by_mls():
@@ -202,6 +202,28 @@ def test_options_from_the_command_line():
         parse(["--backends", "numpy,cuda"])
 
 
+def test_a_yardstick_is_read_and_the_goals_compare_the_throughput_cases_with_it(tmp_path):
+    """A hand-written program's JSON lines (the peers print one per run) against the throughput section's rates on
+    the same dimension, particle count, threads and dtype; a line without the keys is refused."""
+    from mpmref.bench.goals import goals_section
+
+    path = tmp_path / "hand.jsonl"
+    path.write_text('{"code": "hand-2d", "dim": 2, "n_particles": 32768, "threads": 2, "dtype": "f32", '
+                    '"particle_steps_per_s": 4.0e7}\n')
+    yardstick = options_from_args(parse(["--yardstick", str(path)])).yardstick
+    throughput = {"cases": [{"case": "mpm88", "particles": 32768}],
+                  "results": [{"case": "mpm88", "backend": "numba", "threads": t, "dtype": "float32",
+                               "particle_steps_per_s": rate} for t, rate in ((1, 2.0e7), (2, 3.4e7))]}
+    by_name = {g["name"]: g for g in goals_section({"throughput": throughput, "yardstick": list(yardstick)})}
+    hand = by_name["mpm88 2 threads float32: mpmref / hand-written"]
+    assert hand["figure"] == pytest.approx(0.85) and hand["met"] is True and "hand-2d" in hand["where"]
+    assert by_name["fluid3d 2 threads float32: mpmref / hand-written"]["figure"] is None
+    assert by_name["2 threads over 1, idle"]["figure"] == pytest.approx(1.7)
+    path.write_text('{"dim": 2}\n')
+    with pytest.raises(SystemExit):
+        parse(["--yardstick", str(path)])
+
+
 def test_the_sections_are_registered_once_and_the_cli_the_json_and_the_tables_follow(monkeypatch):
     """--only's choices, the default sections and the JSON keys are the registry's; the runner runs and renders
     the registered section (here a stand-in for cpic, so nothing is timed)."""
@@ -219,7 +241,7 @@ def test_the_sections_are_registered_once_and_the_cli_the_json_and_the_tables_fo
     lines = []
     results = run_bench(BenchOptions(backends=("numpy",), threads=(1,), sections=("cpic",), quick=True),
                         log=lines.append, progress=lambda line: None)
-    assert list(results) == ["schema", "created_utc", "environment", "options", *names, "goals"]
+    assert list(results) == ["schema", "created_utc", "environment", "options", *names, "yardstick", "goals"]
     assert results["cpic"] == {"results": [], "ran": True} and lines[0] == "stand-in table, quick True\n"
     assert all(results[name] is None for name in names if name != "cpic")
 

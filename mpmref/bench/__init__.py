@@ -30,6 +30,7 @@ Sections of the JSON document (each ``null`` when not run):
 * ``busy``: ``scene``, ``particles``, ``steps``, ``threading_layer`` and ``results`` (per ``load``, ``"as it is"`` and
   ``"one core busy"``: ``times_s`` and ``median_s`` on 1 and 2 threads, ``ratio`` two over one;
   :mod:`mpmref.bench.busy`).
+* ``yardstick``: the records given with ``--yardstick`` (a hand-written program's runs), as given.
 * ``goals``: one record per performance goal (:mod:`mpmref.bench.goals`): ``name``, ``figure`` (``null``
   when this run did not measure it), ``bound``, ``at_most``, ``where``, ``met``.
 * ``peer``: ``available`` (and ``message`` if not), ``version``, ``dtype``, ``steps`` and ``results``
@@ -44,6 +45,7 @@ import os
 import platform
 import sys
 import time
+from pathlib import Path
 from dataclasses import asdict, dataclass
 from importlib import metadata
 
@@ -84,6 +86,7 @@ class BenchOptions:
     peer_steps : int      steps per timed repeat in the peer section
     quick : bool          tiny throughput and peer cases (a smoke test: the figures mean nothing)
     memory : bool         run the peak-memory probes (Table 2, domain)
+    yardstick : tuple     records of a hand-written program's runs (``--yardstick``), which goals compare with
     """
 
     size: int = DEFAULT_PARTICLES
@@ -98,6 +101,7 @@ class BenchOptions:
     quick: bool = False
     memory: bool = True
     plot: str = None
+    yardstick: tuple = ()
 
     @property
     def table2_cells(self):
@@ -130,6 +134,7 @@ def run_bench(options, log=print, progress=_to_stderr):
         results[name] = BY_NAME[name].run(options, progress)
         progress(f"{tag}: finished in {time.perf_counter() - start:.1f} s")
         log(BY_NAME[name].render(results[name]) + "\n")
+    results["yardstick"] = list(options.yardstick)
     results["goals"] = goals_section(results)
     log(render_goals(results["goals"]) + "\n")
     return results
@@ -191,6 +196,21 @@ def _backend_list(text):
     return tuple(reference_argument(part.strip()) for part in text.split(","))
 
 
+def _yardstick(text):
+    """``--yardstick FILE``: the records of a JSON-lines file (each with ``dim``, ``n_particles``, ``threads``,
+    ``dtype`` and ``particle_steps_per_s``)."""
+    try:
+        lines = Path(text).read_text(encoding="utf-8").splitlines()
+        records = [json.loads(line) for line in lines if line.strip()]
+    except (OSError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(f"{text}: cannot read JSON lines ({exc})") from None
+    keys = {"dim", "n_particles", "threads", "dtype", "particle_steps_per_s"}
+    bad = [r for r in records if not isinstance(r, dict) or not keys <= set(r)]
+    if bad:
+        raise argparse.ArgumentTypeError(f"{text}: every line needs the keys {sorted(keys)}")
+    return tuple(records)
+
+
 def add_parser(subparsers):
     """Add the ``bench`` subcommand to an argparse ``subparsers`` object (sets ``func``)."""
     p = subparsers.add_parser("bench", help="time Table 2 (P2G/G2P), whole-step throughput and a Taichi peer",
@@ -213,6 +233,9 @@ def add_parser(subparsers):
     p.add_argument("--quick", action="store_true", help="tiny sizes: a smoke test whose figures mean nothing")
     p.add_argument("--no-memory", action="store_true", help="skip the peak-memory probes (Table 2, domain)")
     p.add_argument("--json", dest="json_path", help="write the results to this JSON file (atomically)")
+    p.add_argument("--yardstick", type=_yardstick, metavar="FILE",
+                   help="JSON lines of a hand-written program's runs (dim, n_particles, threads, dtype, "
+                   "particle_steps_per_s), run beside this command: the goals compare the throughput cases with them")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress lines (they go to standard error; the tables to standard output)")
     p.set_defaults(func=cmd_bench)
@@ -228,7 +251,7 @@ def options_from_args(args):
     size = args.size or (QUICK_PARTICLES if args.quick else DEFAULT_PARTICLES)
     return BenchOptions(size=size, full=args.full, threads=args.threads, dtypes=args.dtype, backends=args.backends,
                         sections=sections, repeats=args.repeats, steps=args.steps, peer_steps=args.peer_steps,
-                        quick=args.quick, memory=not args.no_memory, plot=args.plot)
+                        quick=args.quick, memory=not args.no_memory, plot=args.plot, yardstick=args.yardstick or ())
 
 
 def _silent(message):
