@@ -5,6 +5,7 @@ is 1e-12 of it.
 """
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from mpmref import Scene, SceneBuilder, SceneError, Simulation
 from mpmref.ledger import COLUMNS, TERMS, EnergyLedger
 from mpmref.steppers.pipeline import substep
 from verification.energy import Params, make_simulation
+from verification.energy_ledger import runs as ledger_runs
 from verification.momentum import VARIANTS
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -109,21 +111,13 @@ def test_a_moving_collider_can_add_energy():
 
 
 def test_friction_takes_mu_m_g_d():
-    """A block sliding on a floor with Coulomb friction mu decelerates at mu g; the energy the floor takes is
-    mu m g d over the distance d slid (the work of the friction force). Measured: within 5 %."""
-    mu, g, u = 0.3, 10.0, 1.0
-    dx = 1.0 / 32
-    scene = (SceneBuilder(dim=2, name="slide").grid(size=1.0, cells=32).method("apic")
-             .material("m", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
-             .box("m", lower=[0.2, 3 * dx], upper=[0.4, 3 * dx + 0.1], ppc=4)
-             .walls("separate", friction=mu).gravity([0.0, -g]).time(dt=2e-4, steps=1).build())
-    sim = Simulation(scene)
-    sim.v = np.broadcast_to([u, 0.0], sim.v.shape).copy()
-    m, x0 = float(sim.mass.sum()), sim.x[:, 0].mean()
-    entries = booked(sim, 500)  # 0.1 s: the block slows from 1 to 0.7 m/s
-    d = sim.x[:, 0].mean() - x0
+    """A block sliding at 1 m/s on a floor with Coulomb friction mu decelerates at mu g; the energy the floor takes
+    is mu m g d over the distance d slid (the work of the friction force). Measured over 0.1 s (the block slows from
+    1 to 0.7 m/s; the energy_ledger case's friction block, run longer): within 5 %."""
+    f = ledger_runs.run_friction(replace(ledger_runs.Params.quick(), friction_steps=500), "numpy")
+    d = f["distance"][-1]
     assert 0.05 < d < 0.1
-    assert -column(entries, "boundary").sum() == pytest.approx(mu * m * g * d, rel=0.05)
+    assert -f["boundary"][-1] == pytest.approx(f["mu"] * f["mass"] * f["g"] * d, rel=0.05)
 
 
 def example_scene(name, **output):
@@ -146,16 +140,12 @@ def test_the_return_map_of_sand_never_raises_elastic_energy():
 def test_integration_error_converges_at_first_order():
     """Symplectic Euler's energy error per step is O(dt^2) (Hairer, Lubich & Wanner 2006 ch. IX), so the sum
     of its size over the steps to a fixed time is O(dt): fitted slope in [0.8, 1.3] as dt halves (MLS-MPM on
-    the oscillating jelly to t = 0.02 s). The signed total is not used: its two leading parts (the elastic
-    energy's convexity remainder, >= 0, and the kinetic -m|dt a|^2/2, <= 0) cancel to leading order."""
-    dts, sizes = [], []
-    for k in range(3):
-        sim = make_simulation(JELLY, "jelly", variant("mls"))
-        n = int(np.ceil(0.02 / sim.stepper.time_step(sim.particles))) * 2**k
-        sizes.append(np.abs(column(booked(sim, n, dt=0.02 / n), "integration")).sum())
-        dts.append(0.02 / n)
-    slope = np.polyfit(np.log(dts), np.log(sizes), 1)[0]
-    assert 0.8 <= slope <= 1.3, (dts, sizes)
+    the oscillating jelly to t = 0.02 s, as the energy_ledger case measures it). The signed total is not used: its
+    two leading parts (the elastic energy's convexity remainder, >= 0, and the kinetic -m|dt a|^2/2, <= 0) cancel to
+    leading order."""
+    study = ledger_runs.run_integration(replace(ledger_runs.Params.quick(), integration_t_end=0.02), "numpy")
+    slope = np.polyfit(np.log(study["dt"]), np.log(study["size"]), 1)[0]
+    assert 0.8 <= slope <= 1.3, study
 
 
 def test_transfer_terms_tend_to_the_pure_transfer_cycle():
