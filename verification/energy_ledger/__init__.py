@@ -12,8 +12,8 @@ Runs (NumPy reference unless another backend is asked for; the ledger on, ``[out
   is refused).
 * **the friction block**: an elastic block slides at 1 m/s on a ``separate`` floor with Coulomb friction
   :math:`\mu = 0.3` under :math:`g = 10`, 300 steps.
-* **the integration study**: the energy case's oscillating jelly (MLS-MPM) to 0.01 s at :math:`\Delta t`,
-  :math:`\Delta t/2`, :math:`\Delta t/4`.
+* **the integration study**: the energy case's oscillating jelly (MLS-MPM) to 0.01 s (quick: 0.005 s) at
+  :math:`\Delta t`, :math:`\Delta t/2`, :math:`\Delta t/4` (full: and :math:`\Delta t/8`).
 * **the candidate**: from each compared run's state half-way and at its end, one step booked on the reference and on
   the candidate (``numba``, or the backend named by ``--backend`` when it is not ``numpy``).
 

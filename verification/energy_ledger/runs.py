@@ -82,9 +82,9 @@ class Params:
     @classmethod
     def quick(cls):
         """The examples on half their cells, each for its quick duration; the candidate on the runs whose kernels
-        the other cases compile too (no CPIC)."""
+        the other cases compile too (no CPIC); the integration study to 0.005 s."""
         return cls(coarsen=2, duration_factor=1.0, compared=("jelly-mls", "jelly-polypic", "snow88", "sand"),
-                   frames=5)
+                   frames=5, integration_t_end=0.005)
 
     @classmethod
     def full(cls):
