@@ -19,7 +19,8 @@ from ..steppers import substep
 from .scenes import mpm88_scene, table2_particles, table2_scene
 from .timing import measure, set_threads, thread_counts
 
-#: particles of the mpm88 fluid and cells per side of the 2D block (4 particles per cell): the benchmark, ``--quick``
+#: the sizes of the cases, the mpm88 fluid's particle count and grid cells and the 2D block's cells per side (4
+#: particles per cell), in the benchmark and with ``--quick``
 SIZES = {"mpm88": (32768, 128), "block2d": (96,)}
 QUICK_SIZES = {"mpm88": (512, 128), "block2d": (12,)}
 
