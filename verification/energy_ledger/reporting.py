@@ -127,13 +127,14 @@ def _share(value, change):
 
 # ---------------------------------------------------------------------------------------------- tables
 def split_rows(result):
-    """One row per run: its set-up, the measured change of total energy and each term's cumulative joules."""
+    """One row per run: its set-up, its wall time (the steps, without the candidate's), the measured change of total
+    energy and each ledger column's cumulative joules."""
     rows = []
     for r in result["runs"]:
         energy, last = total_energy(r), r["ledger"][-1]
         rows.append({"run": r["key"], "method": r["method"], "particles": int(r["n_particles"]), "steps": int(r["steps"]),
-                     "t_end": float(r["t"][-1]), "E0": float(energy[0]), "measured_change": float(energy[-1] - energy[0]),
-                     **{c: float(last[COLUMNS.index(c)]) for c in COLUMNS}})
+                     "t_end": float(r["t"][-1]), "wall_s": float(r["wall_s"]), "E0": float(energy[0]),
+                     "measured_change": float(energy[-1] - energy[0]), **{c: float(last[COLUMNS.index(c)]) for c in COLUMNS}})
     return rows
 
 
