@@ -82,13 +82,19 @@ def _magnitude(a):
     return np.abs(a) if a.ndim == 1 else np.linalg.norm(a, axis=1)
 
 
-def elastic_energy(particles, materials):
-    r"""Total stored energy :math:`\sum_p V_p^0 \Psi(F_p)` (or :math:`\Psi(J_p)` for fluids)."""
-    total = 0.0
+def elastic_energies(particles, materials):
+    r"""Each particle's stored energy :math:`V_p^0 \Psi(F_p)` (or :math:`V_p^0 \Psi(J_p)` for fluids), float64 (n,)."""
+    energy = np.zeros(particles.n)
     for material, idx in material_groups(materials, particles):
         args = [a.astype(np.float64) for a in state_args(material, particles, idx)]
-        total += float(np.sum(particles.vol0[idx] * material.energy_density(*args)))
-    return total
+        energy[idx] = particles.vol0[idx] * material.energy_density(*args)
+    return energy
+
+
+def elastic_energy(particles, materials):
+    r"""Total stored energy :math:`\sum_p V_p^0 \Psi(F_p)` (or :math:`\Psi(J_p)` for fluids): the sum of
+    :func:`elastic_energies`."""
+    return float(np.sum(elastic_energies(particles, materials)))
 
 
 def polypic_mode_norms(particles, kernel, grid):
@@ -115,9 +121,16 @@ def kinetic_parts(particles, inertia, mode_norms=None):
     kinetic = float(0.5 * np.sum(m * np.sum(v * v, axis=1)))
     affine = (float(0.5 * inertia * np.sum(m * np.sum(particles.C.astype(np.float64) ** 2, axis=(1, 2))))
               if particles.C is not None else 0.0)
-    modes = (float(0.5 * np.sum(m[:, None] * mode_norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2)))
-             if particles.modes is not None else 0.0)
+    modes = float(np.sum(mode_energies(particles, mode_norms))) if particles.modes is not None else 0.0
     return kinetic, affine, modes
+
+
+def mode_energies(particles, mode_norms):
+    r"""Each particle's kinetic energy in its higher PolyPIC modes, float64 (n,):
+    :math:`\tfrac12 m_p \sum_r |c_{pr}|^2 N_{pr}` with the (n, M) norms :math:`N_{pr} = \sum_i w_{ip} s_r(x_i)^2`
+    (:func:`polypic_mode_norms`; the modes are orthogonal on the stencil, Fu et al. 2017 §5)."""
+    m = particles.mass.astype(np.float64)
+    return 0.5 * m * np.sum(mode_norms * np.sum(particles.modes.astype(np.float64) ** 2, axis=2), axis=1)
 
 
 def gravitational_energy(particles, gravity):

@@ -38,13 +38,14 @@ where :math:`v_i^* = \tilde v_i + \Delta t (f_i / m_i + g)` is the velocity befo
 static walls and colliders, and a moving collider can add energy. Elsewhere :math:`R_i = 0` and
 :math:`B_i = -\tfrac12 m_i |\Delta t\, a_i|^2`, the symplectic Euler step's own kinetic error, which joins
 ``integration``. The terms telescope: their sum is :math:`\Delta E` identically (``closure`` records the
-round-off).
+round-off). ``plastic`` and ``advection`` are sums over the particles: the ledger also keeps each particle's share
+of the last step (:attr:`EnergyLedger.shares`).
 """
 
 import numpy as np
 
 from .backends.numpy.transfers import wall_bands
-from .diagnostics import elastic_energy, gravitational_energy, kinetic_parts, polypic_mode_norms
+from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
 from .physics import rigid_dynamics
 
 #: the ledger's terms, in step order: their sum is the change of total energy
@@ -53,14 +54,28 @@ TERMS = ("p2g_transfer", "boundary", "g2p_transfer", "advection", "plastic", "ri
 FLOWS = ("internal_work", "gravity_work")
 #: what a step's entry holds: the terms, the flows, the measured change of total energy and the closure
 COLUMNS = (*TERMS, *FLOWS, "energy_change", "closure")
+#: the terms that are sums over the particles, whose per-particle shares the ledger keeps
+PER_PARTICLE = ("plastic", "advection")
 
 
 class EnergyLedger:
-    """Observer of :func:`~mpmref.steppers.pipeline.substep` that books each step's energy change by stage.
+    r"""Observer of :func:`~mpmref.steppers.pipeline.substep` that books each step's energy change by stage.
 
     The step calls :meth:`start`, :meth:`grid`, :meth:`g2p` and :meth:`finish` in that order; :meth:`finish`
     returns the step's entry (a dict over :data:`COLUMNS`), kept as ``last``. What accumulates over a run lives
     in the run's state (:func:`accumulate`), so that checkpoints carry it.
+
+    Attributes
+    ----------
+    last : dict
+        The last step's entry.
+    shares : dict
+        The last step's per-particle terms (:data:`PER_PARTICLE`), float64 (n,) arrays over the particles the step
+        returned, whose stable ids are ``shares["id"]``: ``plastic`` :math:`V_p^0 (\Psi_p^{n+1} - \Psi_p^{tr})`,
+        ``advection`` :math:`\tfrac12 m_p \sum_r |c_{pr}|^2 (N_{pr}(x_p^{n+1}) - N_{pr}(x_p^n))` (zero without
+        PolyPIC modes). Each adds up to its term, to round-off.
+    scale : float
+        :func:`energy_scale` of the step's input state: the size of the energies its terms are differences of.
 
     Parameters
     ----------
@@ -81,14 +96,17 @@ class EnergyLedger:
             if scene.boundary.walls[name].type != "open":
                 self.wall_nodes |= band
         self.dense_index = grid.node_indices() if scene.colliders else None  # node of each dense row
-        self.last = None
+        self.last, self.shares, self.scale = None, None, None
         self._open = {}
 
     # ------------------------------------------------------------------ the stages
     def start(self, particles, rigid=None):
-        """Record the energies of the step's input state."""
-        self._open = {"x": particles.x.copy(), "K": self.kinetic(particles), "Psi": elastic_energy(particles, self.scene.material_list),
-                      "U": self.potential(particles), "bodies": self.bodies_energy(rigid)}
+        """Record the energies of the step's input state (and their :func:`energy_scale`)."""
+        norms = self.mode_norms(particles)
+        o = {"norms": norms, "K": self.kinetic(particles, norms), "Psi": float(np.sum(self.elastic(particles))),
+             "U": self.potential(particles), "bodies": self.bodies_energy(rigid)}
+        self._open = o
+        self.scale = energy_scale(o["K"], o["Psi"], o["U"], o["bodies"])
 
     def grid(self, grid_state, v_grid, dt, time):
         r"""Book P2G (the grid's kinetic energy against the particles'), the force work and the boundary.
@@ -116,16 +134,21 @@ class EnergyLedger:
 
     def g2p(self, trial):
         """Record the state after G2P and before the return map (kinetic energy where G2P projected the grid's
-        velocity and where the particles moved to, trial elastic energy)."""
-        self._open["K_projected"] = self.kinetic(trial.with_(x=self._open["x"])) if trial.modes is not None else None
-        self._open["K_new"] = self.kinetic(trial)
-        self._open["Psi_trial"] = elastic_energy(trial, self.scene.material_list)
+        velocity, at the step's start positions, and where the particles moved to; trial elastic energy)."""
+        o = self._open
+        norms = self.mode_norms(trial)
+        o["K_new"] = self.kinetic(trial, norms)
+        o["K_projected"] = self.kinetic(trial, o["norms"]) if norms is not None else None  # only the norms move
+        o["advection"] = (mode_energies(trial, norms) - mode_energies(trial, o["norms"]) if norms is not None
+                          else np.zeros(trial.n))
+        o["psi_trial"] = self.elastic(trial)
+        o["Psi_trial"] = float(np.sum(o["psi_trial"]))
 
     def finish(self, new, rigid=None):
         """Book the return map and the bodies; close the step and return its entry."""
         o = self._open
-        psi_new, u_new, bodies_new = elastic_energy(new, self.scene.material_list), self.potential(new), \
-            self.bodies_energy(rigid)
+        psi_new_p = self.elastic(new)
+        psi_new, u_new, bodies_new = float(np.sum(psi_new_p)), self.potential(new), self.bodies_energy(rigid)
         entry = {
             "p2g_transfer": o["K_g0"] - o["K"],
             "boundary": o["boundary"],
@@ -142,15 +165,25 @@ class EnergyLedger:
         }
         entry["closure"] = entry["energy_change"] - sum(entry[t] for t in TERMS)
         self.last = entry
+        self.shares = {"id": new.id.copy(), "plastic": psi_new_p - o["psi_trial"], "advection": o["advection"]}
         self._open = {}
         return entry
 
     # ------------------------------------------------------------------ energies
-    def kinetic(self, particles):
+    def kinetic(self, particles, norms):
         """Kinetic energy of the particles' velocity fields, float64: the sum of
-        :func:`mpmref.diagnostics.kinetic_parts` (velocity, affine and PolyPIC-mode parts)."""
-        norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None else None
+        :func:`mpmref.diagnostics.kinetic_parts` (velocity, affine and PolyPIC-mode parts), the modes' with the
+        stencil norms ``norms`` (:meth:`mode_norms`)."""
         return sum(kinetic_parts(particles, self.inertia, norms))
+
+    def mode_norms(self, particles):
+        """The PolyPIC modes' stencil norms at the particles' positions
+        (:func:`mpmref.diagnostics.polypic_mode_norms`), or ``None`` for particles without modes."""
+        return None if particles.modes is None else polypic_mode_norms(particles, self.scene.kernel, self.scene.grid)
+
+    def elastic(self, particles):
+        """Each particle's stored energy, float64 (n,) (:func:`mpmref.diagnostics.elastic_energies`)."""
+        return elastic_energies(particles, self.scene.material_list)
 
     def potential(self, particles):
         """Gravitational potential of the particles (:func:`mpmref.diagnostics.gravitational_energy`)."""
@@ -175,6 +208,18 @@ class EnergyLedger:
         for collider in self.scene.colliders:
             mask |= collider.shape.sdf(grid.origin + index * grid.dx - collider.velocity * time) <= 0.0
         return mask
+
+
+def energy_scale(kinetic, elastic, potential, bodies=0.0):
+    r"""The size of the energies a step's terms are differences of:
+    :math:`S = K_p + \Psi + |U| + |E_{bodies}|`.
+
+    Each term is a difference of such energies, each a float64 sum over particles or nodes, so its round-off is a
+    multiple of the unit round-off times :math:`S` (Higham 2002, §4.2), whatever the term's own size: a term that
+    theory puts at zero (PolyPIC's ``g2p_transfer``) is round-off of :math:`S`, not of itself. :math:`U`, whose
+    zero is where the coordinates' origin is, enters with its magnitude.
+    """
+    return kinetic + elastic + abs(potential) + abs(bodies)
 
 
 def accumulate(total, entry):

@@ -21,6 +21,7 @@ from mpmref.bench import SCHEMA, SECTIONS, BenchOptions, add_parser, options_fro
 from mpmref.bench.peer import clear_of_walls, frobenius_max, mean_position_bound, run_peer
 from mpmref.bench.report import render_peer
 from mpmref.bench.opcount import predicted_ratio
+from mpmref.conformance import relative_error
 from mpmref.bench.table2 import table2_ratios
 from mpmref.bench.scenes import Case, mpm88_scene, table2_cells, table2_particles, table2_scene, throughput_cases
 from mpmref.bodies import sample_particles
@@ -96,9 +97,9 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
                   "--repeats", "2", "--steps", "1", "--json", str(path)])
     assert args.func(args) == 0
     out, err = capsys.readouterr()
-    sections = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "busy")
+    sections = ("table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "busy", "ledger")
     for i, section in enumerate(sections, 1):
-        assert f"[{i}/8] {section}: started" in err and f"[{i}/8] {section}: finished in " in err
+        assert f"[{i}/9] {section}: started" in err and f"[{i}/9] {section}: finished in " in err
     assert "started" not in out
     results = json.loads(path.read_text())
     assert results["schema"] == SCHEMA and results["peer"] is None
@@ -152,6 +153,11 @@ def test_bench_writes_the_json_schema_and_prints_the_tables(tmp_path, capsys):
     assert {"cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p"} <= set(record["coupled_stages_s"])
     assert "CPIC: a step with 3 bodies" in out
     assert results["busy"]["results"] == []  # the Numba backend's threads only
+    ledger = results["ledger"]
+    assert [c["case"] for c in ledger["cases"]] == ["mpm88", "block2d"] and "Energy ledger" in out
+    for r in ledger["results"]:
+        assert TIMING_KEYS <= set(r["off"]) and TIMING_KEYS <= set(r["on"])
+        assert r["ratio"] == pytest.approx(r["on"]["median_s"] / r["off"]["median_s"])
     assert "Goals" in out and len(results["goals"]) == 18 and all("met" in g for g in results["goals"])
 
 
@@ -189,7 +195,7 @@ def test_the_operation_counts_follow_the_kernels_per_node_work():
 
 def test_options_from_the_command_line():
     assert options_from_args(parse(["--vs", "taichi"])).sections == (
-        "table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "busy", "peer")
+        "table2", "table2_2d", "throughput", "stages", "scaling", "domain", "cpic", "busy", "ledger", "peer")
     assert options_from_args(parse(["--only", "cpic"])).sections == ("cpic",)
     assert options_from_args(parse(["--only", "peer"])).sections == ("peer",)
     opts = options_from_args(parse(["--dtype", "f32", "--threads", "1,2,4", "--full"]))
@@ -442,3 +448,23 @@ def test_busy_section_times_one_and_two_threads_with_and_without_a_busy_core():
     goal = next(g for g in goals_section({"busy": section}) if "one core busy" in g["name"])
     assert goal["figure"] == section["results"][1]["ratio"] and goal["bound"] == 1.3 and goal["at_most"]
     assert "one core busy" in render_busy(section)
+
+
+def test_ledger_section_times_the_same_steps_with_the_ledger_off_and_on():
+    """Off is the plain step (no ledger given), on a fresh ledger observing the same steps from the same particles:
+    both end in the same state to round-off (the ledger changes nothing the stages compute, but it needs the force
+    apart, so its steps run the unfused P2G: the same sums in another order), and the section reports both
+    timings and their ratio. The figures are not judged here (benchmarks, not tests)."""
+    from mpmref.bench.ledger import booked_steps, ledger_cases, render_ledger, run_ledger
+    from mpmref.ledger import EnergyLedger
+
+    for scene, particles in ledger_cases(quick=True).values():
+        backend = make_backend("numpy", scene)
+        off = booked_steps(backend, particles.copy(), scene.time.dt, 2)
+        ledger = EnergyLedger(scene)
+        on = booked_steps(backend, particles.copy(), scene.time.dt, 2, ledger)
+        assert relative_error(off.x, on.x) < 1e-13 and relative_error(off.v, on.v) < 1e-12 and ledger.last is not None
+    section = run_ledger(quick=True, backends=("numpy",), threads=(1,), repeats=1, steps=1, log=lambda line: None)
+    assert [(r["case"], r["backend"], r["threads"]) for r in section["results"]] == [("mpm88", "numpy", 1),
+                                                                                    ("block2d", "numpy", 1)]
+    assert "on/off" in render_ledger(section)

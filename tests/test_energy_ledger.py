@@ -5,6 +5,7 @@ is 1e-12 of it.
 """
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from mpmref import Scene, SceneBuilder, SceneError, Simulation
 from mpmref.ledger import COLUMNS, TERMS, EnergyLedger
 from mpmref.steppers.pipeline import substep
 from verification.energy import Params, make_simulation
+from verification.energy_ledger import runs as ledger_runs
 from verification.momentum import VARIANTS
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -109,21 +111,13 @@ def test_a_moving_collider_can_add_energy():
 
 
 def test_friction_takes_mu_m_g_d():
-    """A block sliding on a floor with Coulomb friction mu decelerates at mu g; the energy the floor takes is
-    mu m g d over the distance d slid (the work of the friction force). Measured: within 5 %."""
-    mu, g, u = 0.3, 10.0, 1.0
-    dx = 1.0 / 32
-    scene = (SceneBuilder(dim=2, name="slide").grid(size=1.0, cells=32).method("apic")
-             .material("m", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
-             .box("m", lower=[0.2, 3 * dx], upper=[0.4, 3 * dx + 0.1], ppc=4)
-             .walls("separate", friction=mu).gravity([0.0, -g]).time(dt=2e-4, steps=1).build())
-    sim = Simulation(scene)
-    sim.v = np.broadcast_to([u, 0.0], sim.v.shape).copy()
-    m, x0 = float(sim.mass.sum()), sim.x[:, 0].mean()
-    entries = booked(sim, 500)  # 0.1 s: the block slows from 1 to 0.7 m/s
-    d = sim.x[:, 0].mean() - x0
+    """A block sliding at 1 m/s on a floor with Coulomb friction mu decelerates at mu g; the energy the floor takes
+    is mu m g d over the distance d slid (the work of the friction force). Measured over 0.1 s (the block slows from
+    1 to 0.7 m/s; the energy_ledger case's friction block, run longer): within 5 %."""
+    f = ledger_runs.run_friction(replace(ledger_runs.Params.quick(), friction_steps=500), "numpy")
+    d = f["distance"][-1]
     assert 0.05 < d < 0.1
-    assert -column(entries, "boundary").sum() == pytest.approx(mu * m * g * d, rel=0.05)
+    assert -f["boundary"][-1] == pytest.approx(f["mu"] * f["mass"] * f["g"] * d, rel=0.05)
 
 
 def example_scene(name, **output):
@@ -146,16 +140,12 @@ def test_the_return_map_of_sand_never_raises_elastic_energy():
 def test_integration_error_converges_at_first_order():
     """Symplectic Euler's energy error per step is O(dt^2) (Hairer, Lubich & Wanner 2006 ch. IX), so the sum
     of its size over the steps to a fixed time is O(dt): fitted slope in [0.8, 1.3] as dt halves (MLS-MPM on
-    the oscillating jelly to t = 0.02 s). The signed total is not used: its two leading parts (the elastic
-    energy's convexity remainder, >= 0, and the kinetic -m|dt a|^2/2, <= 0) cancel to leading order."""
-    dts, sizes = [], []
-    for k in range(3):
-        sim = make_simulation(JELLY, "jelly", variant("mls"))
-        n = int(np.ceil(0.02 / sim.stepper.time_step(sim.particles))) * 2**k
-        sizes.append(np.abs(column(booked(sim, n, dt=0.02 / n), "integration")).sum())
-        dts.append(0.02 / n)
-    slope = np.polyfit(np.log(dts), np.log(sizes), 1)[0]
-    assert 0.8 <= slope <= 1.3, (dts, sizes)
+    the oscillating jelly to t = 0.02 s, as the energy_ledger case measures it). The signed total is not used: its
+    two leading parts (the elastic energy's convexity remainder, >= 0, and the kinetic -m|dt a|^2/2, <= 0) cancel to
+    leading order."""
+    study = ledger_runs.run_integration(replace(ledger_runs.Params.quick(), integration_t_end=0.02), "numpy")
+    slope = np.polyfit(np.log(study["dt"]), np.log(study["size"]), 1)[0]
+    assert 0.8 <= slope <= 1.3, study
 
 
 def test_transfer_terms_tend_to_the_pure_transfer_cycle():
@@ -306,3 +296,21 @@ def test_snow_compressed_past_its_limit_dissipates_the_closed_form():
     after = np.exp(xi * (1 - s * s / clamped**2)) * (2 * mu * (clamped - 1) ** 2 + 0.5 * lam * (clamped**2 - 1) ** 2)
     assert entry["plastic"] == pytest.approx(float(sim.vol0.sum()) * (after - trial), rel=1e-12)
     assert entry["plastic"] < 0.0
+
+
+# ------------------------------------------------------------------------------------------ per particle
+@pytest.mark.parametrize("case", ["sand", "jelly-polypic"])
+def test_the_per_particle_shares_add_up_to_their_terms(case):
+    """``plastic`` and ``advection`` are sums over the particles: the shares the ledger keeps add up to the step's
+    terms to round-off of the energy scale, belong to the particles the step returned (by id), and are not all zero
+    where the term is not (sand yields as it lands; PolyPIC's modes move with the particles)."""
+    sim = Simulation(example_scene("sand")) if case == "sand" else make_simulation(JELLY, "jelly", variant("polypic"))
+    ledger = EnergyLedger(sim.scene)
+    term = "plastic" if case == "sand" else "advection"
+    for k in range(40):
+        out = substep(sim.backend, sim.particles, 1e-4 if case == "jelly-polypic" else 3e-4, k * 1e-4, ledger=ledger)
+        sim.particles = out
+        shares = ledger.shares
+        assert np.array_equal(shares["id"], out.id)
+        assert float(np.sum(shares[term])) == pytest.approx(ledger.last[term], abs=1e-12 * ledger.scale)
+    assert np.abs(shares[term]).max() > 0.0 and ledger.last[term] != 0.0

@@ -105,11 +105,12 @@ def test_a_missing_stage_or_a_stage_the_steppers_cannot_call_is_refused_before_a
 
 # --------------------------------------------------------------------------------------- planted bugs
 def test_a_g2p_that_ignores_dt_fails_g2p_and_the_step():
-    """Every case draws its own Δt (none is the 1e-3 the bug uses), so every G2P case fails."""
+    """Every case draws its own Δt (none is the 1e-3 the bug uses), so every G2P case fails, and every step and its
+    ledger (the energies of the particles G2P moved and deformed)."""
     report = check(planted.IgnoresDt, PLANE_CASES)
     failed = failures_by_stage(report)
-    assert set(failed) == {"g2p", "step"}
-    assert len(failed["g2p"]) == len(cases_of("g2p")) and len(failed["step"]) == len(cases_of("step"))
+    assert set(failed) == {"g2p", "step", "ledger"}
+    assert all(len(failed[stage]) == len(cases_of(stage)) for stage in failed)
     assert all(r.worst_output in ("x", "F", "J") for r in failed["g2p"])
     assert all(float(c.inputs()["dt"]) != planted.FIXED_DT for c in cases_of("g2p"))
 
@@ -117,8 +118,8 @@ def test_a_g2p_that_ignores_dt_fails_g2p_and_the_step():
 def test_a_grid_update_without_gravity_fails_the_grid_update_and_the_step():
     report = check(planted.DropsGravity, PLANE_CASES)
     failed = failures_by_stage(report)
-    assert set(failed) == {"grid_update", "step"}
-    assert len(failed["grid_update"]) == len(cases_of("grid_update"))
+    assert set(failed) == {"grid_update", "step", "ledger"}
+    assert len(failed["grid_update"]) == len(cases_of("grid_update")) and len(failed["ledger"]) == len(cases_of("ledger"))
     assert all(r.worst_output == "grid_v" and r.where.startswith("node ") for r in failed["grid_update"])
 
 
@@ -127,10 +128,11 @@ def test_the_wrong_mls_inertia_fails_the_mls_force_p2g_as_one_uniform_ratio():
     (D_p = dx²/3 already) nothing changes. The classic force does not use D_p."""
     report = check(planted.WrongMlsInertia, PLANE_CASES)
     failed = failures_by_stage(report)
-    assert set(failed) == {"p2g", "p2g_fused", "step"}
-    mls_quadratic = {c.name for c in cases_of("p2g") if c.scene().transfer.force == "mls"
-                     and c.scene().kernel.name == "quadratic"}
-    assert {r.case.name for r in failed["p2g"]} == mls_quadratic
+    assert set(failed) == {"p2g", "p2g_fused", "step", "ledger"}
+    for stage in ("p2g", "ledger"):  # the ledger: the force's work, Δt Σ f·v, and what follows from it
+        mls_quadratic = {c.name for c in cases_of(stage) if c.scene().transfer.force == "mls"
+                         and c.scene().kernel.name == "quadratic"}
+        assert {r.case.name for r in failed[stage]} == mls_quadratic
     for result in failed["p2g"]:
         assert result.worst_output == "grid_force" and result.ratio == pytest.approx(0.75, rel=1e-12)
     assert "× 0.75 everywhere" in report.table()
@@ -139,7 +141,7 @@ def test_the_wrong_mls_inertia_fails_the_mls_force_p2g_as_one_uniform_ratio():
 def test_a_p2g_summing_mass_in_float32_fails_p2g_on_the_mass():
     report = check(planted.Float32Mass, PLANE_CASES)
     failed = failures_by_stage(report)
-    assert {"p2g", "p2g_fused"} <= set(failed) <= {"p2g", "p2g_fused", "step"}
+    assert {"p2g", "p2g_fused"} <= set(failed) <= {"p2g", "p2g_fused", "step", "ledger"}
     assert len(failed["p2g"]) == len(cases_of("p2g")) and len(failed["p2g_fused"]) == len(cases_of("p2g_fused"))
     for result in failed["p2g"]:
         assert result.worst_output == "grid_mass"
@@ -176,7 +178,7 @@ def test_a_p2g_that_takes_the_stress_is_given_the_reference_stress():
             return transfers.p2g(particles, stress, scene.grid, scene.kernel, scene.transfer)
 
     report = check(TransferOnly, PLANE_CASES)
-    assert report.passed and {c.stage for c in report.skipped} == {"stress", "step"}  # no step without a stress
+    assert report.passed and {c.stage for c in report.skipped} == {"stress", "step", "ledger"}  # no step without a stress
     assert all(seen) and len(seen) == len(cases_of("p2g"))
 
 

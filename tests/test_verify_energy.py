@@ -35,6 +35,18 @@ def test_pic_loses_a_sizeable_fraction_and_polypic_almost_nothing(result):
         assert abs(case.budget(result["runs"][problem]["polypic"])["lost"]) < 0.05
 
 
+def test_the_ledger_of_every_run_adds_up_to_its_energy_change(result):
+    """The stacked terms of the ledger figures are each scheme's change of total energy, step by step (to round-off
+    of E0, over a few hundred steps); PIC's transfers take most of its loss (the ledger chapter's table)."""
+    for problem, runs in result["runs"].items():
+        for key, r in runs.items():
+            e0 = r["total"][0]
+            assert sum(r["ledger"].values()) == pytest.approx(r["total"] - e0, abs=1e-12 * e0)
+        pic = runs["pic"]
+        transfers = pic["ledger"]["p2g_transfer"][-1] + pic["ledger"]["g2p_transfer"][-1]
+        assert transfers / (pic["total"][-1] - pic["total"][0]) > 0.8
+
+
 def test_a_g2p_that_injects_energy_fails_the_gain_check(monkeypatch):
     """Scaling every G2P velocity by 1.01 adds about 2 % kinetic energy per step: the gain check must fail."""
     original = numpy_backend.NumpyBackend.g2p
@@ -54,6 +66,7 @@ def test_report_writes_plots_vtk_series_and_budget(result, tmp_path):
     assert all(p.exists() for p in paths)
     for problem in case.PROBLEMS:
         assert (tmp_path / f"energy_{problem}.png").stat().st_size > 10_000
+        assert (tmp_path / f"energy_ledger_{problem}.png").stat().st_size > 10_000
         assert (tmp_path / "vtk" / problem / "mls" / "particles.pvd").exists()
     text = (tmp_path / "energy.md").read_text()
     assert "| lost fraction |" in text and "FAIL" not in text

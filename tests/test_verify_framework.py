@@ -107,6 +107,7 @@ def test_a_case_with_only_the_required_members_gets_the_defaults(monkeypatch, tm
     assert bare.title == "A bare case."
     assert tuple(bare.findings({})) == () and tuple(bare.backends_run({}, "numba")) == ("numba",)
     assert bare.compiled_scenes(BareParams(), "numpy") == [] and bare.main_figure is None and not bare.runs_alone
+    assert bare.tables({}) == {}
     assert [bare.params(p) for p in PRESETS] == [BareParams(0.5), BareParams(1.0), BareParams(2.0)]
     module = types.ModuleType("bare_case")
     module.CASE = bare
@@ -115,7 +116,7 @@ def test_a_case_with_only_the_required_members_gets_the_defaults(monkeypatch, tm
     outcome = registry.run_case("bare", "quick", "numba", out_dir=tmp_path)
     assert outcome.passed and outcome.title == "A bare case." and outcome.params == BareParams(0.5)
     record = case_record(outcome, tmp_path)
-    assert record.backends == ("numba",) and record.findings == () and record.main_figure[:2] == (
+    assert record.backends == ("numba",) and record.findings == () and record.tables == {} and record.main_figure[:2] == (
         Path("first.png"), "first.png")
     assert not warmup.compiles("bare", "quick", "numpy") and not warmup.runs_alone("bare")
 
@@ -197,6 +198,7 @@ def test_results_json_holds_every_check_of_the_real_cases(report_dir):
     data = json.loads((out / "results.json").read_text())
     index = (out / "report.md").read_text().split("## Every check")[1]
     assert [c["case"] for c in data["cases"]] == ["momentum", "transfer_energy"]
+    assert all(c["tables"] == {} for c in data["cases"])  # neither tabulates more than its checks
     assert len(data["checks"]) == data["summary"]["checks"] == index.count(" | pass | ") + index.count(" | FAIL | ")
     momentum_checks = [c for c in data["checks"] if c["case"] == "momentum"]
     assert len(momentum_checks) == 2 * len(momentum.VARIANTS)

@@ -23,6 +23,11 @@ def backend_asked(result, backend):
     return (backend,)
 
 
+def no_tables(result):
+    """The default ``tables``: the case has no table for ``results.json`` beyond its checks and findings."""
+    return {}
+
+
 def no_compiled_scenes(params, backend):
     """The default ``compiled_scenes``: the case compiles nothing ahead (:mod:`verification.warmup`)."""
     return []
@@ -57,6 +62,9 @@ class Case:
     compiled_scenes : callable
         ``compiled_scenes(params, backend) -> [(backend name, scene)]``: the scenes the case runs on a compiled
         backend, which the warm-up compiles ahead (:mod:`verification.warmup`). Default: none.
+    tables : callable
+        ``tables(result) -> {name: [row, ...]}``: measured figures the case tabulates for programs, each row a
+        dict of column name to a number or a string; ``results.json`` carries them under the case. Default: none.
     main_figure : str or None
         The file name (in the case's folder) of the figure that carries the case's main claim, the one
         ``index.html`` shows. Default ``None``: its first figure.
@@ -72,6 +80,7 @@ class Case:
     findings: Callable = no_findings
     backends_run: Callable = backend_asked
     compiled_scenes: Callable = no_compiled_scenes
+    tables: Callable = no_tables
     main_figure: str | None = None
     runs_alone: bool = False
 

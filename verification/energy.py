@@ -13,7 +13,8 @@ Set-ups (no gravity, open walls, CFL time step):
 
 Per scheme, kinetic (particle, affine and PolyPIC-mode parts, :mod:`mpmref.diagnostics`), elastic and total
 energy :math:`E` are recorded every step; the budget is :math:`E_0`, :math:`E_{end}` and the lost fraction
-:math:`1 - E_{end}/E_0`.
+:math:`1 - E_{end}/E_0`. The energy ledger (:mod:`mpmref.ledger`) books every step, and its cumulative terms say
+where the energy went (figures ``energy_ledger_<problem>.png``; the ``energy_ledger`` case checks them).
 
 Theory and bounds
 -----------------
@@ -44,12 +45,13 @@ import numpy as np
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
+from mpmref.ledger import TERMS
 
 from .case import Case
 from .common import Check, checks_table
 from .executor import Executor
 from .momentum import VARIANT, VARIANTS
-from .report import pyplot, save_figure, snapshot, write_series
+from .report import ledger_figure, pyplot, save_figure, snapshot, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "energy_total_disks.png"
@@ -111,10 +113,11 @@ def gain_bound(t, elastic, e0):
 
 
 # ------------------------------------------------------------------------------------------- runs
-def _disks(params, variant):
+def _disks(params, variant, ledger):
     with open(DISKS_TOML, "rb") as fh:
         data = tomllib.load(fh)
     data["grid"]["dx"] = params.disk_dx
+    data.setdefault("output", {})["energy_ledger"] = ledger
     data["method"] = {"scheme": variant.scheme, **variant.method}
     data["time"] = {"cfl": params.cfl, "t_end": params.disk_t_end}
     for body in data["bodies"]:
@@ -123,19 +126,20 @@ def _disks(params, variant):
     return Scene.from_dict(data, base_dir=DISKS_TOML.parent)
 
 
-def _jelly(params, variant):
+def _jelly(params, variant, ledger):
     return (SceneBuilder(dim=2, name="jelly_oscillation").grid(size=1.0, cells=params.jelly_cells)
             .method(variant.scheme, **variant.method)
             .material("jelly", "fixed_corotated", E=params.jelly_E, nu=params.jelly_nu, rho=params.jelly_rho)
             .box("jelly", lower=[0.35, 0.35], upper=[0.65, 0.65], ppc=4)
-            .walls("open").time(cfl=params.cfl, t_end=params.jelly_t_end).build())
+            .walls("open").time(cfl=params.cfl, t_end=params.jelly_t_end).output(energy_ledger=ledger).build())
 
 
-def make_simulation(params, problem, variant, backend="numpy"):
-    """The simulation of ``problem`` for ``variant``, in its initial state."""
+def make_simulation(params, problem, variant, backend="numpy", ledger=False):
+    """The simulation of ``problem`` for ``variant``, in its initial state; with ``ledger``, it books the energy
+    ledger (``[output] energy_ledger``)."""
     if problem == "disks":
-        return Simulation(_disks(params, variant), backend=backend)
-    sim = Simulation(_jelly(params, variant), backend=backend)
+        return Simulation(_disks(params, variant, ledger), backend=backend)
+    sim = Simulation(_jelly(params, variant, ledger), backend=backend)
     s = params.jelly_stretch
     sim.F = np.broadcast_to(np.diag([1.0 + s, 1.0 / (1.0 + s)]), sim.F.shape)
     return sim
@@ -143,13 +147,15 @@ def make_simulation(params, problem, variant, backend="numpy"):
 
 def _energies(sim):
     d = sim.diagnostics()
-    return d["time"], d["kinetic"] + d["kinetic_affine"] + d["kinetic_modes"], d["elastic"], d["total_energy"]
+    return (d["time"], d["kinetic"] + d["kinetic_affine"] + d["kinetic_modes"], d["elastic"], d["total_energy"],
+            *(d[f"ledger_{term}"] for term in TERMS))
 
 
 def run_variant(job):
-    """Run ``job = (params, problem, key, backend)`` to its end time: energies every step, VTK frames."""
+    """Run ``job = (params, problem, key, backend)`` to its end time: energies and the cumulative energy ledger every
+    step, VTK frames."""
     params, problem, key, backend = job
-    sim = make_simulation(params, problem, VARIANT[key], backend)
+    sim = make_simulation(params, problem, VARIANT[key], backend, ledger=True)
     t_end = sim.scene.time.t_end
     rows, frames = [_energies(sim)], [snapshot(sim)]
     next_frame, start = t_end / params.frames, perf_counter()
@@ -160,7 +166,8 @@ def run_variant(job):
             frames.append(snapshot(sim))
             next_frame += t_end / params.frames
     a = np.array(rows)
-    return {"t": a[:, 0], "kinetic": a[:, 1], "elastic": a[:, 2], "total": a[:, 3], "steps": sim.step_count,
+    return {"t": a[:, 0], "kinetic": a[:, 1], "elastic": a[:, 2], "total": a[:, 3],
+            "ledger": {term: a[:, 4 + k] for k, term in enumerate(TERMS)}, "steps": sim.step_count,
             "n_particles": sim.n_particles, "wall_s": perf_counter() - start, "frames": frames}
 
 
@@ -249,6 +256,20 @@ def plot_totals(result, problem, path):
         "against APIC is not ordered by theory."))
 
 
+def plot_ledger(result, problem, path):
+    """One panel per scheme: the cumulative energy ledger's terms as stacked areas and the measured change of total
+    energy, over E0, against time."""
+    panels = [(VARIANT[key].label, r["t"], {term: v / r["total"][0] for term, v in r["ledger"].items()},
+               r["total"] / r["total"][0] - 1.0, None) for key, r in result["runs"][problem].items()]
+    return ledger_figure(panels, path, "cumulative energy / E0", caption=(
+        f"{problem}: where each scheme's energy went, over E0 against time: the energy ledger's cumulative terms "
+        "stacked above zero (energy a stage added) and below (energy it took), and the measured change of total "
+        "energy in black, their sum. Look for the transfers (P2G blue, G2P orange) taking most of PIC's loss, FLIP's "
+        "G2P adding energy that its P2G takes back, PolyPIC's G2P taking nothing (its advection, purple, is its "
+        "modes' energy changing as the particles move), and the integration error (green) oscillating, symplectic "
+        "Euler's modified energy; the energy_ledger case checks the signs theory fixes."))
+
+
 def report(result, out_dir):
     """Write the energy plots, VTK series (``vtk/PROBLEM/KEY/particles.pvd``) and ``energy.md``."""
     out = Path(out_dir)
@@ -256,10 +277,11 @@ def report(result, out_dir):
     paths, sections = [], []
     for problem, runs in result["runs"].items():
         paths += [plot_parts(result, problem, out / f"energy_{problem}.png"),
-                  plot_totals(result, problem, out / f"energy_total_{problem}.png")]
+                  plot_totals(result, problem, out / f"energy_total_{problem}.png"),
+                  plot_ledger(result, problem, out / f"energy_ledger_{problem}.png")]
         paths += [write_series(out / "vtk" / problem / key, r["frames"]) for key, r in runs.items()]
         sections.append(f"## {problem}\n\n{table(result, problem)}\n\n![parts](energy_{problem}.png)\n\n"
-                        f"![totals](energy_total_{problem}.png)\n")
+                        f"![totals](energy_total_{problem}.png)\n\n![ledger](energy_ledger_{problem}.png)\n")
     text = "# Energy budget per scheme\n\n" + "\n".join(sections) + f"\n## Checks\n\n{checks_table(checks(result))}\n"
     write_text_atomic(out / "energy.md", text)
     return paths + [out / "energy.md"]

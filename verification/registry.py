@@ -17,6 +17,7 @@ from .common import failed
 CASES = {
     "momentum": "verification.momentum",
     "energy": "verification.energy",
+    "energy_ledger": "verification.energy_ledger",
     "transfer_energy": "verification.transfer_energy",
     "convergence": "verification.convergence",
     "extremes": "verification.extremes",

@@ -1,7 +1,7 @@
 """Report writing shared by every case and by ``mpmref verify``.
 
 Cases use :func:`snapshot`, :func:`write_series` and :func:`save_figure` to write the VTK series of their
-representative runs and their PNG plots (each PNG carries its caption, the sentence that says what to
+representative runs and their PNG plots (the energy ledger's stacked areas with :func:`plot_ledger_areas`) (each PNG carries its caption, the sentence that says what to
 look for, in its ``Description`` text chunk: :func:`figure_caption`). ``mpmref verify`` turns each
 case's :class:`~verification.registry.Outcome` into a :class:`CaseRecord` (:func:`case_record`: the
 backends it ran, its findings, its figures, the one that carries its main claim) and writes the
@@ -16,8 +16,10 @@ import os
 import platform
 import sys
 import traceback
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from mpmref.io.atomic import atomic_path, write_text_atomic
 from mpmref.io.vtk import write_particles_vtu, write_pvd
@@ -87,6 +89,68 @@ def save_figure(fig, path, caption=None, dpi=110):
     return Path(path)
 
 
+#: a colour per term of the energy ledger (:data:`mpmref.ledger.TERMS`), the same in every figure
+LEDGER_COLOURS = {"p2g_transfer": "tab:blue", "boundary": "tab:brown", "g2p_transfer": "tab:orange",
+                  "advection": "tab:purple", "plastic": "tab:red", "rigid_bodies": "tab:gray",
+                  "integration": "tab:green"}
+
+
+def plot_ledger_areas(ax, t, terms, change):
+    """A run's cumulative energy ledger as stacked areas against time, on the axes ``ax``.
+
+    At each time the terms that have added energy so far are stacked upwards from zero and those that have taken it
+    downwards, each in its colour of :data:`LEDGER_COLOURS`; the black line is ``change``, the change of total energy
+    :math:`E(t) - E_0` that the diagnostics measure, which is the sum of all of them (the top edge plus the bottom
+    edge). A term that stays zero over the run gets no area.
+
+    Parameters
+    ----------
+    ax : matplotlib Axes
+    t : (n,) array       times
+    terms : dict         ``{term: (n,) cumulative joules}`` over :data:`mpmref.ledger.TERMS`
+    change : (n,) array  the measured :math:`E(t) - E_0`
+    """
+    up, down = np.zeros(len(t)), np.zeros(len(t))
+    for term, values in terms.items():
+        values = np.asarray(values, dtype=float)
+        if not np.any(values):
+            continue
+        gain, loss = np.maximum(values, 0.0), np.minimum(values, 0.0)
+        ax.fill_between(t, up, up + gain, color=LEDGER_COLOURS[term], alpha=0.75, lw=0, label=term)
+        ax.fill_between(t, down, down + loss, color=LEDGER_COLOURS[term], alpha=0.75, lw=0)
+        up, down = up + gain, down + loss
+    ax.plot(t, change, "k-", lw=1.2, label="measured E(t) - E0")
+    ax.axhline(0.0, color="k", lw=0.5)
+
+
+def ledger_figure(panels, path, ylabel, caption, cols=3):
+    """A figure of :func:`plot_ledger_areas` panels, one per run, with one legend, saved with its ``caption``.
+
+    ``panels`` is a list of ``(title, t, terms, change, dots)``: the arguments of :func:`plot_ledger_areas`, and
+    ``dots``, ``None`` or ``(times, values)`` of the change measured another way, drawn as dots.
+    """
+    plt = pyplot()
+    cols = min(cols, len(panels))
+    rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.0 * cols, 3.1 * rows), squeeze=False)
+    for ax, (title, t, terms, change, dots) in zip(axes.flat, panels):
+        plot_ledger_areas(ax, t, terms, change)
+        if dots is not None:
+            ax.plot(*dots, "wo", ms=3.5, mec="k", label="diagnostics' E - E0")
+        ax.set_title(title, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.locator_params(axis="x", nbins=4)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    handles = {h.get_label(): h for ax in axes.flat for h in ax.get_legend_handles_labels()[0]}
+    fig.supxlabel("time [s]")
+    fig.supylabel(ylabel)
+    fig.tight_layout()
+    fig.legend(handles.values(), handles.keys(), loc="upper center", ncol=5, fontsize=8, bbox_to_anchor=(0.5, 0.0))
+    return save_figure(fig, path, caption=caption)
+
+
 #: what the reports say under a figure saved without a caption
 NO_CAPTION = "(The case gives no caption for this figure.)"
 
@@ -111,8 +175,6 @@ def aspect_ratio(path):
 def machine():
     """What ran the cases, for reports: host, CPU, cores, load average now, OS, Python and NumPy versions
     (and Numba's version and thread count when a case used it: its timings depend on them)."""
-    import numpy as np
-
     info = {"host": platform.node(), "cpu": _cpu_model(), "cores": os.cpu_count(),
             "load average (1, 5, 15 min)": " / ".join(f"{x:.2f}" for x in os.getloadavg()),
             "os": platform.platform(), "python": sys.version.split()[0], "numpy": np.__version__}
@@ -151,6 +213,8 @@ class CaseRecord:
         Its ``findings(result)``: measured behaviour reported, not judged.
     figures : tuple of (Path, str)
         Each PNG written by this run (relative to the case folder) with its caption.
+    tables : dict
+        Its ``tables(result)``: ``{name: [row dict, ...]}`` for ``results.json`` (none when it stopped with an error).
     main_figure : (Path, str, float) or None
         The figure that carries the case's main claim, its caption and its width over its height: the case's
         ``main_figure`` (a file name in the case folder) where it declares one and wrote it, else its first
@@ -162,6 +226,7 @@ class CaseRecord:
     findings: tuple
     figures: tuple
     main_figure: tuple = None
+    tables: dict = field(default_factory=dict)
 
     @property
     def name(self):
@@ -171,15 +236,16 @@ class CaseRecord:
 def case_record(outcome, case_dir):
     """The :class:`CaseRecord` of ``outcome``; the case's figures are read from ``case_dir``.
 
-    An exception in the case's ``backends_run`` or ``findings`` is kept in ``outcome.error`` (the case
+    An exception in the case's ``backends_run``, ``findings`` or ``tables`` is kept in ``outcome.error`` (the case
     then counts as stopped with an error), like one in its ``run``.
     """
     case = registry.load(outcome.name)
-    backends, findings = (outcome.backend,), ()
+    backends, findings, tables = (outcome.backend,), (), {}
     if outcome.error is None:
         try:
             backends = tuple(case.backends_run(outcome.result, outcome.backend))
             findings = tuple(case.findings(outcome.result))
+            tables = dict(case.tables(outcome.result))
         except Exception:  # reported like an exception in the case's run
             outcome.error = traceback.format_exc()
     pngs, _, _ = _files_by_kind(case_dir, outcome.started)
@@ -187,7 +253,7 @@ def case_record(outcome, case_dir):
     main = next((f for f in figures if f[0].as_posix() == case.main_figure), figures[0] if figures else None)
     if main is not None:
         main = (*main, aspect_ratio(Path(case_dir) / main[0]))
-    return CaseRecord(outcome, backends, findings, figures, main)
+    return CaseRecord(outcome, backends, findings, figures, main, tables)
 
 
 # ------------------------------------------------------------------------------------ case reports
@@ -342,7 +408,8 @@ def results(records, meta):
     ``class``, ``version``; ``null`` if not described), ``executor``, ``wall_s``, ``machine``, ``summary``
     (counts of cases, checks, failing checks, cases stopped with an error, findings); ``cases`` (per case:
     ``case``, ``title``, ``backends``, ``verdict``, ``passed``, ``wall_s``, ``error``: the traceback or
-    ``null``, ``figures``: ``path`` and ``caption``); ``checks`` (every check: ``case``, ``name``,
+    ``null``, ``figures``: ``path`` and ``caption``, ``tables``: its tables by name, each a list of rows, a row an
+    object of column to number or string); ``checks`` (every check: ``case``, ``name``,
     ``figure``, ``relation``, ``bound``, ``verdict`` ``"pass"``/``"FAIL"``, ``reason``); ``findings``
     (``case``, ``name``, ``figure``, ``sentence``). A non-finite figure or bound is the string ``"nan"``,
     ``"inf"`` or ``"-inf"``.
@@ -354,7 +421,8 @@ def results(records, meta):
         "cases": [{"case": r.name, "title": r.outcome.title, "backends": list(r.backends),
                    "verdict": r.outcome.verdict, "passed": r.outcome.passed, "wall_s": r.outcome.wall_s,
                    "error": r.outcome.error,
-                   "figures": [{"path": f"{r.name}/{p.as_posix()}", "caption": c} for p, c in r.figures]}
+                   "figures": [{"path": f"{r.name}/{p.as_posix()}", "caption": c} for p, c in r.figures],
+                   "tables": {name: [_json_row(row) for row in rows] for name, rows in r.tables.items()}}
                   for r in records],
         "checks": [{"case": r.name, "name": c.name, "figure": json_number(c.value), "relation": c.relation,
                     "bound": json_number(c.bound), "verdict": "pass" if c.passed else "FAIL", "reason": c.reason}
@@ -362,6 +430,11 @@ def results(records, meta):
         "findings": [{"case": r.name, "name": f.name, "figure": json_number(f.value), "sentence": f.sentence}
                      for r in records for f in r.findings],
     }
+
+
+def _json_row(row):
+    """A table row for JSON: its numbers through :func:`json_number` (integers and strings as they are)."""
+    return {k: json_number(v) if isinstance(v, float) else v for k, v in row.items()}
 
 
 def write_index(out_dir, records, meta):

@@ -30,6 +30,9 @@ Sections of the JSON document (each ``null`` when not run):
 * ``busy``: ``scene``, ``particles``, ``steps``, ``threading_layer`` and ``results`` (per ``load``, ``"as it is"`` and
   ``"one core busy"``: ``times_s`` and ``median_s`` on 1 and 2 threads, ``ratio`` two over one;
   :mod:`mpmref.bench.busy`).
+* ``ledger``: ``cases`` (case, scene, particles, dt, steps) and ``results`` (case, backend, threads, particles, the
+  ``off`` and ``on`` timing records of the same steps without and with the energy ledger, ``ratio`` on / off;
+  :mod:`mpmref.bench.ledger`).
 * ``yardstick``: the records given with ``--yardstick`` (a hand-written program's runs), as given.
 * ``goals``: one record per performance goal (:mod:`mpmref.bench.goals`): ``name``, ``figure`` (``null``
   when this run did not measure it), ``bound``, ``at_most``, ``where``, ``met``.

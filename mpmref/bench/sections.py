@@ -13,6 +13,7 @@ from .asynchronous import render_async, run_async
 from .busy import render_busy, run_busy
 from .cpic import render_cpic, run_cpic
 from .domain import render_domain, run_domain
+from .ledger import render_ledger, run_ledger
 from .peer import run_peer
 from .report import render_peer, render_table2, render_throughput
 from .scenes import peer_cases, throughput_cases
@@ -87,6 +88,10 @@ def _cpic(o, log):
     return run_cpic(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
 
 
+def _ledger(o, log):
+    return run_ledger(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
+
+
 #: every section, in the order of the JSON document, of ``--only``'s choices and of a run
 SECTIONS = (
     Section("table2", _table2, render_table2),
@@ -99,6 +104,7 @@ SECTIONS = (
     Section("async", _async, render_async, default=False),
     Section("cpic", _cpic, render_cpic),
     Section("busy", _busy, render_busy),
+    Section("ledger", _ledger, render_ledger),
 )
 
 #: the sections by name

@@ -14,7 +14,10 @@ Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend
 * ``p2g_fused(particles, dt) -> GridState(mass, momentum = (mv)_i + Δt f_i)`` (optional);
 * ``grid_update(grid_state, dt, time) -> (v, v_tilde)``, both (N, d);
 * ``g2p(particles, v, v_tilde, dt) -> Particles``;
-* ``step(particles, dt, time) -> Particles``: P2G, grid update, G2P and return map.
+* ``step(particles, dt, time) -> Particles``: P2G, grid update, G2P and return map;
+* ``ledger(particles, dt, time) -> {"ledger_<column>": float, ..., "energy_scale": float}``: the energy ledger of
+  that step (:class:`mpmref.ledger.EnergyLedger`, docs/energy_ledger.md), computed from the candidate's stage
+  outputs, and the energy scale :math:`S = K + \Psi + |U|` of the input state.
 
 Backends that couple rigid bodies by CPIC also have the stages ``cpic_field``, ``cpic_tags``, ``cpic_p2g``,
 ``cpic_g2p`` and ``cpic_step`` (2D and 3D, float64; :mod:`.cpic`), which run the backend from flat inputs to flat
@@ -57,8 +60,9 @@ and a time, that each case draws from its name (:mod:`.cases`):
   the reference's unfused momentum plus Δt times its force;
 * ``step``: every valid method (as for P2G) and each material set (with MLS-MPM), with gravity and the
   mixed walls: the stages composed, return map included.
+* ``ledger``: the step's cases, and MLS-MPM with one collider of each shape (two moving) and open walls.
 
-That is 244 float64 cases instead of 20 x 6 x 6 x 2 per stage. The states are physically sensible: ``F``
+That is 302 float64 cases instead of 20 x 6 x 6 x 2 per stage. The states are physically sensible: ``F``
 a random rotation times a near-identity stretch with ``det F > 0.3`` (some inside, some outside the
 plastic yield surfaces), ``J`` and ``Jp`` near 1, velocities of order 1, ``C`` of order 4 (the grid's
 velocity gradients), PolyPIC modes scaled by ``dx^-degree``; the grid update gets a random grid state
@@ -69,7 +73,9 @@ The error
 For each output array, ``max|candidate - reference| / max|reference|`` over all its entries (with a
 denominator of 1 where the reference is all zero; shape mismatch or a non-finite value: ``inf``); a
 case's error is the largest over its outputs and it passes when that is ``<= rtol`` (default 1e-12 in
-float64). See :func:`.report.relative_error`. A failed case names its worst particle or node and, when the
+float64). A ledger term is a difference of energies, so its error is :math:`|a - r| / S` with the reference's
+energy scale :math:`S` (:func:`.report.output_scale`): a term theory puts at zero is round-off of :math:`S`. See
+:func:`.report.relative_error`. A failed case names its worst particle or node and, when the
 error is one factor everywhere, that factor (:mod:`.diagnosis`).
 """
 

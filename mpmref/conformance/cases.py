@@ -23,7 +23,7 @@ from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
 from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
 from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, STAGES_WITH_DT,
-                     STAGES_WITH_TIME, composed_step, particles_from, run_stage, unfused_then_force)
+                     STAGES_WITH_TIME, composed_step, ledger_step, particles_from, run_stage, unfused_then_force)
 
 #: cells per axis of a case's grid: each axis draws its own count in this range (:func:`case_grid`)
 CELL_RANGE = (8, 13)
@@ -362,12 +362,14 @@ class Case:
 
 
 def backend_stage(backend, stage):
-    """The callable of ``stage`` for a backend object (``step``: the pipeline over its stages; CPIC stages:
-    their runners of :mod:`mpmref.conformance.cpic` bound to it)."""
+    """The callable of ``stage`` for a backend object (``step``: the pipeline over its stages; ``ledger``: that
+    step's energy ledger; CPIC stages: their runners of :mod:`mpmref.conformance.cpic` bound to it)."""
     if stage == "step":
         return partial(composed_step, backend)
     if stage == "p2g_fused":  # the truth is the unfused P2G plus dt times its force, whatever the backend folds
         return unfused_then_force(backend)
+    if stage == "ledger":
+        return partial(ledger_step, backend)
     if stage in CPIC_CONFORMANCE_STAGES:
         return partial(RUNNERS[stage], backend)
     return getattr(backend, stage)
@@ -456,6 +458,14 @@ def _transfer_cases(stage, dim, dtype):
     return _method_cases(stage, dim, dtype) + _material_cases(stage, dim, dtype, MATERIAL_SETS)
 
 
+def _ledger_cases(dim, dtype):
+    """The step's cases (:func:`_transfer_cases`), then MLS-MPM with open walls and one collider of each shape, two
+    of them moving: the nodes the colliders act on book ``boundary``, where a moving one may add energy."""
+    colliders = drawn_case("ledger", dim, "colliders", dtype, TRANSFER_MATERIALS, boundary=UNIFORM_WALLS["open"],
+                           colliders=True)
+    return _transfer_cases("ledger", dim, dtype) + [colliders]
+
+
 _STAGE_CASES = {
     "stress": lambda dim, dtype: _material_cases("stress", dim, dtype, MATERIAL_SETS),
     "return_map": lambda dim, dtype: _material_cases("return_map", dim, dtype, PLASTIC_SETS),
@@ -464,6 +474,7 @@ _STAGE_CASES = {
     "grid_update": _grid_update_cases,
     "g2p": partial(_transfer_cases, "g2p"),
     "step": partial(_transfer_cases, "step"),
+    "ledger": _ledger_cases,
     **{stage: partial(_cpic_cases, stage) for stage in CPIC_CONFORMANCE_STAGES},
 }
 
@@ -471,8 +482,9 @@ _STAGE_CASES = {
 def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", materials=None):
     """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`).
 
-    The default is the six stages of every backend; the CPIC stages (:data:`.stages.CPIC_CONFORMANCE_STAGES`, 2D and
-    float64 only) are included when asked for, e.g. ``stages=ALL_CONFORMANCE_STAGES``. ``materials`` (material
+    The default is the seven stages of every backend (its six and the energy ledger of a step); the CPIC stages
+    (:data:`.stages.CPIC_CONFORMANCE_STAGES`, 2D and float64 only) are included when asked for, e.g.
+    ``stages=ALL_CONFORMANCE_STAGES``. ``materials`` (material
     types, e.g. ``("fluid",)``) keeps the cases whose materials are all among them, and the grid update's (which
     does not see the material): what a code with only those constitutive models can run.
     """

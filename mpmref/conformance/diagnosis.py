@@ -76,10 +76,11 @@ def worst_place(name, got, expected, rows, scene, inputs):
 
 def uniform_ratio(name, got, expected, rows):
     """The factor :math:`k` with ``got`` = k × ``expected`` on every compared entry of output ``name`` (to a
-    thousandth of the error), or ``None`` when the error is not one ratio."""
+    thousandth of the error), or ``None`` when the error is not one ratio (or the output is one number, which any
+    ratio fits)."""
     a = restrict(name, np.asarray(got, dtype=np.float64), rows).ravel()
     r = restrict(name, np.asarray(expected, dtype=np.float64), rows).ravel()
-    if a.shape != r.shape or not np.all(np.isfinite(a)):
+    if a.shape != r.shape or a.size < 2 or not np.all(np.isfinite(a)):
         return None
     norm = float(r @ r)
     if norm == 0.0:

@@ -15,29 +15,41 @@ from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
 from .cpic import RUNNERS, has_cpic
 from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
-from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, run_stage
+from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, ledger_step,
+                     run_stage)
 
 
-def relative_error(candidate, reference):
-    r"""Relative error of one output array: :math:`\max|a - r| / \max|r|`.
+def relative_error(candidate, reference, scale=None):
+    r"""Relative error of one output array: :math:`\max|a - r| / \max|r|`, or :math:`\max|a - r| / S` with a given
+    ``scale`` :math:`S`.
 
-    The maxima run over every entry of the array. Where the reference is all zero the denominator is 1,
-    so the error is :math:`\max|a|`. A shape mismatch or a non-finite difference counts as ``inf``.
+    The maxima run over every entry of the array. Where the reference is all zero (and no scale is given) the
+    denominator is 1, so the error is :math:`\max|a|`. A shape mismatch or a non-finite difference counts as
+    ``inf``.
     """
     a, r = np.asarray(candidate), np.asarray(reference)
     if a.shape != r.shape:
         return math.inf
     diff = float(np.max(np.abs(a.astype(np.float64) - r.astype(np.float64)), initial=0.0))
-    scale = float(np.max(np.abs(r.astype(np.float64)), initial=0.0))
+    if scale is None:
+        scale = float(np.max(np.abs(r.astype(np.float64)), initial=0.0))
     error = diff / scale if scale > 0.0 else diff
     return error if math.isfinite(error) else math.inf
+
+
+def output_scale(name, expected):
+    """The denominator of output ``name``'s error other than its own largest entry, or ``None``: the reference's
+    ``energy_scale`` for a ledger term (``ledger_*``). A term is a difference of energies of that size, so its
+    round-off is relative to it, not to the term (which theory may put at zero: :func:`mpmref.ledger.energy_scale`)."""
+    return float(expected["energy_scale"]) if name.startswith("ledger_") and "energy_scale" in expected else None
 
 
 def compare_outputs(got, expected, rows=None):
     """Per-output relative errors of ``got`` against ``expected`` and a note on missing or misshapen outputs.
 
     ``rows`` (:func:`.diagnosis.compared_rows`) restricts ``F``, ``J`` and ``Jp`` to the particles whose material
-    evolves them; a misshapen output is compared whole (and fails)."""
+    evolves them; a misshapen output is compared whole (and fails); a ledger term is compared relative to the
+    reference's energy scale (:func:`output_scale`)."""
     rows = rows or {}
     errors, problems = {}, []
     for name, ref in expected.items():
@@ -50,7 +62,8 @@ def compare_outputs(got, expected, rows=None):
             errors[name] = math.inf
             problems.append(f"{name} has shape {np.shape(value)}, expected {np.shape(ref)}")
             continue
-        errors[name] = relative_error(restrict(name, value, rows), restrict(name, ref, rows))
+        errors[name] = relative_error(restrict(name, value, rows), restrict(name, ref, rows),
+                                      output_scale(name, expected))
     return errors, "; ".join(problems)
 
 
@@ -155,15 +168,17 @@ def _stage_callables(stages):
     """``{stage: callable}`` of an object with stage methods or of a mapping of stage names to callables.
 
     An object with the six backend stages (:mod:`mpmref.backends.base`) is also checked on whole steps:
-    its ``step`` is the stepper's one pipeline (:func:`mpmref.steppers.substep`) over its stages. An object
-    with the CPIC methods (:func:`.cpic.has_cpic`) is also checked on the CPIC stages.
+    its ``step`` is the stepper's one pipeline (:func:`mpmref.steppers.substep`) over its stages, and its ``ledger``
+    that step's energy ledger (:func:`.stages.ledger_step`). An object with the CPIC methods
+    (:func:`.cpic.has_cpic`) is also checked on the CPIC stages.
     """
     if isinstance(stages, Mapping):
         _check_stage_names(stages)
         return dict(stages)
     found = {s: getattr(stages, s) for s in CONFORMANCE_STAGES if callable(getattr(stages, s, None))}
-    if "step" not in found and all(callable(getattr(stages, s, None)) for s in BACKEND_STAGES):
-        found["step"] = partial(composed_step, stages)
+    if all(callable(getattr(stages, s, None)) for s in BACKEND_STAGES):
+        found.setdefault("step", partial(composed_step, stages))
+        found.setdefault("ledger", partial(ledger_step, stages))
     if has_cpic(stages):
         found.update({stage: partial(RUNNERS[stage], stages) for stage in CPIC_CONFORMANCE_STAGES})
     return found

@@ -1,4 +1,5 @@
-"""The six stages a backend exposes, with their inputs and outputs as flat dicts of named arrays.
+"""The six stages a backend exposes and the energy ledger of a step, with their inputs and outputs as flat dicts
+of named arrays.
 
 A flat dict (``{"x": ..., "grid_mass": ..., "dt": ...}``) is the one form of a case's data: ``check``
 turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState` to call a stage, and
@@ -10,7 +11,10 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
   ``grid_force (N,d)``, ``grid_momentum_after_force (N,d)`` (the fused P2G's (mv)_i + Δt f_i),
   ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
-  P2G cases (for a P2G that takes the stress, :func:`takes_stress`).
+  P2G cases (for a P2G that takes the stress, :func:`takes_stress`);
+* the ledger stage's outputs (0-d, float64): ``ledger_<column>`` for each column of :data:`mpmref.ledger.COLUMNS`
+  (the terms, flows, energy change and closure of one step, docs/energy_ledger.md) and ``energy_scale``
+  (:func:`mpmref.ledger.energy_scale` of the input state, the denominator of the terms' errors).
 """
 
 import inspect
@@ -18,17 +22,20 @@ from contextlib import nullcontext
 
 import numpy as np
 
+from ..ledger import COLUMNS, EnergyLedger
 from ..state import GridState, Particles
 
-CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "p2g_fused", "grid_update", "g2p", "step")
+CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "p2g_fused", "grid_update", "g2p", "step", "ledger")
 #: the stages of backends that couple rigid bodies by CPIC (run through :mod:`mpmref.conformance.cpic`)
 CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
-#: the six stages every backend has, then the CPIC stages of backends that couple rigid bodies
-#: (:mod:`mpmref.conformance.cpic`)
+#: the stages every backend has (the six of a step, and the step's energy ledger), then the CPIC stages of backends
+#: that couple rigid bodies (:mod:`mpmref.conformance.cpic`)
 ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
 #: the stages that take a time step ``dt``, and those that take the ``time`` (where the colliders are)
-STAGES_WITH_DT = ("p2g_fused", "grid_update", "g2p", "step")
-STAGES_WITH_TIME = ("grid_update", "step")
+STAGES_WITH_DT = ("p2g_fused", "grid_update", "g2p", "step", "ledger")
+STAGES_WITH_TIME = ("grid_update", "step", "ledger")
+#: the outputs of the ledger stage: one step's ledger columns, then the energy scale of its input state
+LEDGER_OUTPUTS = (*(f"ledger_{c}" for c in COLUMNS), "energy_scale")
 PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
 #: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
 EVOLVING_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
@@ -100,13 +107,18 @@ def _step(fn, flat):
     return particle_outputs(fn(particles_from(flat), float(flat["dt"]), float(flat["time"])))
 
 
+def _ledger(fn, flat):
+    return {k: np.asarray(v, dtype=np.float64) for k, v in fn(particles_from(flat), float(flat["dt"]),
+                                                            float(flat["time"])).items()}
+
+
 def _flat_stage(fn, flat):
     return fn(flat)
 
 
 _CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "p2g_fused": _p2g_fused,
-            "grid_update": _grid_update,
-            "g2p": _g2p, "step": _step, **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}
+            "grid_update": _grid_update, "g2p": _g2p, "step": _step, "ledger": _ledger,
+            **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}
 
 
 def composed_step(stages, particles, dt, time):
@@ -117,6 +129,18 @@ def composed_step(stages, particles, dt, time):
     from ..steppers.pipeline import substep
 
     return substep(with_running(stages), particles, dt, time)
+
+
+def ledger_step(stages, particles, dt, time, rigid=None):
+    """The energy ledger of one step of an object with the six backend stages (the pipeline over them, observed by a
+    fresh :class:`~mpmref.ledger.EnergyLedger` of ``stages.scene``), as the ledger stage's outputs
+    (:data:`LEDGER_OUTPUTS`: ``{"ledger_<column>": float, ..., "energy_scale": float}``). With rigid bodies,
+    ``rigid`` is their state (:func:`mpmref.steppers.substep`)."""
+    from ..steppers.pipeline import substep
+
+    ledger = EnergyLedger(stages.scene)
+    substep(with_running(stages), particles, dt, time, rigid=rigid, ledger=ledger)
+    return {**{f"ledger_{c}": ledger.last[c] for c in COLUMNS}, "energy_scale": ledger.scale}
 
 
 def with_running(stages):

@@ -19,7 +19,7 @@ from ..physics.polypic import higher_modes
 from .cases import make_cases
 
 FORMAT = "mpmref-conformance"
-FORMAT_VERSION = 2  # 2: per-axis cells, dt and time per case, in_tau, materials' "evolves"
+FORMAT_VERSION = 3  # 2: per-axis cells, dt and time per case, in_tau, materials' "evolves"; 3: the ledger stage
 MANIFEST = "manifest.json"
 CONVENTIONS = {
     "nodes": "grid arrays have one row per node in C order: node (i_0, ..., i_{d-1}), 0 <= i_a <= cells_a, "
@@ -36,6 +36,11 @@ CONVENTIONS = {
     "modes": "axis 1 of in_modes / out_modes follows resolved.polypic_modes (per-axis polynomial degrees)",
     "error": "max|candidate - reference| / max|reference| over every entry of an output array (denominator 1 "
              "where the reference is all zero); a case passes when its largest output error is <= rtol",
+    "ledger": "a ledger case has the inputs of a step case; its outputs are 0-d float64: out_ledger_<column> the "
+              "energy ledger of that step (docs/energy_ledger.md: the terms p2g_transfer, boundary, g2p_transfer, "
+              "advection, plastic, rigid_bodies, integration, the flows internal_work and gravity_work, energy_change "
+              "and closure) and out_energy_scale, K + Psi + |U| of the input state; a term's error is "
+              "|a - r| / out_energy_scale, the scale's own the usual one",
     "cpic": "cpic_* cases (2D): in_tag_A / in_tag_T (n, nb) are the particles' previous tags; in_rigid_* the bodies' "
             "state (position of the reference point, angle, velocity, angular velocity, impulses received), body r "
             "being resolved.rigid_bodies[r] posed as x = position + R(angle) (x0 - center); out_cdf_d is 0 where "
