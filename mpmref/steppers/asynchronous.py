@@ -54,8 +54,9 @@ import numpy as np
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import Particles, State
-from .async_kernels import (add_rows, apply_registers, boundary_nodes, clock_scan, move_rows, particle_steps,
-                            relevel_blocks, row_views, shadow_nodes, span, step_limits, zone_members)
+from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
+                            bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
+                            span, step_limits, zone)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, interface_substep, substep
 
@@ -63,6 +64,13 @@ from .pipeline import NO_HOOKS, interface_substep, substep
 EVOLVING = ("x", "v", "C", "F", "J", "Jp", "modes")
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
+#: what :attr:`AsynchronousStepper.counts` counts: ticks with work; particles at a step
+#: boundary (their clocks, limits and blocks); blocks due for relevelling; candidate ghosts examined (the
+#: particles of the blocks near an update); nodes of the updates' ghost zones (their bounding boxes); rows of
+#: the updates' groups (particle updates, ghosts included); intervals, and the particles of each (the only
+#: work over every particle: the interval's set-up, the registers' last application and the census)
+COUNTS = ("ticks", "boundary_particles", "due_blocks", "ghost_candidates", "zone_nodes",
+          "group_rows", "intervals", "interval_particles")
 
 
 def alignment(t, cap):
@@ -113,7 +121,12 @@ class AsynchronousStepper:
         self._stores = {}
         self.conservative = t.interface == "conservative"
         self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
+        self.levels = t.levels
+        self.block_limit = np.full(self.grid.n_blocks, np.inf)  # scratch of relevel_due: infinite between calls
         self.trace = None
+        #: what the bookkeeping visited since construction (:data:`COUNTS`): the benchmark's and the tests' measure
+        #: of how its work grows
+        self.counts = dict.fromkeys(COUNTS, 0)
         #: wall time spent in the step's stages (the substeps) and the number of level updates since
         #: construction, in all and in the updates that had ghosts: the benchmark's split of an update's cost
         self.stage_seconds, self.level_updates = 0.0, 0
@@ -159,28 +172,30 @@ class AsynchronousStepper:
         return held[1]
 
     def warm_up(self, particles):
-        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on empty
-        index lists, and with conservative interfaces the level update by classes on one particle at Δt = 0:
-        ``particles`` is not modified."""
+        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on one particle,
+        and with conservative interfaces the level update by classes on one particle at Δt = 0: ``particles`` is
+        not modified."""
         interval = self.interval(self, self.initial_state(particles.select(slice(0, 1))))
-        none = np.empty(0, dtype=np.int64)
-        at, past = clock_scan(interval.t_p, interval.t)
+        one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
         boundary_nodes(interval.P.x, none, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
                        interval.shadow_t)
         step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
         particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
-        relevel_blocks(interval.block_dt, interval.owner, none, np.empty(0), 0, self.max_units)
+        relevel_due(interval.block_dt, interval.order, interval.level_start, interval.owner, none, np.empty(0), 1, 1,
+                    self.max_units, self.block_limit)
         move_rows(interval.pairs("P", "shadow"), none, none)
-        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t)
-        zone_members(at, interval.base, none, interval.shadow_base, self.reach, self.node_shape)
-        group = interval.group(at, none, none)
+        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
+                     interval.base)
+        cohort = _Cohort(1, 1, one, interval.owner)
+        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [cohort], interval.base, 0)
+        group = interval.group(one, none, none)
         rows = row_views(getattr(group, k) for k in interval.evolving)
         move_rows(interval.pairs(rows, "P"), none, none)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
             _, dP, dL = interface_substep(self.backend, group, np.zeros(group.n, dtype=np.int64), 0.0, 0.0)
-            add_rows(interval.dP, at, dP, 0)
-            add_rows(interval.dL, at, dL, 0)
-            interval.apply_registers(at)
+            add_rows(interval.dP, one, dP, 0)
+            add_rows(interval.dL, one, dL, 0)
+            interval.apply_registers(one)
 
     # ------------------------------------------------------------------ stepping
     def advance(self, state, dt=None, t_end=None):
@@ -218,6 +233,19 @@ class AsynchronousStepper:
                 "stale_shadows": int(s["stale_shadows"])}
 
 
+class _Cohort:
+    """The particles ``idx`` (ascending) that began a step of ``D`` ticks at the same tick, and end it together at
+    ``end``; with their owner blocks ``owner`` given, also bucketed by block (:func:`~.async_kernels.bucket_by_block`)
+    for the ghost searches of the updates that run while they are at this tick or mid-step."""
+
+    __slots__ = ("D", "end", "idx", "members", "blocks", "starts")
+
+    def __init__(self, D, end, idx, owner=None):
+        self.D, self.end, self.idx = D, end, idx
+        if owner is not None:
+            self.members, self.blocks, self.starts = bucket_by_block(idx, owner)
+
+
 class _Interval:
     """The working state of one :meth:`AsynchronousStepper.advance`: particles with their own clocks.
 
@@ -226,7 +254,15 @@ class _Interval:
     at its end); the shadow stores hold only the fields a step changes (:data:`EVOLVING`), the others are
     read from ``P``. Every update copies its group's rows out of them and its results back with the
     compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
-    the particle count. Per tick, one scan of the particle clocks is the only work over every particle.
+    the particle count.
+
+    The clocks are kept by **cohort** (:class:`_Cohort`): the particles that began a step of the same length at
+    the same tick end it at the same tick, so the particles due at a tick are the cohorts that end there, and
+    at most one cohort per level is under way. Each cohort is bucketed by block when it begins, so an update
+    looks for its ghosts only in the blocks near its own particles; the blocks are kept ordered by step, so a
+    tick relevels only the blocks due at it. The work over every particle happens once per interval (its
+    set-up, the registers' last application and the census), when every particle has stepped at least once:
+    a tick and an update cost what their own particles, ghosts and blocks cost (:data:`COUNTS`).
     """
 
     def __init__(self, stepper, state):
@@ -239,6 +275,7 @@ class _Interval:
         self.dt_p = np.zeros(n, dtype=np.int64)  # its current step (ticks)
         self.base = np.zeros((n, self.P.dim), dtype=np.int64)  # its stencil base node at its last boundary
         self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
+        self.cohorts = [_Cohort(0, self.t, np.arange(n, dtype=np.int64))]  # all due at the first tick
         self.names = tuple(self.P.arrays())
         self.evolving = tuple(k for k in self.names if k in EVOLVING)
         # the fields a step reads but does not change (id and level are the stepper's, not the step's)
@@ -246,8 +283,10 @@ class _Interval:
         self.shadow = stepper.store(self.P, self.evolving, "shadow")  # filled at the first tick: all are due
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
+        self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
         self.proposed = stepper.store(self.P, self.evolving, "proposed")
         self.block_dt = np.asarray(state.stepper["block_dt"]).copy()
+        self.order, self.level_start = blocks_by_level(self.block_dt, stepper.levels)
         self.updates = 0
         self.own_updates = 0
         self.stale = 0
@@ -258,33 +297,43 @@ class _Interval:
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
+        stepper.counts["intervals"] += 1
+        stepper.counts["interval_particles"] += n
 
     def synchronised(self):
-        return self.t > self.t0 and bool(np.all(self.t_p == self.t))
+        return self.t > self.t0 and all(c.end == self.t for c in self.cohorts)
 
     def tick_once(self):
         """Everything that happens at the current tick: re-levelling, then each due level, coarse first."""
         t, s, P = self.t, self.s, self.P
-        at, past = clock_scan(self.t_p, t)
+        due = [c for c in self.cohorts if c.end == t]
+        self.cohorts = [c for c in self.cohorts if c.end != t]  # mid-step: their shadows may be ghosts
+        at = due[0].idx if len(due) == 1 else np.sort(np.concatenate([c.idx for c in due]))
         self.apply_registers(at)
         boundary_nodes(P.x, at, *s.lattice, t, self.base, self.owner, self.shadow_base, self.shadow_t)
         limit = s.particle_limits(P, at)
         if (limit < 1).any():
             bad = int(np.argmin(limit))
             raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
-        self.block_dt = relevel_blocks(self.block_dt, self.owner, at, limit, t, s.max_units)
-        taken = particle_steps(at, self.block_dt, self.owner, alignment(t, s.max_units), limit, self.dt_p)
+        align = alignment(t, s.max_units)
+        s.counts["due_blocks"] += relevel_due(self.block_dt, self.order, self.level_start, self.owner, at, limit, t,
+                                              align, s.max_units, s.block_limit)
+        taken = particle_steps(at, self.block_dt, self.owner, align, limit, self.dt_p)
         self.finest = min(self.finest, taken & -taken)
         move_rows(self.pairs("P", "shadow"), at, at)
-        mid = [past]  # mid-step particles, whose shadows may be ghosts; each update adds its own
-        proposals = []  # (shadow indices, end tick) of each update, coarse first
+        s.counts["ticks"] += 1
+        s.counts["boundary_particles"] += at.size
         steps = self.dt_p[at]
-        for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]:  # coarse first
-            active = at[steps == D]
-            proposals.append(self.update_level(D, active, at[steps < D], mid))
-            mid.append(active)
+        started = [_Cohort(D, t + D, at[steps == D], self.owner)
+                   for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]]  # coarse first
+        mid = list(self.cohorts)  # the cohorts mid-step, whose shadows may be ghosts; each update adds its own
+        proposals = []  # (shadow indices, end tick) of each update, coarse first
+        for k, cohort in enumerate(started):
+            proposals.append(self.update_level(cohort.D, cohort.idx, started[k + 1:], mid))
+            mid.append(cohort)
+        self.cohorts += started
         self.refresh_shadows(proposals)
-        self.t = int(self.t_p.min())
+        self.t = min(c.end for c in self.cohorts)
 
     def pairs(self, src, dst):
         """``(source, destination)`` row views of every field between two stores (or a store and a group)."""
@@ -310,7 +359,8 @@ class _Interval:
         s = self.s
         for idx, end in proposals:
             move_rows(self.pairs("proposed", "shadow"), idx, idx)
-            shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t)
+            drift = shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t, self.base)
+            self.drift = max(self.drift, drift)
 
     def group(self, active, level_ghosts, shadow_ghosts):
         """One :class:`~mpmref.state.Particles` holding the rows of the active particles and the level ghosts
@@ -325,18 +375,34 @@ class _Interval:
         move_rows(self.pairs("shadow", evolving), shadow_ghosts, span(own, shadow_ghosts.size))
         return Particles(**arrays)
 
+    def ghosts(self, zone_, cohorts, node, drift):
+        """The particles of ``cohorts`` whose node ``node[p]`` (base node, or their shadow's) lies in the ghost
+        zone ``zone_`` (:func:`~.async_kernels.zone`), ascending; ``drift`` bounds, in nodes per axis, how far
+        ``node`` lies from the base node that gave a particle its block."""
+        s = self.s
+        found = []
+        for cohort in cohorts:
+            members, examined = bucket_zone_members(*zone_, drift, s.grid.block, s.lattice[5], cohort.members,
+                                                    cohort.blocks, cohort.starts, node)
+            s.counts["ghost_candidates"] += examined
+            if members.size:
+                found.append(members)
+        if not found:
+            return np.empty(0, dtype=np.int64)
+        return np.sort(found[0] if len(found) == 1 else np.concatenate(found))
+
     def update_level(self, D, active, waiting, mid):
         """One level-``D`` update at the current tick: a substep of the active particles and their ghosts.
 
-        ``waiting`` are the finer particles at this tick, not yet advanced (they may be ghosts at their own
-        state); ``mid`` a list of index arrays of the particles mid-step (their shadows may be ghosts).
-        Returns the shadow proposal ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into
-        ``proposed``.
+        ``waiting`` are the cohorts of finer particles at this tick, not yet advanced (they may be ghosts at their
+        own state); ``mid`` the cohorts mid-step (their shadows may be ghosts). Returns the shadow proposal
+        ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into ``proposed``.
         """
         s, t = self.s, self.t
-        level_ghosts = zone_members(active, self.base, waiting, self.base, s.reach, s.node_shape)
-        shadow_ghosts = np.sort(np.concatenate([zone_members(active, self.base, m, self.shadow_base, s.reach,
-                                                             s.node_shape) for m in mid]))
+        zone_ = zone(active, self.base, s.reach, s.node_shape)
+        s.counts["zone_nodes"] += zone_[2].size
+        level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
+        shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
         self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
         group = self.group(active, level_ghosts, shadow_ghosts)
         n_active = active.size
@@ -353,6 +419,7 @@ class _Interval:
         elapsed = perf_counter() - start
         s.stage_seconds += elapsed
         s.level_updates += 1
+        s.counts["group_rows"] += group.n
         if n_active < group.n:
             s.ghost_stage_seconds += elapsed
             s.ghost_level_updates += 1
