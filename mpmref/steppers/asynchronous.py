@@ -52,6 +52,7 @@ from time import perf_counter
 import numpy as np
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
+from ..ledger import ASYNC_COLUMNS, accumulate, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import Particles, State
 from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
@@ -99,14 +100,18 @@ class AsynchronousStepper:
     tick) to the next. Its stepper state: ``block_dt`` (each block's step in ticks), ``updates`` (particle
     updates done, ghosts included), ``own_updates`` (the particles' own steps), ``sync_updates`` (what
     synchronous stepping at each interval's finest step would have done), ``finest_dt`` (the finest step
-    taken, ticks), ``stale_shadows`` and ``sync_times``. Set ``trace = []`` to record every update as a dict
-    (tick, level, active blocks, ghost blocks) for inspection.
+    taken, ticks), ``stale_shadows`` and ``sync_times``; with a ``ledger`` (:class:`~mpmref.ledger.LevelLedger`),
+    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.ledger.ASYNC_COLUMNS`. Set ``trace = []`` to
+    record every update as a dict (tick, level, active blocks, ghost blocks) for inspection.
     """
 
     name = "async"
 
-    def __init__(self, scene, backend, hooks=NO_HOOKS):
-        self.scene, self.backend, self.hooks = scene, backend, hooks
+    def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
+        if ledger is not None and (hooks.body_force is not None or hooks.grid_folds):
+            raise MpmrefError("the energy ledger of asynchronous stepping books level updates by particle class, "
+                              "which take no hooks: run without hooks or without [output] energy_ledger")
+        self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
         t = scene.time
         self.tick_s, self.max_units = t.tick, 2**t.levels
         self.strength, self.advection = t.cfl, t.advection_cfl
@@ -217,10 +222,14 @@ class AsynchronousStepper:
         return int(new.stepper["updates"]) - int(old.stepper["updates"])
 
     def diagnostics(self, state):
-        """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows."""
+        """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,
+        the cumulative ledger's (``ledger_<column>`` over :data:`~mpmref.ledger.ASYNC_COLUMNS`)."""
         s = state.stepper
-        return {"tick": state.tick, "particle_updates": int(s["updates"]), "sync_times": int(s["sync_times"]),
-                "stale_shadows": int(s["stale_shadows"])}
+        out = {"tick": state.tick, "particle_updates": int(s["updates"]), "sync_times": int(s["sync_times"]),
+               "stale_shadows": int(s["stale_shadows"])}
+        if self.ledger is not None:
+            out |= ledger_columns(s.get("energy_ledger"), ASYNC_COLUMNS)
+        return out
 
     def summary(self, state):
         """Run-summary figures: updates done, what synchronous stepping at the finest step would have done."""
@@ -348,7 +357,14 @@ class _Interval:
             return
         P = self.P
         C = P.C if P.C is not None else np.empty((0, P.dim, P.dim), dtype=P.x.dtype)
-        apply_registers(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
+
+        def apply():
+            apply_registers(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
+
+        if self.s.ledger is None:
+            apply()
+        else:
+            self.s.ledger.kicks(P, idx, apply)
 
     def refresh_shadows(self, proposals):
         """Each shadow takes the result of the finest update that used it at this tick (if any).
@@ -408,12 +424,14 @@ class _Interval:
         n_active = active.size
         first_shadow = n_active + level_ghosts.size
         start = perf_counter()
-        if s.conservative and n_active < group.n:  # with no ghost there is no exchange to reflux
+        kicks = s.conservative and n_active < group.n  # with no ghost there is no exchange to reflux
+        if kicks or s.ledger is not None:  # by classes: the registers' impulses, or the ledger's active particles
             classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
-            result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s)
-            for register, impulse in ((self.dP, dP), (self.dL, dL)):
-                add_rows(register, active, impulse, 0)
-                add_rows(register, shadow_ghosts, impulse, first_shadow)
+            result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s, kicks, s.ledger)
+            if kicks:
+                for register, impulse in ((self.dP, dP), (self.dL, dL)):
+                    add_rows(register, active, impulse, 0)
+                    add_rows(register, shadow_ghosts, impulse, first_shadow)
         else:
             result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
         elapsed = perf_counter() - start
@@ -450,6 +468,8 @@ class _Interval:
                    "stale_shadows": np.array(int(old["stale_shadows"]) + self.stale),
                    "finest_dt": np.array(min(int(old["finest_dt"]), self.finest)),
                    "sync_times": np.array(int(old["sync_times"]) + 1)}
+        if self.s.ledger is not None:
+            stepper["energy_ledger"] = accumulate(old.get("energy_ledger"), self.s.ledger.close(), ASYNC_COLUMNS)
         return replace(self.state, particles=self.P, step=self.state.step + 1, tick=self.t,
                        time=self.t * self.s.tick_s, stepper=stepper)
 
