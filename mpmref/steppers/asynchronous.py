@@ -133,8 +133,9 @@ class AsynchronousStepper:
         #: of how its work grows
         self.counts = dict.fromkeys(COUNTS, 0)
         #: wall time spent in the step's stages (the substeps) and the number of level updates since
-        #: construction, in all and in the updates that had ghosts: the benchmark's split of an update's cost
-        self.stage_seconds, self.level_updates = 0.0, 0
+        #: construction, in all and in the updates that had ghosts, and the wall time of the intervals
+        #: (``advance``): the benchmark's split of an update's cost into stages and bookkeeping
+        self.stage_seconds, self.level_updates, self.advance_seconds = 0.0, 0, 0.0
         self.ghost_stage_seconds, self.ghost_level_updates = 0.0, 0
 
     # ------------------------------------------------------------------ state
@@ -207,10 +208,13 @@ class AsynchronousStepper:
         """The state at the next synchronised time (``dt`` must be ``None``; ``t_end`` cannot shorten a step)."""
         if dt is not None:
             raise MpmrefError("asynchronous stepping chooses every block's step itself: call step() without dt")
+        start = perf_counter()
         run = self.interval(self, state)
         while not run.synchronised():
             run.tick_once()
-        return run.finish()
+        new = run.finish()
+        self.advance_seconds += perf_counter() - start
+        return new
 
     def cfl_number(self, particles, dt):
         """The largest ``dt (c_p + |v_p|) / dx`` of a step of ``dt`` (the finest level's CFL number)."""
