@@ -192,8 +192,7 @@ class AsynchronousStepper:
         move_rows(interval.pairs("P", "shadow"), none, none)
         shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
                      interval.base)
-        cohort = _Cohort(1, 1, one, interval.owner)
-        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [cohort], interval.base, 0)
+        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [_Cohort(1, 1, one)], interval.base, 0)
         group = interval.group(one, none, none)
         rows = row_views(getattr(group, k) for k in interval.evolving)
         move_rows(interval.pairs(rows, "P"), none, none)
@@ -248,15 +247,20 @@ class AsynchronousStepper:
 
 class _Cohort:
     """The particles ``idx`` (ascending) that began a step of ``D`` ticks at the same tick, and end it together at
-    ``end``; with their owner blocks ``owner`` given, also bucketed by block (:func:`~.async_kernels.bucket_by_block`)
-    for the ghost searches of the updates that run while they are at this tick or mid-step."""
+    ``end``."""
 
-    __slots__ = ("D", "end", "idx", "members", "blocks", "starts")
+    __slots__ = ("D", "end", "idx", "_buckets")
 
-    def __init__(self, D, end, idx, owner=None):
-        self.D, self.end, self.idx = D, end, idx
-        if owner is not None:
-            self.members, self.blocks, self.starts = bucket_by_block(idx, owner)
+    def __init__(self, D, end, idx):
+        self.D, self.end, self.idx, self._buckets = D, end, idx, None
+
+    def buckets(self, owner):
+        """The particles bucketed by their block ``owner[p]`` (:func:`~.async_kernels.bucket_by_block`), for the
+        ghost searches of the updates that run while they are at this tick or mid-step; built at the first search
+        (their blocks do not change before their step ends)."""
+        if self._buckets is None:
+            self._buckets = bucket_by_block(self.idx, owner)
+        return self._buckets
 
 
 class _Interval:
@@ -271,9 +275,10 @@ class _Interval:
 
     The clocks are kept by **cohort** (:class:`_Cohort`): the particles that began a step of the same length at
     the same tick end it at the same tick, so the particles due at a tick are the cohorts that end there, and
-    at most one cohort per level is under way. Each cohort is bucketed by block when it begins, so an update
-    looks for its ghosts only in the blocks near its own particles; the blocks are kept ordered by step, so a
-    tick relevels only the blocks due at it. The work over every particle happens once per interval (its
+    at most one cohort per level is under way. A cohort is bucketed by block when an update first looks among
+    its particles for ghosts, so an update looks only in the blocks near its own particles, and it keeps a shadow
+    only when finer steps begin at its tick (no other update runs before its step ends); the blocks are kept
+    ordered by step, so a tick relevels only the blocks due at it. The work over every particle happens once per interval (its
     set-up, the registers' last application and the census), when every particle has stepped at least once:
     a tick and an update cost what their own particles, ghosts and blocks cost (:data:`COUNTS`).
     """
@@ -293,7 +298,7 @@ class _Interval:
         self.evolving = tuple(k for k in self.names if k in EVOLVING)
         # the fields a step reads but does not change (id and level are the stepper's, not the step's)
         self.constant = tuple(k for k in self.names if k not in EVOLVING and k not in ("id", "level"))
-        self.shadow = stepper.store(self.P, self.evolving, "shadow")  # filled at the first tick: all are due
+        self.shadow = stepper.store(self.P, self.evolving, "shadow")  # a cohort's rows filled as it begins
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
         self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
@@ -333,12 +338,16 @@ class _Interval:
                                               align, s.max_units, s.block_limit)
         taken = particle_steps(at, self.block_dt, self.owner, align, limit, self.dt_p)
         self.finest = min(self.finest, taken & -taken)
-        move_rows(self.pairs("P", "shadow"), at, at)
         s.counts["ticks"] += 1
         s.counts["boundary_particles"] += at.size
         steps = self.dt_p[at]
-        started = [_Cohort(D, t + D, at[steps == D], self.owner)
+        started = [_Cohort(D, t + D, at[steps == D])
                    for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]]  # coarse first
+        for cohort in started:
+            # its shadow (the state at its step's start) can be a ghost only of a finer update, and every finer
+            # update before its step ends is of particles that take a finer step now
+            if taken & (cohort.D - 1):
+                move_rows(self.pairs("P", "shadow"), cohort.idx, cohort.idx)
         mid = list(self.cohorts)  # the cohorts mid-step, whose shadows may be ghosts; each update adds its own
         proposals = []  # (shadow indices, end tick) of each update, coarse first
         for k, cohort in enumerate(started):
@@ -402,8 +411,8 @@ class _Interval:
         s = self.s
         found = []
         for cohort in cohorts:
-            members, examined = bucket_zone_members(*zone_, drift, s.grid.block, s.lattice[5], cohort.members,
-                                                    cohort.blocks, cohort.starts, node)
+            members, examined = bucket_zone_members(*zone_, drift, s.grid.block, s.lattice[5],
+                                                    *cohort.buckets(self.owner), node)
             s.counts["ghost_candidates"] += examined
             if members.size:
                 found.append(members)
@@ -419,10 +428,13 @@ class _Interval:
         ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into ``proposed``.
         """
         s, t = self.s, self.t
-        zone_ = zone(active, self.base, s.reach, s.node_shape)
-        s.counts["zone_nodes"] += zone_[2].size
-        level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
-        shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
+        if waiting or mid:
+            zone_ = zone(active, self.base, s.reach, s.node_shape)
+            s.counts["zone_nodes"] += zone_[2].size
+            level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
+            shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
+        else:  # one level at this tick and none mid-step: no ghost to look for
+            level_ghosts = shadow_ghosts = np.empty(0, dtype=np.int64)
         self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
         group = self.group(active, level_ghosts, shadow_ghosts)
         n_active = active.size
