@@ -4,6 +4,8 @@ The schedule, the census, free fall and agreement with sync are the ``sync_vs_as
 (``tests/test_verify_sync_vs_async.py``).
 """
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,8 @@ from verification.sync_vs_async import two_bodies
 from helpers import full_and_resumed_runs, valid_methods
 
 from test_scene_validation import check_refused
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 # ----------------------------------------------------------------------------------------- level rules
 def test_quantisation_of_the_advection_limit():
@@ -249,3 +253,20 @@ def test_the_bookkeeping_visits_what_the_updates_touch():
     assert counts["boundary_particles"] == summary["own_updates"]
     assert counts["interval_particles"] == n * sim.step_count and counts["intervals"] == sim.step_count
     assert counts["group_rows"] == summary["particle_updates"]
+
+
+def test_the_run_summary_gives_the_savings_the_levels_and_the_ledger(tmp_path, capsys):
+    """``mpmref run`` of the async example: the updates saved with and without the ghosts, the levels at the end;
+    with the energy ledger asked for, its ``ledger_interface`` column in diagnostics.csv."""
+    import csv
+
+    from mpmref.cli import main
+
+    scene = tmp_path / "stork.toml"
+    text = (EXAMPLES / "stork2d.toml").read_text().replace("t_end = 0.05", "t_end = 0.002")
+    scene.write_text(text.replace("[output]\n", "[output]\nenergy_ledger = true\n"))
+    assert main(["run", str(scene), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "without the ghosts" in out and "levels           [" in out and "stale shadows" in out
+    rows = list(csv.DictReader(open(tmp_path / "o" / "diagnostics.csv")))
+    assert "ledger_interface" in rows[-1] and float(rows[-1]["ledger_closure"]) == pytest.approx(0.0, abs=1e-12)

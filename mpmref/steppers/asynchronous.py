@@ -235,13 +235,18 @@ class AsynchronousStepper:
         return out
 
     def summary(self, state):
-        """Run-summary figures: updates done, what synchronous stepping at the finest step would have done."""
+        """Run-summary figures: updates done, what synchronous stepping at the finest step would have done, over
+        the updates with ghosts (``updates_saved``) and over the particles' own steps (``own_updates_saved``, the
+        ideal that ghosts cost a share of), and the levels the particles took last (log2 of their steps in
+        ticks)."""
         s = state.stepper
-        done = int(s["updates"])
-        return {"particle_updates": done, "own_updates": int(s["own_updates"]),
-                "ghost_updates": done - int(s["own_updates"]), "sync_particle_updates": float(s["sync_updates"]),
-                "updates_saved": float(s["sync_updates"]) / done if done else float("nan"),
+        done, own, sync = int(s["updates"]), int(s["own_updates"]), float(s["sync_updates"])
+        return {"particle_updates": done, "own_updates": own,
+                "ghost_updates": done - own, "sync_particle_updates": sync,
+                "updates_saved": sync / done if done else float("nan"),
+                "own_updates_saved": sync / own if own else float("nan"),
                 "finest_dt_ticks": int(s["finest_dt"]),
+                "levels": sorted(set(state.particles.level.tolist())),
                 "stale_shadows": int(s["stale_shadows"])}
 
 
