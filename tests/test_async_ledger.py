@@ -132,3 +132,13 @@ def test_a_resumed_asynchronous_run_goes_on_adding_to_the_ledger(tmp_path):
     assert set(expected) == {f"ledger_{c}" for c in ASYNC_COLUMNS}
     assert {k: v for k, v in resumed.diagnostics().items() if k.startswith("ledger_")} == expected
     assert np.isfinite(list(expected.values())).all()
+
+
+def test_hooks_with_the_asynchronous_ledger_are_refused_with_the_reason():
+    """The ledger books level updates by class, which take no hooks: asked for both, the run says so."""
+    from mpmref.errors import MpmrefError
+    from mpmref.steppers import Hooks
+
+    hooks = Hooks(body_force=lambda particles, time: np.zeros_like(particles.x))
+    with pytest.raises(MpmrefError, match="no hooks"):
+        Simulation(with_ledger(case.pressed_disks()), hooks=hooks)
