@@ -255,9 +255,9 @@ class LevelLedger:
     (``closure`` records the round-off), and :math:`\texttt{p2g\_transfer} \le 0` for PIC, APIC and PolyPIC class
     by class (Cauchy–Schwarz on :math:`A`'s own sums).
 
-    ``update(...)`` is driven by the level update in the order :meth:`start`, :meth:`grid`, :meth:`g2p`,
-    :meth:`finish`; :meth:`kicks` books a register application. Both add to :attr:`interval`, the entry of the
-    synchronised interval under way (a dict over :data:`ASYNC_COLUMNS`), which :meth:`close` returns and keeps as
+    A level update calls :meth:`start`, :meth:`grid`, :meth:`g2p` and :meth:`finish` in that order; :meth:`kicks`
+    books a register application. Both add to :attr:`interval`, the entry of the synchronised interval under way
+    (a dict over :data:`ASYNC_COLUMNS`, emptied by :meth:`begin`), which :meth:`close` returns and keeps as
     ``last``.
 
     Docs: docs/energy_ledger.md#asynchronous-runs
@@ -353,9 +353,14 @@ class LevelLedger:
         change = self.kinetic(particles.select(idx), modes=False) - before
         self._add({"interface": change, "energy_change": change})
 
+    def begin(self):
+        """A synchronised interval begins: nothing is booked to it yet."""
+        self.interval = dict.fromkeys(ASYNC_COLUMNS, 0.0)
+
     def close(self):
-        """The entry of the synchronised interval just ended (kept as ``last``); a new interval begins."""
-        self.last, self.interval = self.interval, dict.fromkeys(ASYNC_COLUMNS, 0.0)
+        """The entry of the synchronised interval just ended (kept as ``last``)."""
+        self.last = self.interval
+        self.begin()
         return self.last
 
     def _add(self, entry):

@@ -281,11 +281,12 @@ class _Interval:
     The clocks are kept by **cohort** (:class:`_Cohort`): the particles that began a step of the same length at
     the same tick end it at the same tick, so the particles due at a tick are the cohorts that end there, and
     at most one cohort per level is under way. A cohort is bucketed by block when an update first looks among
-    its particles for ghosts, so an update looks only in the blocks near its own particles, and it keeps a shadow
-    only when finer steps begin at its tick (no other update runs before its step ends); the blocks are kept
-    ordered by step, so a tick relevels only the blocks due at it. The work over every particle happens once per interval (its
-    set-up, the registers' last application and the census), when every particle has stepped at least once:
-    a tick and an update cost what their own particles, ghosts and blocks cost (:data:`COUNTS`).
+    its particles for ghosts, so an update looks only in the blocks near its own particles, and it keeps a
+    shadow only when finer steps begin at its tick (no other update runs before its step ends); the blocks are
+    kept ordered by step, so a tick relevels only the blocks due at it. The work over every particle happens
+    once per interval (its set-up, the registers' last application and the census), when every particle has
+    stepped at least once: a tick and an update cost what their own particles, ghosts and blocks cost
+    (:data:`COUNTS`).
     """
 
     def __init__(self, stepper, state):
@@ -322,6 +323,8 @@ class _Interval:
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
         stepper.counts["intervals"] += 1
         stepper.counts["interval_particles"] += n
+        if stepper.ledger is not None:
+            stepper.ledger.begin()
 
     def synchronised(self):
         return self.t > self.t0 and all(c.end == self.t for c in self.cohorts)
