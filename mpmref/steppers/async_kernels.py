@@ -1,9 +1,12 @@
-"""Compiled bookkeeping of asynchronous stepping: row copies between particle stores and the ghost zone.
+"""Compiled bookkeeping of asynchronous stepping: row copies between particle stores, the ghost zone, the
+ghost search by block and the block rule over the due blocks.
 
 The interval of :mod:`mpmref.steppers.asynchronous` keeps three stores of the same particle fields: the
 authoritative particles, their shadows and the shadows proposed at the current tick. A level update copies
 rows of them into one group, runs the ordinary substep on it and copies rows back; these functions do the
-copies in one compiled call each (every field at once) and find the ghosts of an update. They are
+copies in one compiled call each (every field at once), find the ghosts of an update among the blocks near it
+(:func:`zone`, :func:`bucket_by_block`, :func:`bucket_zone_members`) and relevel the blocks due at a tick
+(:func:`blocks_by_level`, :func:`relevel_due`), each in time proportional to what it visits. They are
 scheduling, not physics: every backend's stages run on the groups they build, so the bookkeeping is written
 once for all of them.
 
