@@ -177,10 +177,10 @@ class EnergyLedger:
         return mask
 
 
-def accumulate(total, entry, columns=COLUMNS):
-    """The cumulative ledger ``total`` (an array over ``columns``, :data:`COLUMNS` by default, or None before the
-    first step) plus a step's ``entry``."""
-    step = np.array([entry[c] for c in columns])
+def accumulate(total, entry):
+    """The cumulative ledger ``total`` (an array over :data:`COLUMNS`, or None before the first step) plus a
+    step's ``entry``."""
+    step = np.array([entry[c] for c in COLUMNS])
     return step if total is None else np.asarray(total) + step
 
 
@@ -257,8 +257,8 @@ class LevelLedger:
 
     A level update calls :meth:`start`, :meth:`grid`, :meth:`g2p` and :meth:`finish` in that order; :meth:`kicks`
     books a register application. Both add to :attr:`interval`, the entry of the synchronised interval under way
-    (a dict over :data:`ASYNC_COLUMNS`, emptied by :meth:`begin`), which :meth:`close` returns and keeps as
-    ``last``.
+    (a dict over :data:`ASYNC_COLUMNS`, emptied by :meth:`begin`), which :meth:`close` keeps as ``last`` and adds to
+    the run's cumulative ledger.
 
     Docs: docs/energy_ledger.md#asynchronous-runs
     """
@@ -357,11 +357,13 @@ class LevelLedger:
         """A synchronised interval begins: nothing is booked to it yet."""
         self.interval = dict.fromkeys(ASYNC_COLUMNS, 0.0)
 
-    def close(self):
-        """The entry of the synchronised interval just ended (kept as ``last``)."""
+    def close(self, total):
+        """Close the synchronised interval just ended: its entry is kept as ``last``, and the cumulative ledger
+        ``total`` (an array over :data:`ASYNC_COLUMNS`, or None before the first interval) plus it is returned."""
         self.last = self.interval
         self.begin()
-        return self.last
+        step = np.array([self.last[c] for c in ASYNC_COLUMNS])
+        return step if total is None else np.asarray(total) + step
 
     def _add(self, entry):
         for key, value in entry.items():

@@ -52,7 +52,7 @@ from time import perf_counter
 import numpy as np
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
-from ..ledger import ASYNC_COLUMNS, accumulate, ledger_columns
+from ..ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import Particles, State
 from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
@@ -493,7 +493,7 @@ class _Interval:
                    "finest_dt": np.array(min(int(old["finest_dt"]), self.finest)),
                    "sync_times": np.array(int(old["sync_times"]) + 1)}
         if self.s.ledger is not None:
-            stepper["energy_ledger"] = accumulate(old.get("energy_ledger"), self.s.ledger.close(), ASYNC_COLUMNS)
+            stepper["energy_ledger"] = self.s.ledger.close(old.get("energy_ledger"))
         return replace(self.state, particles=self.P, step=self.state.step + 1, tick=self.t,
                        time=self.t * self.s.tick_s, stepper=stepper)
 
