@@ -200,6 +200,7 @@ class AsynchronousStepper:
             _, dP, dL = interface_substep(self.backend, group, np.zeros(group.n, dtype=np.int64), 0.0, 0.0)
             add_rows(interval.dP, one, dP, 0)
             add_rows(interval.dL, one, dL, 0)
+            interval.kicked = True
             interval.apply_registers(one)
 
     # ------------------------------------------------------------------ stepping
@@ -292,7 +293,10 @@ class _Interval:
     def __init__(self, stepper, state):
         self.s = stepper
         self.state = state
-        self.P = state.particles.copy()
+        # the fields the interval writes are copied (the state it starts from stays as it was); the others (mass,
+        # volume, material, id) are shared with it, as a synchronous step's result shares them with its input
+        self.P = state.particles.with_(**{k: a.copy() for k, a in state.particles.arrays().items()
+                                          if k in EVOLVING or k == "level"})
         n = self.P.n
         self.t0 = self.t = state.tick
         self.t_p = np.full(n, self.t, dtype=np.int64)  # each particle's clock
@@ -321,6 +325,7 @@ class _Interval:
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
+        self.kicked = False  # whether an update of this interval has added to a register
         stepper.counts["intervals"] += 1
         stepper.counts["interval_particles"] += n
         if stepper.ledger is not None:
@@ -374,7 +379,7 @@ class _Interval:
     def apply_registers(self, idx):
         """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end;
         :func:`mpmref.physics.interface.apply_registers`, compiled)."""
-        if not self.s.conservative or idx.size == 0:
+        if not self.s.conservative or idx.size == 0 or not self.kicked:
             return
         P = self.P
         C = P.C if P.C is not None else np.empty((0, P.dim, P.dim), dtype=P.x.dtype)
@@ -453,6 +458,7 @@ class _Interval:
             classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
             result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s, kicks, s.ledger)
             if kicks:
+                self.kicked = True
                 for register, impulse in ((self.dP, dP), (self.dL, dL)):
                     add_rows(register, active, impulse, 0)
                     add_rows(register, shadow_ghosts, impulse, first_shadow)
