@@ -126,8 +126,11 @@ def _format_summary(summary, out_dir, backend=None):
         lines.insert(0, f"backend          {backend['backend']} ({backend['class']}{version}){execution}")
     if "particle_updates" in summary:
         lines.insert(3, f"particle updates {summary['particle_updates']} ({summary['ghost_updates']} of them ghosts); "
-                        f"updates saved against sync: {summary['updates_saved']:.2f}x (sync at the finest step, "
+                        f"updates saved against sync: {summary['updates_saved']:.2f}x, "
+                        f"{summary['own_updates_saved']:.2f}x without the ghosts (sync at the finest step, "
                         f"{summary['finest_dt_ticks']} ticks)")
+        lines.insert(4, f"levels           {summary['levels']} at the end (log2 of each particle's step in ticks); "
+                        f"{summary['stale_shadows']} stale shadows")
     return "\n".join(lines)
 
 

@@ -229,10 +229,11 @@ def accumulate(total, entry):
     return step if total is None else np.asarray(total) + step
 
 
-def ledger_columns(total):
-    """``diagnostics.csv`` columns ``ledger_<column>`` of a cumulative ledger (zeros before the first step)."""
-    values = np.zeros(len(COLUMNS)) if total is None else np.asarray(total)
-    return {f"ledger_{c}": float(x) for c, x in zip(COLUMNS, values)}
+def ledger_columns(total, columns=COLUMNS):
+    """``diagnostics.csv`` columns ``ledger_<column>`` of a cumulative ledger over ``columns`` (zeros before the
+    first step)."""
+    values = np.zeros(len(columns)) if total is None else np.asarray(total)
+    return {f"ledger_{c}": float(x) for c, x in zip(columns, values)}
 
 
 def node_kinetic_remainder(m, v_tilde, v_star, v):
@@ -254,3 +255,177 @@ def node_kinetic_remainder(m, v_tilde, v_star, v):
     jump = v - v_tilde
     return np.einsum("nd,nd->n", R, v) - 0.5 * m * np.einsum("nd,nd->n", jump, jump)
 
+
+
+# ------------------------------------------------------------------------------------ asynchronous stepping
+#: the terms of an asynchronous run's ledger: the synchronous step's, and what crosses level interfaces
+ASYNC_TERMS = (*TERMS, "interface")
+#: what an asynchronous run's entry holds (:class:`LevelLedger`)
+ASYNC_COLUMNS = (*ASYNC_TERMS, *FLOWS, "energy_change", "closure")
+
+
+class LevelLedger:
+    r"""The energy ledger of asynchronous stepping: books the energy change of each level update's **active**
+    particles, the only ones whose results count, and of the impulse registers of conservative interfaces.
+
+    A level update (:func:`mpmref.steppers.pipeline.interface_substep`) runs one substep over its active particles
+    :math:`A` and their ghosts, with P2G summing each class apart (:mod:`mpmref.physics.interface`: node mass
+    :math:`m^A_i`, momentum :math:`(mv)^A_i`, force :math:`f^A_i`, and the totals :math:`m_i, (mv)_i, f_i`). Each
+    particle's state changes only in its own updates and when its register is applied, and its energy is its own,
+    so the run's energy change between synchronised times is the sum of the active sets' changes and the
+    registers'. :math:`A`'s change is split as a synchronous step's (:class:`EnergyLedger`), with every node
+    quantity taken by :math:`A`'s share of the node mass, :math:`\mu^A_i = m^A_i / m_i`:
+
+    .. math::
+
+        \texttt{p2g\_transfer} = \tfrac12 \sum_i \frac{|(mv)^A_i|^2}{m^A_i} - K^A_p, \qquad
+        \texttt{boundary} = \sum_{i \in \partial} \mu^A_i B_i, \qquad
+        \texttt{g2p\_transfer} = K^{A,n+1}_p(x^n) - \tfrac12 \sum_i m^A_i |v_i|^2,
+
+        \texttt{integration} = (\Psi^{A,tr} - \Psi^A + W^A_{int}) + (U^{A,n+1} - U^A + W^A_g)
+            + \sum_{i \notin \partial} \mu^A_i B_i, \qquad
+        W^A_{int} = \Delta t \sum_i f^A_i \cdot v_i, \quad W^A_g = \Delta t \sum_i m^A_i\, g \cdot v_i,
+
+    ``advection`` and ``plastic`` over :math:`A`'s particles, and what :math:`A` takes from its ghosts:
+
+    .. math::
+
+        \texttt{interface} = \Big(\tfrac12 \sum_i m^A_i |\tilde v_i|^2 - \tfrac12 \sum_i \frac{|(mv)^A_i|^2}{m^A_i}\Big)
+            + \Delta t \sum_i (\mu^A_i f_i - f^A_i) \cdot v_i \;+\; \sum_{\text{registers}} \Delta K_p,
+
+    the kinetic energy :math:`A` gains by sharing the nodes' momentum with the ghosts (the averaging of the
+    classes' velocities), the work of the ghosts' share of the node forces on :math:`A`, and the kinetic energy
+    change of every register applied (:func:`mpmref.physics.interface.apply_registers`). Without ghosts the first
+    two vanish and the entry is the synchronous step's. The terms telescope to :math:`A`'s measured change
+    (``closure`` records the round-off), and :math:`\texttt{p2g\_transfer} \le 0` for PIC, APIC and PolyPIC class
+    by class (Cauchy–Schwarz on :math:`A`'s own sums).
+
+    A level update calls :meth:`start`, :meth:`grid`, :meth:`g2p` and :meth:`finish` in that order; :meth:`kicks`
+    books a register application. Both add to :attr:`interval`, the entry of the synchronised interval under way
+    (a dict over :data:`ASYNC_COLUMNS`, emptied by :meth:`begin`), which :meth:`close` keeps as ``last`` and adds to
+    the run's cumulative ledger.
+
+    Docs: docs/energy_ledger.md#asynchronous-runs
+    """
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.nodes = EnergyLedger(scene)  # the boundary nodes, gravity and affine inertia, as a synchronous step's
+        self.last = None
+        self.interval = dict.fromkeys(ASYNC_COLUMNS, 0.0)
+        self._open = {}
+
+    # ------------------------------------------------------------------ a level update
+    def start(self, particles, classes):
+        """Record the energies of the update's active particles (rows of ``particles`` whose class is active)."""
+        from .physics.interface import ACTIVE
+
+        rows = np.flatnonzero(np.asarray(classes) == ACTIVE)
+        active = particles.select(rows)
+        self._open = {"rows": rows, "x": active.x.copy(), "K": self.kinetic(active), "Psi": self.elastic(active),
+                      "U": self.nodes.potential(active)}
+
+    def grid(self, grid_state, v_grid, dt, time):
+        r"""Book P2G, the boundary, the force work and the exchange with the ghosts, from the per-class node sums of
+        ``grid_state`` (``class_sums``) and the node velocity ``v_grid`` after the grid update (same rows)."""
+        from .physics.interface import ACTIVE
+
+        m = np.asarray(grid_state.mass, dtype=np.float64)
+        has = m > 0
+        m = m[has]
+        d = grid_state.momentum.shape[1]
+        own = np.asarray(grid_state.class_sums[ACTIVE], dtype=np.float64)[has]
+        m_a, p_a, f_a = own[:, 0], own[:, 1:1 + d], own[:, 1 + d:]
+        p = np.asarray(grid_state.momentum, dtype=np.float64)[has]
+        f = np.asarray(grid_state.force, dtype=np.float64)[has]
+        v = np.asarray(v_grid, dtype=np.float64)[has]
+        v_tilde = p / m[:, None]
+        g = self.nodes.gravity
+        share = m_a / m
+        remainder = share * node_kinetic_remainder(m, v_tilde, v_tilde + dt * (f / m[:, None] + g), v)
+        on_boundary = self.nodes.boundary_nodes(grid_state.layout, time)[has]
+        reached = m_a > 0
+        own_kinetic = 0.5 * float(np.sum(np.einsum("nd,nd->n", p_a[reached], p_a[reached]) / m_a[reached]))
+        o = self._open
+        o["K_g0_own"] = own_kinetic
+        o["mixing"] = 0.5 * float(np.sum(m_a * np.einsum("nd,nd->n", v_tilde, v_tilde))) - own_kinetic
+        o["exchange_work"] = dt * float(np.sum((share[:, None] * f - f_a) * v))
+        o["K_g1"] = 0.5 * float(np.sum(m_a * np.einsum("nd,nd->n", v, v)))
+        o["internal_work"] = dt * float(np.sum(f_a * v))
+        o["gravity_work"] = dt * float(np.sum(m_a * (v @ g)))
+        o["boundary"] = float(np.sum(remainder[on_boundary]))
+        o["kinetic_error"] = float(np.sum(remainder[~on_boundary]))
+
+    def g2p(self, trial):
+        """Record the active particles after G2P, before the return map (``trial``, every row of the update)."""
+        o = self._open
+        active = trial.select(o["rows"])
+        o["K_projected"] = self.kinetic(active.with_(x=o["x"])) if active.modes is not None else None
+        o["K_new"] = self.kinetic(active)
+        o["Psi_trial"] = self.elastic(active)
+
+    def finish(self, new):
+        """Book the return map, close the update and add its entry to :attr:`interval`; returns the entry."""
+        o = self._open
+        active = new.select(o["rows"])
+        psi_new, u_new = self.elastic(active), self.nodes.potential(active)
+        projected = o["K_projected"] if o["K_projected"] is not None else o["K_new"]
+        entry = {
+            "p2g_transfer": o["K_g0_own"] - o["K"],
+            "boundary": o["boundary"],
+            "g2p_transfer": projected - o["K_g1"],
+            "advection": o["K_new"] - projected,
+            "plastic": psi_new - o["Psi_trial"],
+            "rigid_bodies": 0.0,
+            "integration": ((o["Psi_trial"] - o["Psi"] + o["internal_work"]) + (u_new - o["U"] + o["gravity_work"])
+                            + o["kinetic_error"]),
+            "interface": o["mixing"] + o["exchange_work"],
+            "internal_work": o["internal_work"],
+            "gravity_work": o["gravity_work"],
+            "energy_change": (o["K_new"] - o["K"]) + (psi_new - o["Psi"]) + (u_new - o["U"]),
+        }
+        entry["closure"] = entry["energy_change"] - sum(entry[t] for t in ASYNC_TERMS)
+        self._add(entry)
+        self._open = {}
+        return entry
+
+    # ------------------------------------------------------------------ registers and intervals
+    def kicks(self, particles, idx, apply):
+        """Book the registers of the particles ``idx`` of ``particles`` applied by ``apply()`` (in place): their
+        kinetic energy change, to ``interface``. Only velocity and affine matrix change."""
+        before = self.kinetic(particles.select(idx), modes=False)
+        apply()
+        change = self.kinetic(particles.select(idx), modes=False) - before
+        self._add({"interface": change, "energy_change": change})
+
+    def begin(self):
+        """A synchronised interval begins: nothing is booked to it yet."""
+        self.interval = dict.fromkeys(ASYNC_COLUMNS, 0.0)
+
+    def close(self, total):
+        """Close the synchronised interval just ended: its entry is kept as ``last``, and the cumulative ledger
+        ``total`` (an array over :data:`ASYNC_COLUMNS`, or None before the first interval) plus it is returned."""
+        self.last = self.interval
+        self.begin()
+        step = np.array([self.last[c] for c in ASYNC_COLUMNS])
+        return step if total is None else np.asarray(total) + step
+
+    def _add(self, entry):
+        for key, value in entry.items():
+            self.interval[key] += value
+
+    def elastic(self, particles):
+        """The particles' stored energy (:func:`mpmref.diagnostics.elastic_energy`), float64."""
+        from .diagnostics import elastic_energy
+
+        return elastic_energy(particles, self.scene.material_list)
+
+    def kinetic(self, particles, modes=True):
+        """Kinetic energy of the particles' velocity fields (:func:`mpmref.diagnostics.kinetic_parts`), float64;
+        with ``modes=False`` without the PolyPIC modes' part."""
+        from .diagnostics import kinetic_parts, polypic_mode_norms
+
+        if not modes:
+            particles = particles.with_(modes=None)
+        norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None else None
+        return sum(kinetic_parts(particles, self.nodes.inertia, norms))

@@ -4,6 +4,8 @@ The schedule, the census, free fall and agreement with sync are the ``sync_vs_as
 (``tests/test_verify_sync_vs_async.py``).
 """
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,8 @@ from verification.sync_vs_async import two_bodies
 from helpers import full_and_resumed_runs, valid_methods
 
 from test_scene_validation import check_refused
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 # ----------------------------------------------------------------------------------------- level rules
 def test_quantisation_of_the_advection_limit():
@@ -160,3 +164,109 @@ def test_wave_speeds_of_every_material_agree_across_backends():
     ref = make_backend("numpy", scene).wave_speeds(p, idx)
     got = make_backend("numba", scene).wave_speeds(p, idx)
     assert np.all(np.isfinite(ref)) and np.max(np.abs(got - ref) / ref) <= 1e-13
+
+
+def _relevel_all_blocks(block_dt, owner, idx, limit, t, max_units):
+    """The block rule over every block, written plainly: the due blocks that own some of ``idx`` relevel to
+    their smallest limit, the due blocks that own none follow the coarsest of the blocks that own some."""
+    own = {}
+    for p, lim in zip(idx, limit):
+        own[owner[p]] = min(own.get(owner[p], np.inf), lim)
+    new = block_dt.copy()
+    for b, lim in own.items():
+        if t % block_dt[b] == 0:
+            new[b] = relevel(block_dt[b:b + 1], np.array([min(lim, max_units)]), t)[0]
+    coarsest = max((new[b] for b in own), default=max_units)
+    for b in range(block_dt.size):
+        if b not in own and t % block_dt[b] == 0:
+            new[b] = relevel(block_dt[b:b + 1], np.array([coarsest]), t)[0]
+    return new
+
+
+def test_relevelling_only_the_due_blocks_follows_the_rule_over_every_block():
+    """The compiled rule visits the blocks due at a tick (a prefix of the blocks ordered by step) and the blocks
+    owning particles at their boundary; it must give what the rule applied to every block gives, tick after tick."""
+    from mpmref.steppers.async_kernels import blocks_by_level, relevel_due
+
+    rng = np.random.default_rng(8)
+    levels, n_blocks = 6, 300
+    max_units = 2**levels
+    block_dt = np.full(n_blocks, max_units, dtype=np.int64)
+    order, level_start = blocks_by_level(block_dt, levels)
+    scratch = np.full(n_blocks, np.inf)
+    owner = rng.integers(0, n_blocks, size=2000)
+    due_counts = []
+    for t in range(0, 400):
+        idx = np.flatnonzero(rng.random(owner.size) < 0.05)
+        limit = np.floor(2.0 ** rng.uniform(0, levels + 1, size=idx.size))
+        expected = _relevel_all_blocks(block_dt, owner, idx, limit, t, max_units)
+        due_counts.append(relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment(t, max_units),
+                                      max_units, scratch))
+        np.testing.assert_array_equal(block_dt, expected, err_msg=f"tick {t}")
+        assert np.all(np.isinf(scratch))
+        assert np.array_equal(np.sort(order), np.arange(n_blocks))
+        np.testing.assert_array_equal(np.diff(level_start), np.bincount(np.log2(block_dt).astype(int),
+                                                                        minlength=levels + 1))
+        assert np.all(np.diff(block_dt[order]) >= 0)  # still ordered by step
+    assert min(due_counts) < n_blocks / 4  # most ticks visit few blocks
+
+
+def test_the_ghost_search_by_block_finds_what_a_search_over_every_candidate_finds():
+    """A cohort bucketed by block, searched only in the blocks near the zone (grown by the shadows' drift): the
+    same particles as testing every one of them."""
+    from mpmref.steppers.async_kernels import bucket_by_block, bucket_zone_members, zone, zone_test
+
+    rng = np.random.default_rng(9)
+    for d in (2, 3):
+        cells = np.array([40, 33, 20][:d])
+        node_shape, block = cells + 1, 4
+        blocks_per_axis = cells // block + 1
+        for _ in range(30):
+            n = 400
+            base = rng.integers(0, node_shape, size=(n, d))
+            drift = int(rng.integers(0, 4))
+            shadow_base = np.clip(base + rng.integers(-drift, drift + 1, size=(n, d)), 0, node_shape - 1)
+            owner = np.ravel_multi_index(tuple((base // block).T), tuple(blocks_per_axis))
+            active = np.sort(rng.choice(n, size=int(rng.integers(1, 30)), replace=False))
+            cohort = np.setdiff1d(np.arange(n), active)[rng.random(n - active.size) < 0.6]
+            members, blocks, starts = bucket_by_block(cohort, owner)
+            assert np.array_equal(np.sort(members), cohort) and np.all(np.diff(blocks) > 0)
+            assert all(np.all(owner[members[starts[j]:starts[j + 1]]] == blocks[j]) for j in range(blocks.size))
+            z = zone(active, base, int(rng.integers(1, 7)), node_shape)
+            found, examined = bucket_zone_members(*z, drift, block, blocks_per_axis, members, blocks, starts,
+                                                  shadow_base)
+            np.testing.assert_array_equal(np.sort(found), zone_test(*z, cohort, shadow_base))
+            assert examined <= cohort.size
+
+
+def test_the_bookkeeping_visits_what_the_updates_touch():
+    """Counted on the example stork: the ghost searches examine about as many particles as they find (not every
+    mid-step particle at every update), and the work over every particle happens once per interval."""
+    from mpmref.bench.asynchronous import example_scene
+
+    sim = Simulation(example_scene("stork2d", 0.004))
+    sim.run()
+    counts, summary, n = sim.stepper.counts, sim.stepper.summary(sim.state), sim.n_particles
+    found = summary["ghost_updates"]
+    assert found > 0 and counts["ghost_candidates"] <= 1.5 * found
+    assert counts["ghost_candidates"] < 0.2 * n * sim.stepper.level_updates  # a scan of everyone would be n each
+    assert counts["boundary_particles"] == summary["own_updates"]
+    assert counts["interval_particles"] == n * sim.step_count and counts["intervals"] == sim.step_count
+    assert counts["group_rows"] == summary["particle_updates"]
+
+
+def test_the_run_summary_gives_the_savings_the_levels_and_the_ledger(tmp_path, capsys):
+    """``mpmref run`` of the async example: the updates saved with and without the ghosts, the levels at the end;
+    with the energy ledger asked for, its ``ledger_interface`` column in diagnostics.csv."""
+    import csv
+
+    from mpmref.cli import main
+
+    scene = tmp_path / "stork.toml"
+    text = (EXAMPLES / "stork2d.toml").read_text().replace("t_end = 0.05", "t_end = 0.002")
+    scene.write_text(text.replace("[output]\n", "[output]\nenergy_ledger = true\n"))
+    assert main(["run", str(scene), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "without the ghosts" in out and "levels           [" in out and "stale shadows" in out
+    rows = list(csv.DictReader(open(tmp_path / "o" / "diagnostics.csv")))
+    assert "ledger_interface" in rows[-1] and float(rows[-1]["ledger_closure"]) == pytest.approx(0.0, abs=1e-12)

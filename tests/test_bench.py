@@ -426,11 +426,21 @@ def test_async_case_reports_updates_wall_times_and_the_cost_of_a_level_update():
     r = time_case("stork2d", 0.0005, "numba", 1, 1)
     a = r["async"]
     assert a["level_updates"] > 0 and a["updates"] >= a["own_updates"] > 0
-    assert 0 < a["stages_s"] < a["times_s"][-1] and a["stages_us_per_update"] > 0 and a["bookkeeping_us_per_update"] > 0
+    assert 0 < a["stages_s"] < a["stepping_s"] < a["times_s"][-1]
+    assert a["stages_us_per_update"] > 0 and a["bookkeeping_us_per_update"] > 0
     assert r["wall_ratio"] == pytest.approx(r["sync"]["median_s"] / a["median_s"])
-    assert "stork2d" in render_async({"results": [r]})
+    # the accounting: ideal >= work ratio (ghosts only add updates), the efficiencies between the three ratios
+    assert r["own_updates_ratio"] >= r["updates_ratio"] > 0
+    assert r["ghost_efficiency"] == pytest.approx(r["updates_ratio"] / r["own_updates_ratio"])
+    assert r["implementation_efficiency"] == pytest.approx(r["wall_ratio"] / r["updates_ratio"])
+    assert r["cfl_wall_ratio"] == pytest.approx(r["sync_cfl"]["median_s"] / a["median_s"])
+    assert 0 < r["sync_cfl"]["steps"] and r["one_level"]["levels"] == [round(np.log2(r["sync_dt"] / 1.6e-6))]
+    assert r["one_level_overhead"] == pytest.approx(r["one_level"]["median_s"] / r["sync"]["median_s"])
+    assert a["counts"]["ghost_candidates"] > 0 and a["counts"]["ticks"] > 0
+    table = render_async({"results": [r]})
+    assert "stork2d" in table and "Accounting" in table
     goal = next(g for g in goals({"async": {"results": [r]}}) if g.name.startswith("stork2d:"))
-    assert goal.figure == r["wall_ratio"] and goal.bound == 1.5
+    assert goal.figure == r["wall_ratio"] and goal.bound == 1.5 and "CFL step" in goal.where
 
 
 def test_busy_section_times_one_and_two_threads_with_and_without_a_busy_core():

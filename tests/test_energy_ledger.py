@@ -235,9 +235,13 @@ def test_diagnostics_csv_has_the_cumulative_ledger(tmp_path):
     assert float(last["ledger_plastic"]) < 0.0
 
 
-def test_a_ledger_is_refused_with_asynchronous_stepping():
+def test_an_asynchronous_scene_takes_the_ledger_and_a_value_not_true_or_false_is_refused():
+    """Asynchronous runs book their level updates (tests/test_async_ledger.py); the flag itself must be a boolean."""
     data = tomllib.loads((EXAMPLES / "stork2d.toml").read_text())
     data.setdefault("output", {})["energy_ledger"] = True
+    scene = Scene.from_dict(data, base_dir=EXAMPLES)
+    assert scene.time.stepping == "async" and scene.output.energy_ledger
+    data["output"]["energy_ledger"] = "yes"
     with pytest.raises(SceneError, match="output.energy_ledger"):
         Scene.from_dict(data, base_dir=EXAMPLES)
 

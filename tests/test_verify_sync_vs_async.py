@@ -26,6 +26,15 @@ def test_report_writes_plots_series_and_findings(result, tmp_path):
     assert (tmp_path / case.MAIN_FIGURE).exists()
 
 
+def test_the_ledger_part_books_the_measured_change_and_reports_the_interfaces(result):
+    names = {c.name for c in case.checks(result)}
+    assert {f"ledger, {itf}: max |booked - measured energy change| / E_0 per synchronised interval"
+            for itf in ("conservative", "reference")} <= names
+    for itf, led in result["ledger"].items():
+        assert led["terms"]["interface"] < 0.0 < -led["terms"]["energy_change"]  # the disks lose energy, some there
+    assert any(f.name.startswith("ledger, conservative") for f in case.findings(result))
+
+
 def test_both_interface_treatments_run_and_the_trade_has_a_front(result):
     assert set(result["isolated"]) == {"conservative", "reference"}
     assert result["isolated"]["reference"]["P"] > 1e6 * case.ROUND_OFF  # the drift the conservative one removes

@@ -15,7 +15,9 @@ Sections of the JSON document (each ``null`` when not run):
   threads, dtype, timing, ``particle_steps_per_s``, ``vs_numpy``).
 * ``async``: ``results`` (case, backend, threads, particles, levels, ``async`` and ``sync`` timings with
   their particle updates, ``updates_ratio``, ``own_updates_ratio``, ``wall_ratio``, ``energy_difference``,
-  ``position_difference_dx``; :mod:`mpmref.bench.asynchronous`).
+  ``position_difference_dx``; ``sync_cfl`` (synchronous at its own CFL step) and ``one_level`` (the control)
+  timings, ``cfl_wall_ratio``, ``one_level_overhead``, ``ghost_efficiency``, ``implementation_efficiency``, and in
+  ``async`` the split ``stages_s``/``stepping_s`` and the bookkeeping's ``counts``; :mod:`mpmref.bench.asynchronous`).
 * ``stages``: ``stages`` and ``results`` (case, backend, threads, dtype, particles, ``step_s``, ``stages_s``
   per stage, ``stress_inside_p2g``, ``stress_alone_s``, ``p2g_fused`` whether the step's P2G was the fused one;
   :mod:`mpmref.bench.stages`).

@@ -7,6 +7,16 @@ cost of the conservative treatment (stage time per level update that has ghosts,
 included, and the particles' own steps), median wall time of ``repeats`` runs of each (compilation
 excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
 relative to the initial energy, and the largest position difference (particles matched by id) in Δx.
+
+Two more runs make the comparison fair (docs/async.md, "Cost: where the time goes"): synchronous stepping at
+its own CFL step (``time.cfl`` as the asynchronous run's, no fixed step), which is what a user would run
+instead; and the **one-level control**, the asynchronous stepper with ``time.levels`` capped at the finest step
+taken, so that every block steps at it: no level saves anything, and its wall time over synchronous stepping at
+that step is the asynchronous machinery's own cost. The ratios are those of regional time stepping's accounting:
+the ideal ratio (the particles' own steps, no ghosts), the work ratio (ghosts included) and the wall ratio, with
+the two efficiencies between them, work over ideal (what the ghosts cost) and wall over work (what the
+implementation costs). What the bookkeeping visited, per level update and per tick, comes from the stepper's
+counts (:data:`mpmref.steppers.asynchronous.COUNTS`).
 """
 
 import tomllib
@@ -27,17 +37,23 @@ ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-256": ("stork2d
                "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002)}
 
 
-def example_scene(name, t_end, dt=None, cells=None, interface=None):
+def example_scene(name, t_end, dt=None, cells=None, interface=None, levels=None, cfl_sync=False):
     """The example ``name`` ending at ``t_end`` (at ``cells`` cells along the first axis if given): as declared
-    (asynchronous, with ``time.interface`` = ``interface`` if given), or synchronous with step ``dt``."""
+    (asynchronous, with ``time.interface`` = ``interface`` and ``time.levels`` = ``levels`` if given), or
+    synchronous with step ``dt``, or with ``cfl_sync`` synchronous at the CFL step of the declared ``time.cfl``."""
     path = EXAMPLES / f"{name}.toml"
     if not path.exists():
         raise MpmrefError(f"the async benchmark needs {path} (run it from a checkout of mpmref)")
     with open(path, "rb") as fh:
         data = tomllib.load(fh)
-    data["time"] = {"dt": dt, "t_end": t_end} if dt is not None else {**data["time"], "t_end": t_end}
-    if interface is not None and dt is None:
-        data["time"]["interface"] = interface
+    declared = data["time"]
+    if dt is not None:
+        data["time"] = {"dt": dt, "t_end": t_end}
+    elif cfl_sync:
+        data["time"] = {"cfl": declared["cfl"], "t_end": t_end}
+    else:
+        data["time"] = {**declared, "t_end": t_end, **({"interface": interface} if interface is not None else {}),
+                        **({"levels": levels} if levels is not None else {})}
     data.pop("output", None)
     if cells is not None:
         data["grid"] = {"size": data["grid"]["size"], "cells": cells}
@@ -56,37 +72,50 @@ def _run(scene, backend):
 
 
 def time_case(case, t_end, backend, threads, repeats):
-    """One case: both runs timed, updates counted, end states compared (a dict)."""
+    """One case: the runs timed, updates counted, end states compared (a dict; the module docstring)."""
     name, cells = ASYNC_CASES[case][:2]
     set_threads(backend, threads)
+
+    def timed(**kwargs):
+        return measure(lambda: _run(example_scene(name, t_end, cells=cells, **kwargs), backend), repeats,
+                       first=lambda: _run(example_scene(name, t_end / 10, cells=cells, **kwargs), backend))
+
     a_scene = example_scene(name, t_end, cells=cells)
-    rec_a, a = measure(lambda: _run(a_scene, backend), repeats,
-                       first=lambda: _run(example_scene(name, t_end / 10, cells=cells), backend))
+    rec_a, a = timed()
     summary = a.stepper.summary(a.state)
     stages_s, n_updates = a.stepper.stage_seconds, a.stepper.level_updates
-    dt = summary["finest_dt_ticks"] * a_scene.time.tick
+    finest = summary["finest_dt_ticks"]
+    dt = finest * a_scene.time.tick
     s_scene = example_scene(name, t_end, dt=dt, cells=cells)
-    rec_s, s = measure(lambda: _run(s_scene, backend), repeats,
-                       first=lambda: _run(example_scene(name, t_end / 10, dt=dt, cells=cells), backend))
+    rec_s, s = timed(dt=dt)
+    rec_c, c = timed(cfl_sync=True)
+    rec_o, o = timed(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
     rec_r, r = measure(lambda: _run(example_scene(name, t_end, cells=cells, interface="reference"), backend), 1,
                        first=lambda: _run(example_scene(name, t_end / 10, cells=cells, interface="reference"), backend))
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
+    sync_updates = s.n_particles * s.step_count
+    ideal, work, wall = (sync_updates / summary["own_updates"], sync_updates / summary["particle_updates"],
+                         rec_s["median_s"] / rec_a["median_s"])
     return {"case": case, "backend": backend, "threads": threads, "particles": a.n_particles, "t_end": t_end,
             "levels": sorted(set(a.particles.level.tolist())), "sync_dt": dt,
             "async": {**rec_a, "updates": summary["particle_updates"], "own_updates": summary["own_updates"],
-                      "level_updates": n_updates, "stages_s": stages_s,
+                      "level_updates": n_updates, "stages_s": stages_s, "stepping_s": a.stepper.advance_seconds,
                       "stages_us_per_update": 1e6 * stages_s / max(n_updates, 1),
-                      "bookkeeping_us_per_update": 1e6 * (rec_a["times_s"][-1] - stages_s) / max(n_updates, 1),
+                      "bookkeeping_us_per_update": 1e6 * (a.stepper.advance_seconds - stages_s) / max(n_updates, 1),
                       "interface": a_scene.time.interface,
-                      "ghost_stages_us_per_update": ghost_us(a.stepper)},
+                      "ghost_stages_us_per_update": ghost_us(a.stepper), "counts": dict(a.stepper.counts)},
             "reference_interface": {**rec_r, "ghost_stages_us_per_update": ghost_us(r.stepper)},
             "interface_cost_ratio": ghost_us(a.stepper) / max(ghost_us(r.stepper), 1e-300),
-            "sync": {**rec_s, "updates": s.n_particles * s.step_count},
-            "updates_ratio": s.n_particles * s.step_count / summary["particle_updates"],
-            "own_updates_ratio": s.n_particles * s.step_count / summary["own_updates"],
-            "wall_ratio": rec_s["median_s"] / rec_a["median_s"],
+            "sync": {**rec_s, "updates": sync_updates},
+            "sync_cfl": {**rec_c, "steps": c.step_count, "updates": c.n_particles * c.step_count},
+            "one_level": {**rec_o, "levels": sorted(set(o.particles.level.tolist())),
+                          "updates": o.stepper.summary(o.state)["particle_updates"]},
+            "updates_ratio": work, "own_updates_ratio": ideal, "wall_ratio": wall,
+            "ghost_efficiency": work / ideal, "implementation_efficiency": wall / work,
+            "cfl_wall_ratio": rec_c["median_s"] / rec_a["median_s"],
+            "one_level_overhead": rec_o["median_s"] / rec_s["median_s"],
             "energy_difference": abs(e_a - e_s) / abs(e0),
             "position_difference_dx": float(np.max(np.linalg.norm(xa - xs, axis=1))) / a_scene.grid.dx}
 
@@ -103,8 +132,10 @@ def run_async(quick, backends, threads, repeats, log=print):
 
 
 def render_async(section):
-    """One line per case: updates and wall time of both runs, their ratios, the agreement, and what one level
-    update of the asynchronous run cost (in the step's stages, and in the bookkeeping around them)."""
+    """Two tables: per case, updates and wall time of both runs, their ratios, the agreement, and what one level
+    update of the asynchronous run cost (in the step's stages, and in the bookkeeping around them); then the
+    accounting (ideal, work and wall ratios, the efficiencies between them, sync at its CFL step, the one-level
+    control) and what the bookkeeping visited."""
     lines = ["Async vs sync at the finest async step (stork); updates include ghosts (own steps in brackets); "
              "per level update: us in the step's stages / us of bookkeeping; 'itf x': stage time per update with "
              "ghosts, conservative over reference interfaces",
@@ -119,4 +150,18 @@ def render_async(section):
                      f"{r['energy_difference']:>10.2e}{r['position_difference_dx']:>8.3f}{a['level_updates']:>9}"
                      f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}"
                      f"{r['interface_cost_ratio']:>6.2f}x")
+    lines += ["",
+              "Accounting: ideal x = sync updates / own steps, work x = with ghosts, wall x = sync at the finest step / "
+              "async; work/ideal (ghosts) and wall/work (implementation); 'cfl x': sync at its own CFL step / async; "
+              "'1-level': the async stepper on one level / sync at that step (its own cost); bookkeeping visits per "
+              "level update (ghost candidates, ghost-zone nodes) and per tick (due blocks)",
+              f"{'case':12}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"
+              f"{'cfl x':>8}{'1-level':>9}{'cand/upd':>10}{'zone/upd':>10}{'blocks/tick':>13}"]
+    for r in section["results"]:
+        counts, n = r["async"]["counts"], max(r["async"]["level_updates"], 1)
+        lines.append(f"{r['case']:12}{r['backend']:8}{r['own_updates_ratio']:>8.2f}x{r['updates_ratio']:>7.2f}x"
+                     f"{r['wall_ratio']:>7.2f}x{r['ghost_efficiency']:>9.2f}{r['implementation_efficiency']:>9.2f}"
+                     f"{r['cfl_wall_ratio']:>7.2f}x{r['one_level_overhead']:>8.2f}x"
+                     f"{counts['ghost_candidates'] / n:>10.0f}{counts['zone_nodes'] / n:>10.0f}"
+                     f"{counts['due_blocks'] / max(counts['ticks'], 1):>13.0f}")
     return "\n".join(lines)

@@ -121,8 +121,16 @@ ASYNC_GOALS = (("stork2d-256", 3.0), ("stork3d-128", 2.5), ("stork2d", 1.5))
 
 
 def _async_ratio(results, case):
+    """The wall ratio of an async case, with where it stands: the ideal and work ratios it is bounded by, and the
+    comparison with synchronous stepping at its own CFL step (when the run measured them)."""
     r = _first((results.get("async") or {}).get("results", []), case=case, backend=BACKEND)
-    return (None, "") if r is None else (r["wall_ratio"], f"{r['threads']} thread(s), {r['particles']:,} particles")
+    if r is None:
+        return None, ""
+    where = f"{r['threads']} thread(s), {r['particles']:,} particles"
+    if "cfl_wall_ratio" in r:
+        where += (f"; ideal {r['own_updates_ratio']:.2f}x, work {r['updates_ratio']:.2f}x; "
+                  f"sync at its CFL step / async {r['cfl_wall_ratio']:.2f}x")
+    return r["wall_ratio"], where
 
 
 def goals(results):

@@ -186,8 +186,5 @@ def parse_output(o, time):
     if region not in GRID_REGIONS:
         fail("output.grid_region", region, f"one of {list(GRID_REGIONS)}")
     ledger = flag(o, "energy_ledger", "output", default=False)
-    if ledger and time.stepping != "sync":
-        fail("output.energy_ledger", ledger, "false with time.stepping = 'async' (the ledger books the stages of a "
-             "synchronous step; asynchronous stepping has none that covers every particle)")
     return OutputSpec(every=every, fields=tuple(fields_), grid=grid, checkpoint=checkpoint, grid_region=region,
                       energy_ledger=ledger, diagnostics_every=diagnostics_every)

@@ -4,7 +4,7 @@
 * :class:`AsynchronousStepper`: regional power-of-two steps per block (Fang et al. 2018).
 """
 
-from ..ledger import EnergyLedger
+from ..ledger import EnergyLedger, LevelLedger
 from .asynchronous import AsynchronousStepper
 from .pipeline import NO_HOOKS, Hooks, substep
 from .synchronous import SynchronousStepper
@@ -13,9 +13,11 @@ __all__ = ["AsynchronousStepper", "Hooks", "NO_HOOKS", "SynchronousStepper", "ma
 
 
 def make_stepper(scene, backend, hooks=None):
-    """The stepper ``scene.time.stepping`` asks for, composing ``backend``'s stages; a synchronous one books an
-    energy ledger when ``[output] energy_ledger`` asks for it (:class:`mpmref.ledger.EnergyLedger`)."""
+    """The stepper ``scene.time.stepping`` asks for, composing ``backend``'s stages; it books an energy ledger when
+    ``[output] energy_ledger`` asks for it (:class:`mpmref.ledger.EnergyLedger` for synchronous steps,
+    :class:`mpmref.ledger.LevelLedger` for asynchronous level updates)."""
     if scene.time.stepping == "async":
-        return AsynchronousStepper(scene, backend, hooks or NO_HOOKS)
+        ledger = LevelLedger(scene) if scene.output.energy_ledger else None
+        return AsynchronousStepper(scene, backend, hooks or NO_HOOKS, ledger)
     ledger = EnergyLedger(scene) if scene.output.energy_ledger else None
     return SynchronousStepper(scene, backend, hooks or NO_HOOKS, ledger)

@@ -1,9 +1,12 @@
-"""Compiled bookkeeping of asynchronous stepping: row copies between particle stores and the ghost zone.
+"""Compiled bookkeeping of asynchronous stepping: row copies between particle stores, the ghost zone, the
+ghost search by block and the block rule over the due blocks.
 
 The interval of :mod:`mpmref.steppers.asynchronous` keeps three stores of the same particle fields: the
 authoritative particles, their shadows and the shadows proposed at the current tick. A level update copies
 rows of them into one group, runs the ordinary substep on it and copies rows back; these functions do the
-copies in one compiled call each (every field at once) and find the ghosts of an update. They are
+copies in one compiled call each (every field at once), find the ghosts of an update among the blocks near it
+(:func:`zone`, :func:`bucket_by_block`, :func:`bucket_zone_members`) and relevel the blocks due at a tick
+(:func:`blocks_by_level`, :func:`relevel_due`), each in time proportional to what it visits. They are
 scheduling, not physics: every backend's stages run on the groups they build, so the bookkeeping is written
 once for all of them.
 
@@ -38,38 +41,15 @@ def span(start, n):
 
 
 @njit(cache=True)
-def clock_scan(t_p, t):
-    """The particles at tick ``t`` (their clock ``t_p`` is ``t``) and those past it, as two index arrays."""
-    n_at = 0
-    n_past = 0
-    for i in range(t_p.shape[0]):
-        if t_p[i] == t:
-            n_at += 1
-        elif t_p[i] > t:
-            n_past += 1
-    at = np.empty(n_at, np.int64)
-    past = np.empty(n_past, np.int64)
-    n_at = 0
-    n_past = 0
-    for i in range(t_p.shape[0]):
-        if t_p[i] == t:
-            at[n_at] = i
-            n_at += 1
-        elif t_p[i] > t:
-            past[n_past] = i
-            n_past += 1
-    return at, past
-
-
-@njit(cache=True)
-def zone_members(active, base, candidates, candidate_base, reach, node_shape):
-    """The ``candidates`` whose base node ``candidate_base[c]`` lies within ``reach`` nodes, per axis, of the
-    base node ``base[a]`` of some particle ``a`` of ``active`` (index arrays into the particle arrays;
-    ``node_shape`` the node lattice), in the order of ``candidates``.
+def zone(active, base, reach, node_shape):
+    """The ghost zone of a level update: every node within ``reach`` nodes, per axis, of the base node
+    ``base[a]`` of some particle ``a`` of ``active`` (index arrays into the particle arrays; ``node_shape`` the
+    node lattice). Returns ``(lo, shape, mark)``: the zone's bounding box (first node and extent, clipped to
+    the lattice) and a C-ordered 0/1 mark over it.
 
     The Chebyshev dilation of the active base nodes by ``reach`` is built on their bounding box (grown by
-    ``reach`` and clipped to the lattice) by one running-window pass per axis, so the cost is that of the
-    box and of the particles, not of the grid.
+    ``reach``) by one running-window pass per axis, so the cost is that of the box and of the particles, not
+    of the grid; a level update builds it once and tests every candidate ghost against it (:func:`zone_test`).
     """
     d = base.shape[1]
     lo = np.empty(d, np.int64)
@@ -97,34 +77,125 @@ def zone_members(active, base, candidates, candidate_base, reach, node_shape):
     grown = np.empty(total, np.uint8)
     for a in range(d):
         length, step = shape[a], strides[a]
-        for start in range(total):
-            if (start // step) % length != 0:
-                continue  # not the first node of a line along axis a
-            count = 0  # marks in the window [j - reach, j + reach] of the line
-            for j in range(min(reach, length - 1) + 1):
-                count += mark[start + j * step]
-            for j in range(length):
-                grown[start + j * step] = 1 if count > 0 else 0
-                if j + reach + 1 < length:
-                    count += mark[start + (j + reach + 1) * step]
-                if j - reach >= 0:
-                    count -= mark[start + (j - reach) * step]
+        for outer in range(total // (length * step)):
+            for inner in range(step):
+                start = outer * length * step + inner  # the first node of a line along axis a
+                count = 0  # marks in the window [j - reach, j + reach] of the line
+                for j in range(min(reach, length - 1) + 1):
+                    count += mark[start + j * step]
+                for j in range(length):
+                    grown[start + j * step] = 1 if count > 0 else 0
+                    if j + reach + 1 < length:
+                        count += mark[start + (j + reach + 1) * step]
+                    if j - reach >= 0:
+                        count -= mark[start + (j - reach) * step]
         mark, grown = grown, mark
+    return lo, shape, mark
+
+
+@njit(cache=True)
+def in_zone(lo, shape, mark, node, p):
+    """Whether the node ``node[p]`` lies in the zone ``(lo, shape, mark)`` of :func:`zone`."""
+    flat = 0
+    for a in range(lo.shape[0]):
+        offset = node[p, a] - lo[a]
+        if offset < 0 or offset >= shape[a]:
+            return False
+        flat = flat * shape[a] + offset
+    return mark[flat] == 1
+
+
+@njit(cache=True)
+def zone_test(lo, shape, mark, candidates, candidate_base):
+    """The ``candidates`` whose base node ``candidate_base[c]`` lies in the zone ``(lo, shape, mark)`` of
+    :func:`zone`, in the order of ``candidates``."""
     keep = np.empty(candidates.shape[0], np.int64)
     n = 0
     for k in range(candidates.shape[0]):
-        c = candidates[k]
-        flat, inside = 0, True
-        for a in range(d):
-            offset = candidate_base[c, a] - lo[a]
-            if offset < 0 or offset >= shape[a]:
-                inside = False
-                break
-            flat += offset * strides[a]
-        if inside and mark[flat] == 1:
-            keep[n] = c
+        if in_zone(lo, shape, mark, candidate_base, candidates[k]):
+            keep[n] = candidates[k]
             n += 1
     return keep[:n]
+
+
+@njit(cache=True)
+def zone_members(active, base, candidates, candidate_base, reach, node_shape):
+    """The ``candidates`` whose base node ``candidate_base[c]`` lies within ``reach`` nodes, per axis, of the
+    base node ``base[a]`` of some particle ``a`` of ``active``, in the order of ``candidates``: :func:`zone`
+    then :func:`zone_test`."""
+    lo, shape, mark = zone(active, base, reach, node_shape)
+    return zone_test(lo, shape, mark, candidates, candidate_base)
+
+
+@njit(cache=True)
+def bucket_by_block(idx, owner):
+    """The particles ``idx`` bucketed by their block ``owner[p]``: ``(members, blocks, starts)``, the particles
+    ordered by block, the blocks that hold some (ascending) and where each block's particles start in
+    ``members`` (``starts[-1]`` = their count). Built once per cohort, so that a ghost search visits the
+    blocks near a level update instead of every waiting or mid-step particle (:func:`bucket_zone_members`)."""
+    k_lo, k_hi = 0, -1
+    for k in range(idx.shape[0]):
+        b = owner[idx[k]]
+        if k == 0 or b < k_lo:
+            k_lo = b
+        if k == 0 or b > k_hi:
+            k_hi = b
+    count = np.zeros(k_hi - k_lo + 2, np.int64)  # a counting sort over the range of blocks they own
+    for k in range(idx.shape[0]):
+        count[owner[idx[k]] - k_lo + 1] += 1
+    n_blocks = 0
+    for j in range(1, count.shape[0]):
+        if count[j] > 0:
+            n_blocks += 1
+        count[j] += count[j - 1]
+    blocks = np.empty(n_blocks, np.int64)
+    starts = np.empty(n_blocks + 1, np.int64)
+    j = 0
+    for b in range(count.shape[0] - 1):
+        if count[b + 1] > count[b]:
+            blocks[j] = b + k_lo
+            starts[j] = count[b]
+            j += 1
+    starts[n_blocks] = idx.shape[0]
+    members = np.empty(idx.shape[0], np.int64)
+    for k in range(idx.shape[0]):  # in the order of idx within a block
+        b = owner[idx[k]] - k_lo
+        members[count[b]] = idx[k]
+        count[b] += 1
+    return members, blocks, starts
+
+
+@njit(cache=True)
+def bucket_zone_members(lo, shape, mark, drift, block, blocks_per_axis, members, blocks, starts, candidate_base):
+    """The particles of a cohort (:func:`bucket_by_block`: ``members`` by block) whose base node
+    ``candidate_base[p]`` lies in the zone ``(lo, shape, mark)`` of :func:`zone`, and how many were examined.
+
+    Only the blocks whose nodes, grown by ``drift`` nodes per axis, meet the zone's box are visited: a
+    particle's ``candidate_base`` (a shadow's base node) lies at most ``drift`` nodes from the base node that
+    gave it its block. The result is in bucket order (the caller sorts)."""
+    d = lo.shape[0]
+    keep = np.empty(members.shape[0], np.int64)
+    n = 0
+    examined = 0
+    cell = np.empty(d, np.int64)
+    for j in range(blocks.shape[0]):
+        flat = blocks[j]
+        for a in range(d - 1, -1, -1):
+            cell[a] = flat % blocks_per_axis[a]
+            flat //= blocks_per_axis[a]
+        meets = True
+        for a in range(d):
+            if (cell[a] + 1) * block - 1 + drift < lo[a] or cell[a] * block - drift > lo[a] + shape[a] - 1:
+                meets = False
+                break
+        if not meets:
+            continue
+        for k in range(starts[j], starts[j + 1]):
+            examined += 1
+            if in_zone(lo, shape, mark, candidate_base, members[k]):
+                keep[n] = members[k]
+                n += 1
+    return keep[:n], examined
 
 
 @njit(cache=True)
@@ -154,13 +225,18 @@ def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis
 
 
 @njit(cache=True)
-def shadow_nodes(x, idx, origin, dx, shift, node_shape, end, shadow_base, shadow_t):
-    """Base node and tick ``end`` of the shadows ``idx`` (positions ``x`` of the shadow store)."""
+def shadow_nodes(x, idx, origin, dx, shift, node_shape, end, shadow_base, shadow_t, base):
+    """Base node and tick ``end`` of the shadows ``idx`` (positions ``x`` of the shadow store); returns how far,
+    in nodes per axis, the farthest of them lies from its particle's base node ``base`` (that of its step's
+    start, which gave the particle its block)."""
+    drift = 0
     for k in range(idx.shape[0]):
         p = idx[k]
         for a in range(x.shape[1]):
             shadow_base[p, a] = base_node(x[p, a], origin, dx, shift, node_shape, shadow_base, a)
+            drift = max(drift, abs(shadow_base[p, a] - base[p, a]))
         shadow_t[p] = end
+    return drift
 
 
 @njit(cache=True)
@@ -192,32 +268,85 @@ def relevel_one(dt, limit, t):
 
 
 @njit(cache=True)
-def relevel_blocks(block_dt, owner, idx, limit, t, max_units):
-    """New block steps at tick ``t`` (Fang et al. 2018 §4): a block due at ``t`` that owns some of the
-    particles ``idx`` (at their boundary, with step limits ``limit``) relevels (:func:`relevel_one`) to the
-    smallest of their limits; a due block that owns none follows the coarsest of the blocks that own some.
+def level_of(dt):
+    """log2 of a power of two."""
+    k = 0
+    while (np.int64(1) << k) < dt:
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def blocks_by_level(block_dt, n_levels):
+    """The blocks ordered by their step: ``(order, level_start)``, where the blocks of step ``2^k`` are
+    ``order[level_start[k]:level_start[k + 1]]`` (``n_levels + 2`` entries; steps ``1 .. 2^n_levels``)."""
+    level_start = np.zeros(n_levels + 2, np.int64)
+    for b in range(block_dt.shape[0]):
+        level_start[level_of(block_dt[b]) + 1] += 1
+    for k in range(n_levels + 1):
+        level_start[k + 1] += level_start[k]
+    fill = level_start[:-1].copy()
+    order = np.empty(block_dt.shape[0], np.int64)
+    for b in range(block_dt.shape[0]):
+        k = level_of(block_dt[b])
+        order[fill[k]] = b
+        fill[k] += 1
+    return order, level_start
+
+
+@njit(cache=True)
+def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, max_units, block_limit):
+    """The block step rule at tick ``t`` (Fang et al. 2018 §4), in place, visiting only the blocks due at ``t``
+    and those that own some of the particles ``idx`` (at their boundary, with step limits ``limit``).
+
+    A due block (``t mod dt = 0``, i.e. ``dt <= alignment``: the first ``level_start[log2 alignment + 1]``
+    blocks of ``order``, :func:`blocks_by_level`) that owns some of ``idx`` relevels (:func:`relevel_one`) to the
+    smallest of their limits; a due block that owns none follows the coarsest of the blocks that own some
+    (``max_units`` if none does). Relevelling keeps a due block's step at most ``alignment`` and leaves the other
+    blocks alone, so the due blocks stay the same prefix of ``order``, which is sorted again by step.
+    ``block_limit`` is scratch over the blocks, every entry infinite on entry and on return. Returns the count of
+    due blocks.
 
     Taking instead every particle whose stencil touches the block's nodes was tried: it cost 15 % of the
     stork's savings and did not reduce the error of colliding balls (docs/async.md), so the reference rule
     stays."""
-    n_blocks = block_dt.shape[0]
-    block_limit = np.full(n_blocks, np.inf)
     for k in range(idx.shape[0]):
         b = owner[idx[k]]
         block_limit[b] = min(block_limit[b], limit[k])
-    new = block_dt.copy()
     coarsest = 0
-    for b in range(n_blocks):
-        if np.isfinite(block_limit[b]):
-            if t % block_dt[b] == 0:
-                new[b] = relevel_one(block_dt[b], np.int64(min(block_limit[b], max_units)), t)
-            coarsest = max(coarsest, new[b])
+    for k in range(idx.shape[0]):
+        b = owner[idx[k]]
+        if block_limit[b] == -np.inf:
+            continue  # visited already
+        if t % block_dt[b] == 0:
+            block_dt[b] = relevel_one(block_dt[b], np.int64(min(block_limit[b], max_units)), t)
+        coarsest = max(coarsest, block_dt[b])
+        block_limit[b] = -np.inf  # owns some: not an empty block below
     if coarsest == 0:
         coarsest = max_units
-    for b in range(n_blocks):
-        if not np.isfinite(block_limit[b]) and t % block_dt[b] == 0:
-            new[b] = relevel_one(block_dt[b], coarsest, t)
-    return new
+    due = level_start[level_of(alignment) + 1]
+    for j in range(due):
+        b = order[j]
+        if block_limit[b] == -np.inf:
+            continue
+        block_dt[b] = relevel_one(block_dt[b], coarsest, t)
+    for k in range(idx.shape[0]):
+        block_limit[owner[idx[k]]] = np.inf
+    # the due blocks, sorted by their new steps (all still at most ``alignment``)
+    top = level_of(alignment)
+    count = np.zeros(top + 2, np.int64)
+    for j in range(due):
+        count[level_of(block_dt[order[j]]) + 1] += 1
+    for k in range(top + 1):
+        count[k + 1] += count[k]
+    for k in range(top + 1):
+        level_start[k] = count[k]
+    prefix = order[:due].copy()
+    for j in range(due):
+        k = level_of(block_dt[prefix[j]])
+        order[count[k]] = prefix[j]
+        count[k] += 1
+    return due
 
 
 @njit(cache=True)
@@ -258,13 +387,21 @@ def apply_registers(idx, x, v, C, mass, dP, dL, inertia):
     .. math:: v_p \mathrel{+}= \delta P_p / m_p, \qquad
               C_p \mathrel{+}= W\big((\delta L_p - x_p \times \delta P_p) / (m_p D_p)\big)
 
-    (``C`` empty for PIC and FLIP; ``dL`` (n, 1) in 2D, (n, 3) in 3D; ``inertia`` :math:`D_p`).
+    (``C`` empty for PIC and FLIP; ``dL`` (n, 1) in 2D, (n, 3) in 3D; ``inertia`` :math:`D_p`). Empty registers
+    are skipped.
 
     Docs: docs/async.md#conservative-interfaces
     """
     d = x.shape[1]
     for k in range(idx.shape[0]):
         p = idx[k]
+        empty = True  # most particles never meet an interface: nothing to apply or clear
+        for a in range(dP.shape[1]):
+            empty = empty and dP[p, a] == 0.0
+        for a in range(dL.shape[1]):
+            empty = empty and dL[p, a] == 0.0
+        if empty:
+            continue
         m = np.float64(mass[p])
         for a in range(d):
             v[p, a] += dP[p, a] / m

@@ -52,10 +52,12 @@ from time import perf_counter
 import numpy as np
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
+from ..ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import Particles, State
-from .async_kernels import (add_rows, apply_registers, boundary_nodes, clock_scan, move_rows, particle_steps,
-                            relevel_blocks, row_views, shadow_nodes, span, step_limits, zone_members)
+from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
+                            bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
+                            span, step_limits, zone)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, interface_substep, substep
 
@@ -63,6 +65,13 @@ from .pipeline import NO_HOOKS, interface_substep, substep
 EVOLVING = ("x", "v", "C", "F", "J", "Jp", "modes")
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
+#: what :attr:`AsynchronousStepper.counts` counts: ticks with work; particles at a step
+#: boundary (their clocks, limits and blocks); blocks due for relevelling; candidate ghosts examined (the
+#: particles of the blocks near an update); nodes of the updates' ghost zones (their bounding boxes); rows of
+#: the updates' groups (particle updates, ghosts included); intervals, and the particles of each (the only
+#: work over every particle: the interval's set-up, the registers' last application and the census)
+COUNTS = ("ticks", "boundary_particles", "due_blocks", "ghost_candidates", "zone_nodes",
+          "group_rows", "intervals", "interval_particles")
 
 
 def alignment(t, cap):
@@ -91,14 +100,18 @@ class AsynchronousStepper:
     tick) to the next. Its stepper state: ``block_dt`` (each block's step in ticks), ``updates`` (particle
     updates done, ghosts included), ``own_updates`` (the particles' own steps), ``sync_updates`` (what
     synchronous stepping at each interval's finest step would have done), ``finest_dt`` (the finest step
-    taken, ticks), ``stale_shadows`` and ``sync_times``. Set ``trace = []`` to record every update as a dict
-    (tick, level, active blocks, ghost blocks) for inspection.
+    taken, ticks), ``stale_shadows`` and ``sync_times``; with a ``ledger`` (:class:`~mpmref.ledger.LevelLedger`),
+    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.ledger.ASYNC_COLUMNS`. Set ``trace = []`` to
+    record every update as a dict (tick, level, active blocks, ghost blocks) for inspection.
     """
 
     name = "async"
 
-    def __init__(self, scene, backend, hooks=NO_HOOKS):
-        self.scene, self.backend, self.hooks = scene, backend, hooks
+    def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
+        if ledger is not None and (hooks.body_force is not None or hooks.grid_folds):
+            raise MpmrefError("the energy ledger of asynchronous stepping books level updates by particle class, "
+                              "which take no hooks: run without hooks or without [output] energy_ledger")
+        self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
         t = scene.time
         self.tick_s, self.max_units = t.tick, 2**t.levels
         self.strength, self.advection = t.cfl, t.advection_cfl
@@ -113,10 +126,16 @@ class AsynchronousStepper:
         self._stores = {}
         self.conservative = t.interface == "conservative"
         self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
+        self.levels = t.levels
+        self.block_limit = np.full(self.grid.n_blocks, np.inf)  # scratch of relevel_due: infinite between calls
         self.trace = None
+        #: what the bookkeeping visited since construction (:data:`COUNTS`): the benchmark's and the tests' measure
+        #: of how its work grows
+        self.counts = dict.fromkeys(COUNTS, 0)
         #: wall time spent in the step's stages (the substeps) and the number of level updates since
-        #: construction, in all and in the updates that had ghosts: the benchmark's split of an update's cost
-        self.stage_seconds, self.level_updates = 0.0, 0
+        #: construction, in all and in the updates that had ghosts, and the wall time of the intervals
+        #: (``advance``): the benchmark's split of an update's cost into stages and bookkeeping
+        self.stage_seconds, self.level_updates, self.advance_seconds = 0.0, 0, 0.0
         self.ghost_stage_seconds, self.ghost_level_updates = 0.0, 0
 
     # ------------------------------------------------------------------ state
@@ -159,38 +178,43 @@ class AsynchronousStepper:
         return held[1]
 
     def warm_up(self, particles):
-        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on empty
-        index lists, and with conservative interfaces the level update by classes on one particle at Δt = 0:
-        ``particles`` is not modified."""
+        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on one particle,
+        and with conservative interfaces the level update by classes on one particle at Δt = 0: ``particles`` is
+        not modified."""
         interval = self.interval(self, self.initial_state(particles.select(slice(0, 1))))
-        none = np.empty(0, dtype=np.int64)
-        at, past = clock_scan(interval.t_p, interval.t)
+        one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
         boundary_nodes(interval.P.x, none, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
                        interval.shadow_t)
         step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
         particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
-        relevel_blocks(interval.block_dt, interval.owner, none, np.empty(0), 0, self.max_units)
+        relevel_due(interval.block_dt, interval.order, interval.level_start, interval.owner, none, np.empty(0), 1, 1,
+                    self.max_units, self.block_limit)
         move_rows(interval.pairs("P", "shadow"), none, none)
-        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t)
-        zone_members(at, interval.base, none, interval.shadow_base, self.reach, self.node_shape)
-        group = interval.group(at, none, none)
+        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
+                     interval.base)
+        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [_Cohort(1, 1, one)], interval.base, 0)
+        group = interval.group(one, none, none)
         rows = row_views(getattr(group, k) for k in interval.evolving)
         move_rows(interval.pairs(rows, "P"), none, none)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
             _, dP, dL = interface_substep(self.backend, group, np.zeros(group.n, dtype=np.int64), 0.0, 0.0)
-            add_rows(interval.dP, at, dP, 0)
-            add_rows(interval.dL, at, dL, 0)
-            interval.apply_registers(at)
+            add_rows(interval.dP, one, dP, 0)
+            add_rows(interval.dL, one, dL, 0)
+            interval.kicked = True
+            interval.apply_registers(one)
 
     # ------------------------------------------------------------------ stepping
     def advance(self, state, dt=None, t_end=None):
         """The state at the next synchronised time (``dt`` must be ``None``; ``t_end`` cannot shorten a step)."""
         if dt is not None:
             raise MpmrefError("asynchronous stepping chooses every block's step itself: call step() without dt")
+        start = perf_counter()
         run = self.interval(self, state)
         while not run.synchronised():
             run.tick_once()
-        return run.finish()
+        new = run.finish()
+        self.advance_seconds += perf_counter() - start
+        return new
 
     def cfl_number(self, particles, dt):
         """The largest ``dt (c_p + |v_p|) / dx`` of a step of ``dt`` (the finest level's CFL number)."""
@@ -202,20 +226,47 @@ class AsynchronousStepper:
         return int(new.stepper["updates"]) - int(old.stepper["updates"])
 
     def diagnostics(self, state):
-        """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows."""
+        """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,
+        the cumulative ledger's (``ledger_<column>`` over :data:`~mpmref.ledger.ASYNC_COLUMNS`)."""
         s = state.stepper
-        return {"tick": state.tick, "particle_updates": int(s["updates"]), "sync_times": int(s["sync_times"]),
-                "stale_shadows": int(s["stale_shadows"])}
+        out = {"tick": state.tick, "particle_updates": int(s["updates"]), "sync_times": int(s["sync_times"]),
+               "stale_shadows": int(s["stale_shadows"])}
+        if self.ledger is not None:
+            out |= ledger_columns(s.get("energy_ledger"), ASYNC_COLUMNS)
+        return out
 
     def summary(self, state):
-        """Run-summary figures: updates done, what synchronous stepping at the finest step would have done."""
+        """Run-summary figures: updates done, what synchronous stepping at the finest step would have done, over
+        the updates with ghosts (``updates_saved``) and over the particles' own steps (``own_updates_saved``, the
+        ideal that ghosts cost a share of), and the levels the particles took last (log2 of their steps in
+        ticks)."""
         s = state.stepper
-        done = int(s["updates"])
-        return {"particle_updates": done, "own_updates": int(s["own_updates"]),
-                "ghost_updates": done - int(s["own_updates"]), "sync_particle_updates": float(s["sync_updates"]),
-                "updates_saved": float(s["sync_updates"]) / done if done else float("nan"),
+        done, own, sync = int(s["updates"]), int(s["own_updates"]), float(s["sync_updates"])
+        return {"particle_updates": done, "own_updates": own,
+                "ghost_updates": done - own, "sync_particle_updates": sync,
+                "updates_saved": sync / done if done else float("nan"),
+                "own_updates_saved": sync / own if own else float("nan"),
                 "finest_dt_ticks": int(s["finest_dt"]),
+                "levels": sorted(set(state.particles.level.tolist())),
                 "stale_shadows": int(s["stale_shadows"])}
+
+
+class _Cohort:
+    """The particles ``idx`` (ascending) that began a step of ``D`` ticks at the same tick, and end it together at
+    ``end``."""
+
+    __slots__ = ("D", "end", "idx", "_buckets")
+
+    def __init__(self, D, end, idx):
+        self.D, self.end, self.idx, self._buckets = D, end, idx, None
+
+    def buckets(self, owner):
+        """The particles bucketed by their block ``owner[p]`` (:func:`~.async_kernels.bucket_by_block`), for the
+        ghost searches of the updates that run while they are at this tick or mid-step; built at the first search
+        (their blocks do not change before their step ends)."""
+        if self._buckets is None:
+            self._buckets = bucket_by_block(self.idx, owner)
+        return self._buckets
 
 
 class _Interval:
@@ -226,28 +277,44 @@ class _Interval:
     at its end); the shadow stores hold only the fields a step changes (:data:`EVOLVING`), the others are
     read from ``P``. Every update copies its group's rows out of them and its results back with the
     compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
-    the particle count. Per tick, one scan of the particle clocks is the only work over every particle.
+    the particle count.
+
+    The clocks are kept by **cohort** (:class:`_Cohort`): the particles that began a step of the same length at
+    the same tick end it at the same tick, so the particles due at a tick are the cohorts that end there, and
+    at most one cohort per level is under way. A cohort is bucketed by block when an update first looks among
+    its particles for ghosts, so an update looks only in the blocks near its own particles, and it keeps a
+    shadow only when finer steps begin at its tick (no other update runs before its step ends); the blocks are
+    kept ordered by step, so a tick relevels only the blocks due at it. The work over every particle happens
+    once per interval (its set-up, the registers' last application and the census), when every particle has
+    stepped at least once: a tick and an update cost what their own particles, ghosts and blocks cost
+    (:data:`COUNTS`).
     """
 
     def __init__(self, stepper, state):
         self.s = stepper
         self.state = state
-        self.P = state.particles.copy()
+        # the fields the interval writes are copied (the state it starts from stays as it was); the others (mass,
+        # volume, material, id) are shared with it, as a synchronous step's result shares them with its input
+        self.P = state.particles.with_(**{k: a.copy() for k, a in state.particles.arrays().items()
+                                          if k in EVOLVING or k == "level"})
         n = self.P.n
         self.t0 = self.t = state.tick
         self.t_p = np.full(n, self.t, dtype=np.int64)  # each particle's clock
         self.dt_p = np.zeros(n, dtype=np.int64)  # its current step (ticks)
         self.base = np.zeros((n, self.P.dim), dtype=np.int64)  # its stencil base node at its last boundary
         self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
+        self.cohorts = [_Cohort(0, self.t, np.arange(n, dtype=np.int64))]  # all due at the first tick
         self.names = tuple(self.P.arrays())
         self.evolving = tuple(k for k in self.names if k in EVOLVING)
         # the fields a step reads but does not change (id and level are the stepper's, not the step's)
         self.constant = tuple(k for k in self.names if k not in EVOLVING and k not in ("id", "level"))
-        self.shadow = stepper.store(self.P, self.evolving, "shadow")  # filled at the first tick: all are due
+        self.shadow = stepper.store(self.P, self.evolving, "shadow")  # a cohort's rows filled as it begins
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
+        self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
         self.proposed = stepper.store(self.P, self.evolving, "proposed")
         self.block_dt = np.asarray(state.stepper["block_dt"]).copy()
+        self.order, self.level_start = blocks_by_level(self.block_dt, stepper.levels)
         self.updates = 0
         self.own_updates = 0
         self.stale = 0
@@ -258,33 +325,50 @@ class _Interval:
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
+        self.kicked = False  # whether an update of this interval has added to a register
+        stepper.counts["intervals"] += 1
+        stepper.counts["interval_particles"] += n
+        if stepper.ledger is not None:
+            stepper.ledger.begin()
 
     def synchronised(self):
-        return self.t > self.t0 and bool(np.all(self.t_p == self.t))
+        return self.t > self.t0 and all(c.end == self.t for c in self.cohorts)
 
     def tick_once(self):
         """Everything that happens at the current tick: re-levelling, then each due level, coarse first."""
         t, s, P = self.t, self.s, self.P
-        at, past = clock_scan(self.t_p, t)
+        due = [c for c in self.cohorts if c.end == t]
+        self.cohorts = [c for c in self.cohorts if c.end != t]  # mid-step: their shadows may be ghosts
+        at = due[0].idx if len(due) == 1 else np.sort(np.concatenate([c.idx for c in due]))
         self.apply_registers(at)
         boundary_nodes(P.x, at, *s.lattice, t, self.base, self.owner, self.shadow_base, self.shadow_t)
         limit = s.particle_limits(P, at)
         if (limit < 1).any():
             bad = int(np.argmin(limit))
             raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
-        self.block_dt = relevel_blocks(self.block_dt, self.owner, at, limit, t, s.max_units)
-        taken = particle_steps(at, self.block_dt, self.owner, alignment(t, s.max_units), limit, self.dt_p)
+        align = alignment(t, s.max_units)
+        s.counts["due_blocks"] += relevel_due(self.block_dt, self.order, self.level_start, self.owner, at, limit, t,
+                                              align, s.max_units, s.block_limit)
+        taken = particle_steps(at, self.block_dt, self.owner, align, limit, self.dt_p)
         self.finest = min(self.finest, taken & -taken)
-        move_rows(self.pairs("P", "shadow"), at, at)
-        mid = [past]  # mid-step particles, whose shadows may be ghosts; each update adds its own
-        proposals = []  # (shadow indices, end tick) of each update, coarse first
+        s.counts["ticks"] += 1
+        s.counts["boundary_particles"] += at.size
         steps = self.dt_p[at]
-        for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]:  # coarse first
-            active = at[steps == D]
-            proposals.append(self.update_level(D, active, at[steps < D], mid))
-            mid.append(active)
+        started = [_Cohort(D, t + D, at[steps == D])
+                   for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]]  # coarse first
+        for cohort in started:
+            # its shadow (the state at its step's start) can be a ghost only of a finer update, and every finer
+            # update before its step ends is of particles that take a finer step now
+            if taken & (cohort.D - 1):
+                move_rows(self.pairs("P", "shadow"), cohort.idx, cohort.idx)
+        mid = list(self.cohorts)  # the cohorts mid-step, whose shadows may be ghosts; each update adds its own
+        proposals = []  # (shadow indices, end tick) of each update, coarse first
+        for k, cohort in enumerate(started):
+            proposals.append(self.update_level(cohort.D, cohort.idx, started[k + 1:], mid))
+            mid.append(cohort)
+        self.cohorts += started
         self.refresh_shadows(proposals)
-        self.t = int(self.t_p.min())
+        self.t = min(c.end for c in self.cohorts)
 
     def pairs(self, src, dst):
         """``(source, destination)`` row views of every field between two stores (or a store and a group)."""
@@ -295,11 +379,18 @@ class _Interval:
     def apply_registers(self, idx):
         """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end;
         :func:`mpmref.physics.interface.apply_registers`, compiled)."""
-        if not self.s.conservative or idx.size == 0:
+        if not self.s.conservative or idx.size == 0 or not self.kicked:
             return
         P = self.P
         C = P.C if P.C is not None else np.empty((0, P.dim, P.dim), dtype=P.x.dtype)
-        apply_registers(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
+
+        def apply():
+            apply_registers(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
+
+        if self.s.ledger is None:
+            apply()
+        else:
+            self.s.ledger.kicks(P, idx, apply)
 
     def refresh_shadows(self, proposals):
         """Each shadow takes the result of the finest update that used it at this tick (if any).
@@ -310,7 +401,8 @@ class _Interval:
         s = self.s
         for idx, end in proposals:
             move_rows(self.pairs("proposed", "shadow"), idx, idx)
-            shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t)
+            drift = shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t, self.base)
+            self.drift = max(self.drift, drift)
 
     def group(self, active, level_ghosts, shadow_ghosts):
         """One :class:`~mpmref.state.Particles` holding the rows of the active particles and the level ghosts
@@ -325,34 +417,57 @@ class _Interval:
         move_rows(self.pairs("shadow", evolving), shadow_ghosts, span(own, shadow_ghosts.size))
         return Particles(**arrays)
 
+    def ghosts(self, zone_, cohorts, node, drift):
+        """The particles of ``cohorts`` whose node ``node[p]`` (base node, or their shadow's) lies in the ghost
+        zone ``zone_`` (:func:`~.async_kernels.zone`), ascending; ``drift`` bounds, in nodes per axis, how far
+        ``node`` lies from the base node that gave a particle its block."""
+        s = self.s
+        found = []
+        for cohort in cohorts:
+            members, examined = bucket_zone_members(*zone_, drift, s.grid.block, s.lattice[5],
+                                                    *cohort.buckets(self.owner), node)
+            s.counts["ghost_candidates"] += examined
+            if members.size:
+                found.append(members)
+        if not found:
+            return np.empty(0, dtype=np.int64)
+        return np.sort(found[0] if len(found) == 1 else np.concatenate(found))
+
     def update_level(self, D, active, waiting, mid):
         """One level-``D`` update at the current tick: a substep of the active particles and their ghosts.
 
-        ``waiting`` are the finer particles at this tick, not yet advanced (they may be ghosts at their own
-        state); ``mid`` a list of index arrays of the particles mid-step (their shadows may be ghosts).
-        Returns the shadow proposal ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into
-        ``proposed``.
+        ``waiting`` are the cohorts of finer particles at this tick, not yet advanced (they may be ghosts at their
+        own state); ``mid`` the cohorts mid-step (their shadows may be ghosts). Returns the shadow proposal
+        ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into ``proposed``.
         """
         s, t = self.s, self.t
-        level_ghosts = zone_members(active, self.base, waiting, self.base, s.reach, s.node_shape)
-        shadow_ghosts = np.sort(np.concatenate([zone_members(active, self.base, m, self.shadow_base, s.reach,
-                                                             s.node_shape) for m in mid]))
+        if waiting or mid:
+            zone_ = zone(active, self.base, s.reach, s.node_shape)
+            s.counts["zone_nodes"] += zone_[2].size
+            level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
+            shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
+        else:  # one level at this tick and none mid-step: no ghost to look for
+            level_ghosts = shadow_ghosts = np.empty(0, dtype=np.int64)
         self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
         group = self.group(active, level_ghosts, shadow_ghosts)
         n_active = active.size
         first_shadow = n_active + level_ghosts.size
         start = perf_counter()
-        if s.conservative and n_active < group.n:  # with no ghost there is no exchange to reflux
+        kicks = s.conservative and n_active < group.n  # with no ghost there is no exchange to reflux
+        if kicks or s.ledger is not None:  # by classes: the registers' impulses, or the ledger's active particles
             classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
-            result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s)
-            for register, impulse in ((self.dP, dP), (self.dL, dL)):
-                add_rows(register, active, impulse, 0)
-                add_rows(register, shadow_ghosts, impulse, first_shadow)
+            result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s, kicks, s.ledger)
+            if kicks:
+                self.kicked = True
+                for register, impulse in ((self.dP, dP), (self.dL, dL)):
+                    add_rows(register, active, impulse, 0)
+                    add_rows(register, shadow_ghosts, impulse, first_shadow)
         else:
             result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
         elapsed = perf_counter() - start
         s.stage_seconds += elapsed
         s.level_updates += 1
+        s.counts["group_rows"] += group.n
         if n_active < group.n:
             s.ghost_stage_seconds += elapsed
             s.ghost_level_updates += 1
@@ -383,6 +498,8 @@ class _Interval:
                    "stale_shadows": np.array(int(old["stale_shadows"]) + self.stale),
                    "finest_dt": np.array(min(int(old["finest_dt"]), self.finest)),
                    "sync_times": np.array(int(old["sync_times"]) + 1)}
+        if self.s.ledger is not None:
+            stepper["energy_ledger"] = self.s.ledger.close(old.get("energy_ledger"))
         return replace(self.state, particles=self.P, step=self.state.step + 1, tick=self.t,
                        time=self.t * self.s.tick_s, stepper=stepper)
 

@@ -121,26 +121,40 @@ def _observed(ledger, trial, return_map):
     return return_map(trial)
 
 
-def interface_substep(backend, particles, classes, dt, time):
-    r"""One level update of asynchronous stepping with conservative interfaces: :func:`substep` of
-    ``particles`` (active, finer ghosts and coarser shadows, by ``classes``; :mod:`mpmref.physics.interface`)
-    that also returns the impulses of impulse refluxing.
+def interface_substep(backend, particles, classes, dt, time, kicks=True, ledger=None):
+    r"""One level update of asynchronous stepping by classes: :func:`substep` of ``particles`` (active, finer ghosts
+    and coarser shadows, by ``classes``; :mod:`mpmref.physics.interface`) with P2G summing each class apart, which
+    with conservative interfaces (``kicks``) also returns the impulses of impulse refluxing.
 
     P2G sums each class apart in the same pass; the grid update uses their totals; the node kicks
     (the backend's ``interface_kicks``, :func:`~mpmref.physics.interface.interface_kicks`) are gathered in the
     same G2P pass. Returns
     ``(particles, dP, dL)``: the new particles, and for each one the impulse :math:`\delta P_p` and its moment
-    :math:`\delta L_p` about the origin ((n, 1) in 2D, (n, 3) in 3D; zero for the finer ghosts). No hooks, no rigid bodies (asynchronous
-    stepping takes neither).
+    :math:`\delta L_p` about the origin ((n, 1) in 2D, (n, 3) in 3D; zero for the finer ghosts), or ``None`` for
+    both without ``kicks``. A ``ledger`` (:class:`~mpmref.ledger.LevelLedger`) books the active particles' energy
+    change from the per-class sums. No hooks, no rigid bodies (asynchronous stepping takes neither).
     """
     scene = backend.scene
     with backend.running(particles.n):
+        if ledger is not None:
+            ledger.start(particles, classes)
         prepared = backend.prepare(particles)
         grid_state = backend.p2g(particles, prepared, classes=classes)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
-        kicks = backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer))
-        new, (dP, dL) = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=(classes, kicks))
-        return backend.return_map(new), dP, dL
+        if ledger is not None:
+            ledger.grid(grid_state, v_grid, dt, time)
+        dP = dL = None
+        if kicks:
+            node_kicks = backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer))
+            trial, (dP, dL) = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=(classes, node_kicks))
+        else:
+            trial = backend.g2p(particles, v_grid, v_tilde, dt, prepared)
+        if ledger is not None:
+            ledger.g2p(trial)
+        new = backend.return_map(trial)
+        if ledger is not None:
+            ledger.finish(new)
+        return new, dP, dL
 
 
 def apply_hooks(hooks, grid_state, particles, scene, time):
