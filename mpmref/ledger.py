@@ -100,8 +100,11 @@ class EnergyLedger:
         self._open = {}
 
     # ------------------------------------------------------------------ the stages
-    def start(self, particles, rigid=None):
-        """Record the energies of the step's input state (and their :func:`energy_scale`)."""
+    def start(self, particles, rigid=None, exchange=None):
+        """Record the energies of the step's input state (and their :func:`energy_scale`). A synchronous step has no
+        level ``exchange`` (a level update's is booked by :class:`LevelLedger`)."""
+        if exchange is not None:
+            raise ValueError("a level update by particle classes is booked by LevelLedger, not EnergyLedger")
         norms = self.mode_norms(particles)
         o = {"norms": norms, "K": self.kinetic(particles, norms), "Psi": float(np.sum(self.elastic(particles))),
              "U": self.potential(particles), "bodies": self.bodies_energy(rigid)}
@@ -268,7 +271,7 @@ class LevelLedger:
     r"""The energy ledger of asynchronous stepping: books the energy change of each level update's **active**
     particles, the only ones whose results count, and of the impulse registers of conservative interfaces.
 
-    A level update (:func:`mpmref.steppers.pipeline.interface_substep`) runs one substep over its active particles
+    A level update (:func:`mpmref.steppers.pipeline.substep` with a level exchange) runs one substep over its active particles
     :math:`A` and their ghosts, with P2G summing each class apart (:mod:`mpmref.physics.interface`: node mass
     :math:`m^A_i`, momentum :math:`(mv)^A_i`, force :math:`f^A_i`, and the totals :math:`m_i, (mv)_i, f_i`). Each
     particle's state changes only in its own updates and when its register is applied, and its energy is its own,
@@ -316,11 +319,13 @@ class LevelLedger:
         self._open = {}
 
     # ------------------------------------------------------------------ a level update
-    def start(self, particles, classes):
-        """Record the energies of the update's active particles (rows of ``particles`` whose class is active)."""
+    def start(self, particles, rigid, exchange):
+        """Record the energies of the update's active particles (rows of ``particles`` whose class in ``exchange``, a
+        :class:`~mpmref.steppers.pipeline.LevelExchange`, is active; ``rigid`` is ``None``: asynchronous stepping
+        couples no rigid bodies)."""
         from .physics.interface import ACTIVE
 
-        rows = np.flatnonzero(np.asarray(classes) == ACTIVE)
+        rows = np.flatnonzero(np.asarray(exchange.classes) == ACTIVE)
         active = particles.select(rows)
         self._open = {"rows": rows, "x": active.x.copy(), "K": self.kinetic(active), "Psi": self.elastic(active),
                       "U": self.nodes.potential(active)}
@@ -364,8 +369,9 @@ class LevelLedger:
         o["K_new"] = self.kinetic(active)
         o["Psi_trial"] = self.elastic(active)
 
-    def finish(self, new):
-        """Book the return map, close the update and add its entry to :attr:`interval`; returns the entry."""
+    def finish(self, new, rigid=None):
+        """Book the return map, close the update and add its entry to :attr:`interval`; returns the entry (``rigid``
+        is ``None``: asynchronous stepping couples no rigid bodies)."""
         o = self._open
         active = new.select(o["rows"])
         psi_new, u_new = self.elastic(active), self.nodes.potential(active)

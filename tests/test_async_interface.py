@@ -117,3 +117,32 @@ def test_numba_follows_the_reference_with_conservative_interfaces():
     for name in ("x", "v", "C", "F"):
         r, c = getattr(ref.particles, name), getattr(cand.particles, name)
         assert np.max(np.abs(c - r)) <= 1e-11 * np.max(np.abs(r)), name
+
+
+@pytest.mark.parametrize("scheme", ["pic", "mls"])
+def test_a_body_force_hook_acts_in_every_update_with_ghosts(scheme):
+    r"""A body force per unit mass :math:`b_p` (one for each disk, so the two levels feel different forces) given as
+    a hook to the conservative run: it acts in every level update, those with ghosts included, so each particle
+    receives :math:`m_p b_p` over its own steps, which add up to the run's time :math:`T`, and the total momentum
+    changes by :math:`\sum_p m_p b_p T` (the exchanges between levels cancel), to the bound of the isolated run."""
+    from mpmref.steppers import Hooks
+
+    accelerations = np.array([[3.0, -1.0], [-0.5, 2.0]])  # per material (soft, stiff), m/s^2
+    calls = []
+
+    def body_force(particles, time):
+        calls.append(particles.n)
+        return accelerations[particles.material]
+
+    sim = Simulation(pressed_disks(scheme), hooks=Hooks(body_force=body_force))
+    P0 = np.sum(sim.mass[:, None] * sim.v, axis=0)
+    expected = np.sum(sim.mass[:, None] * accelerations[sim.particles.material], axis=0)
+    scale_P = float(np.sum(sim.mass * np.linalg.norm(sim.v, axis=1)))
+    for _ in range(sim.scene.time.steps):
+        sim.step()
+    P = np.sum(sim.mass[:, None] * sim.v, axis=0)
+    summary = sim.stepper.summary(sim.state)
+    assert summary["ghost_updates"] > 0 and max(sim.particles.level) - min(sim.particles.level) >= 2
+    assert len(calls) == sim.stepper.level_updates  # once per level update
+    assert np.linalg.norm(P - P0 - expected * sim.time) <= BOUND * scale_P
+    assert np.linalg.norm(expected * sim.time) > 1e-3 * scale_P  # the force's effect is far above the bound

@@ -28,8 +28,8 @@ def entries_of(sim):
     """The entries of ``sim``'s level updates, as they are booked (a list that grows as the run goes)."""
     entries, finish = [], sim.stepper.ledger.finish
 
-    def recorded(new):
-        entries.append(finish(new))
+    def recorded(new, rigid=None):
+        entries.append(finish(new, rigid))
         return entries[-1]
 
     sim.stepper.ledger.finish = recorded
@@ -134,11 +134,16 @@ def test_a_resumed_asynchronous_run_goes_on_adding_to_the_ledger(tmp_path):
     assert np.isfinite(list(expected.values())).all()
 
 
-def test_hooks_with_the_asynchronous_ledger_are_refused_with_the_reason():
-    """The ledger books level updates by class, which take no hooks: asked for both, the run says so."""
+@pytest.mark.parametrize("stepping", ["sync", "async"])
+def test_a_body_force_hook_with_the_ledger_is_refused_with_the_reason(stepping):
+    """The ledger has no term for a hook's work: asked for both, either stepper says so before any step."""
     from mpmref.errors import MpmrefError
     from mpmref.steppers import Hooks
 
     hooks = Hooks(body_force=lambda particles, time: np.zeros_like(particles.x))
-    with pytest.raises(MpmrefError, match="no hooks"):
-        Simulation(with_ledger(case.pressed_disks()), hooks=hooks)
+    src = case.pressed_disks().source
+    if stepping == "sync":
+        src = {**src, "time": {"dt": 1e-4, "t_end": 1e-3}}
+    scene = with_ledger(Scene.from_dict(src))
+    with pytest.raises(MpmrefError, match="no term for a body force hook"):
+        Simulation(scene, hooks=hooks)

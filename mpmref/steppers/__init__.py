@@ -4,6 +4,7 @@
 * :class:`AsynchronousStepper`: regional power-of-two steps per block (Fang et al. 2018).
 """
 
+from ..errors import MpmrefError
 from ..ledger import EnergyLedger, LevelLedger
 from .asynchronous import AsynchronousStepper
 from .pipeline import NO_HOOKS, Hooks, substep
@@ -16,8 +17,12 @@ def make_stepper(scene, backend, hooks=None):
     """The stepper ``scene.time.stepping`` asks for, composing ``backend``'s stages; it books an energy ledger when
     ``[output] energy_ledger`` asks for it (:class:`mpmref.ledger.EnergyLedger` for synchronous steps,
     :class:`mpmref.ledger.LevelLedger` for asynchronous level updates)."""
+    hooks = hooks or NO_HOOKS
+    if scene.output.energy_ledger and hooks.body_force is not None:
+        raise MpmrefError("the energy ledger has no term for a body force hook's work (it would book it as "
+                          "integration error): run without the hook or without [output] energy_ledger")
     if scene.time.stepping == "async":
         ledger = LevelLedger(scene) if scene.output.energy_ledger else None
-        return AsynchronousStepper(scene, backend, hooks or NO_HOOKS, ledger)
+        return AsynchronousStepper(scene, backend, hooks, ledger)
     ledger = EnergyLedger(scene) if scene.output.energy_ledger else None
-    return SynchronousStepper(scene, backend, hooks or NO_HOOKS, ledger)
+    return SynchronousStepper(scene, backend, hooks, ledger)

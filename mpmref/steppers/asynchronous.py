@@ -59,7 +59,7 @@ from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary
                             bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
                             span, step_limits, zone)
 from .limits import particle_speeds, wave_speeds
-from .pipeline import NO_HOOKS, interface_substep, substep
+from .pipeline import NO_HOOKS, LevelExchange, substep
 
 #: the particle fields a step changes: the shadows store only these
 EVOLVING = ("x", "v", "C", "F", "J", "Jp", "modes")
@@ -108,9 +108,10 @@ class AsynchronousStepper:
     name = "async"
 
     def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
-        if ledger is not None and (hooks.body_force is not None or hooks.grid_folds):
-            raise MpmrefError("the energy ledger of asynchronous stepping books level updates by particle class, "
-                              "which take no hooks: run without hooks or without [output] energy_ledger")
+        if hooks.grid_folds:
+            raise MpmrefError("asynchronous stepping takes no grid folds: a fold changes the node totals of a level "
+                              "update, not the sums of its particle classes that conservative interfaces exchange; "
+                              "run with time.stepping = \"sync\" (a body force hook acts in every update)")
         self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
         t = scene.time
         self.tick_s, self.max_units = t.tick, 2**t.levels
@@ -197,7 +198,9 @@ class AsynchronousStepper:
         rows = row_views(getattr(group, k) for k in interval.evolving)
         move_rows(interval.pairs(rows, "P"), none, none)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
-            _, dP, dL = interface_substep(self.backend, group, np.zeros(group.n, dtype=np.int64), 0.0, 0.0)
+            exchange = LevelExchange(np.zeros(group.n, dtype=np.int64), kicks=True)
+            substep(self.backend, group, 0.0, 0.0, exchange=exchange)
+            dP, dL = exchange.impulses
             add_rows(interval.dP, one, dP, 0)
             add_rows(interval.dL, one, dL, 0)
             interval.kicked = True
@@ -454,16 +457,17 @@ class _Interval:
         first_shadow = n_active + level_ghosts.size
         start = perf_counter()
         kicks = s.conservative and n_active < group.n  # with no ghost there is no exchange to reflux
+        exchange = None
         if kicks or s.ledger is not None:  # by classes: the registers' impulses, or the ledger's active particles
             classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
-            result, dP, dL = interface_substep(s.backend, group, classes, D * s.tick_s, t * s.tick_s, kicks, s.ledger)
-            if kicks:
-                self.kicked = True
-                for register, impulse in ((self.dP, dP), (self.dL, dL)):
-                    add_rows(register, active, impulse, 0)
-                    add_rows(register, shadow_ghosts, impulse, first_shadow)
-        else:
-            result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks)
+            exchange = LevelExchange(classes, kicks)
+        result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange)
+        if kicks:
+            self.kicked = True
+            dP, dL = exchange.impulses
+            for register, impulse in ((self.dP, dP), (self.dL, dL)):
+                add_rows(register, active, impulse, 0)
+                add_rows(register, shadow_ghosts, impulse, first_shadow)
         elapsed = perf_counter() - start
         s.stage_seconds += elapsed
         s.level_updates += 1

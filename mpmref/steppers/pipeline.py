@@ -43,6 +43,23 @@ class Hooks:
 NO_HOOKS = Hooks()
 
 
+@dataclass
+class LevelExchange:
+    r"""The particle classes of a level update of asynchronous stepping (:mod:`mpmref.physics.interface`): active
+    particles, finer ghosts and coarser shadows, ``classes`` (n,) of :data:`~mpmref.physics.interface.ACTIVE`,
+    ``FINER``, ``COARSER``.
+
+    A :func:`substep` given one sums each class apart in P2G (never fused: the kicks and the ledger need each
+    class's force), and with ``kicks`` (conservative interfaces, impulse refluxing) gathers the node kicks in G2P:
+    it leaves each particle's impulse :math:`\delta P_p` and its moment :math:`\delta L_p` about the origin in
+    ``impulses`` ((n, d) and (n, 1) in 2D or (n, 3) in 3D; zero for the finer ghosts).
+    """
+
+    classes: np.ndarray
+    kicks: bool
+    impulses: tuple | None = None
+
+
 def nodal_body_force(particles, grid, kernel, b):
     r"""External node force :math:`f^{ext}_i = \sum_p w_{ip}\, m_p\, b_p` of a body force per unit mass ``b`` (n, d).
 
@@ -59,11 +76,15 @@ def nodal_body_force(particles, grid, kernel, b):
     return f
 
 
-def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=None):
+def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=None, exchange=None):
     """One symplectic-Euler MPM step of ``particles`` from ``time`` with step ``dt``; returns new particles.
 
-    The only place the stages are composed: prepare, P2G, the hooks, grid update (gravity, walls and
-    colliders at ``time``), G2P and the return map. ``particles`` is not modified.
+    The only place the stages are composed, for every stepper: prepare, P2G, the hooks, grid update (gravity,
+    walls and colliders at ``time``), G2P and the return map. ``particles`` is not modified. The extensions of
+    the step are its arguments: ``hooks`` (a body force and grid folds), ``rigid`` (CPIC coupling), ``ledger``
+    (an observer) and ``exchange`` (a level update of asynchronous stepping by particle classes,
+    :class:`LevelExchange`: P2G by classes, the body-force hook added class by class, and with conservative
+    interfaces the kicks gathered in G2P, left in ``exchange.impulses``).
 
     With rigid bodies (``rigid``, a :class:`~mpmref.physics.rigid_dynamics.RigidState`), the step couples
     them by CPIC and returns ``(particles, rigid)``: the colored distance field of the bodies where they
@@ -71,13 +92,14 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
     incompatible nodes on the bodies, G2P with ghost velocities and the penalty (``cpic_g2p``), then the
     rigid step (docs/cpic.md of the reference code, written up in docs/cpic.md).
 
-    A ``ledger`` (:class:`~mpmref.ledger.EnergyLedger`) observes the stages' outputs and books the step's
-    energy change by stage (docs/energy_ledger.md); it changes nothing the stages compute.
+    A ``ledger`` (:class:`~mpmref.ledger.EnergyLedger`, or :class:`~mpmref.ledger.LevelLedger` for a level update)
+    observes the stages' outputs and books the step's energy change by stage (docs/energy_ledger.md); it changes
+    nothing the stages compute.
     """
     scene = backend.scene
     with backend.running(particles.n):
         if ledger is not None:
-            ledger.start(particles, rigid)
+            ledger.start(particles, rigid, exchange)
         prepared = backend.prepare(particles)  # the stencil is shared: particles do not move until G2P
         contact = None
         if rigid is not None:
@@ -85,16 +107,23 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
             particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
         if contact is not None:
             grid_state = backend.p2g(particles, prepared, contact)
+        elif exchange is not None:
+            grid_state = backend.p2g(particles, prepared, classes=exchange.classes)
         elif folds_force(backend, hooks, ledger):
             grid_state = backend.p2g_fused(particles, dt, prepared)
         else:
             grid_state = backend.p2g(particles, prepared)
         if hooks.body_force is not None or hooks.grid_folds:
-            apply_hooks(hooks, grid_state, particles, scene, time)
+            apply_hooks(hooks, grid_state, particles, scene, time, exchange)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
         if ledger is not None:
             ledger.grid(grid_state, v_grid, dt, time)
-        if contact is None:
+        if exchange is not None and exchange.kicks:
+            node_kicks = backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer))
+            trial, exchange.impulses = backend.g2p(particles, v_grid, v_tilde, dt, prepared,
+                                                   kicks=(exchange.classes, node_kicks))
+            new = _observed(ledger, trial, backend.return_map)
+        elif contact is None:
             new = _observed(ledger, backend.g2p(particles, v_grid, v_tilde, dt, prepared), backend.return_map)
         else:
             new, rigid = _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time,
@@ -121,56 +150,42 @@ def _observed(ledger, trial, return_map):
     return return_map(trial)
 
 
-def interface_substep(backend, particles, classes, dt, time, kicks=True, ledger=None):
-    r"""One level update of asynchronous stepping by classes: :func:`substep` of ``particles`` (active, finer ghosts
-    and coarser shadows, by ``classes``; :mod:`mpmref.physics.interface`) with P2G summing each class apart, which
-    with conservative interfaces (``kicks``) also returns the impulses of impulse refluxing.
-
-    P2G sums each class apart in the same pass; the grid update uses their totals; the node kicks
-    (the backend's ``interface_kicks``, :func:`~mpmref.physics.interface.interface_kicks`) are gathered in the
-    same G2P pass. Returns
-    ``(particles, dP, dL)``: the new particles, and for each one the impulse :math:`\delta P_p` and its moment
-    :math:`\delta L_p` about the origin ((n, 1) in 2D, (n, 3) in 3D; zero for the finer ghosts), or ``None`` for
-    both without ``kicks``. A ``ledger`` (:class:`~mpmref.ledger.LevelLedger`) books the active particles' energy
-    change from the per-class sums. No hooks, no rigid bodies (asynchronous stepping takes neither).
-    """
-    scene = backend.scene
-    with backend.running(particles.n):
-        if ledger is not None:
-            ledger.start(particles, classes)
-        prepared = backend.prepare(particles)
-        grid_state = backend.p2g(particles, prepared, classes=classes)
-        v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
-        if ledger is not None:
-            ledger.grid(grid_state, v_grid, dt, time)
-        dP = dL = None
-        if kicks:
-            node_kicks = backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer))
-            trial, (dP, dL) = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=(classes, node_kicks))
-        else:
-            trial = backend.g2p(particles, v_grid, v_tilde, dt, prepared)
-        if ledger is not None:
-            ledger.g2p(trial)
-        new = backend.return_map(trial)
-        if ledger is not None:
-            ledger.finish(new)
-        return new, dP, dL
-
-
-def apply_hooks(hooks, grid_state, particles, scene, time):
+def apply_hooks(hooks, grid_state, particles, scene, time, exchange=None):
     """The body force and grid folds of ``hooks``, applied to ``grid_state`` in place.
 
     Hooks see dense C-ordered node arrays; a sparse grid state (one with a ``layout``) is handed to them as
     :meth:`~mpmref.state.GridState.dense` and takes the result back on its active nodes (the only ones G2P
-    reads).
+    reads). In a level update by classes (``exchange``), the body force of each class's particles goes into that
+    class's sums too (the kicks of conservative interfaces exchange every force), and the total is their sum;
+    grid folds act on the node totals only, so the asynchronous stepper refuses them.
     """
     dense = grid_state.dense()
     if hooks.body_force is not None:
-        f = nodal_body_force(particles, scene.grid, scene.kernel, hooks.body_force(particles, time))
+        b = hooks.body_force(particles, time)
+        if exchange is None:
+            f = nodal_body_force(particles, scene.grid, scene.kernel, b)
+        else:
+            f = add_class_body_forces(grid_state, particles, scene, b, exchange.classes)
         dense.force += f.astype(dense.force.dtype)
     for fold in hooks.grid_folds:
         fold(dense, scene.grid)
     grid_state.assign_dense(dense)
+
+
+def add_class_body_forces(grid_state, particles, scene, b, classes):
+    """Add each particle class's node body force (:func:`nodal_body_force` of its particles) to its rows of
+    ``grid_state.class_sums`` (in the state's layout); returns their dense total."""
+    d = particles.dim
+    total = np.zeros((scene.grid.n_nodes, d))
+    for k in range(grid_state.class_sums.shape[0]):
+        rows = np.flatnonzero(classes == k)
+        if rows.size == 0:
+            continue
+        f = nodal_body_force(particles.select(rows), scene.grid, scene.kernel, b[rows])
+        total += f
+        own = f if grid_state.layout is None else grid_state.layout.from_dense(f)
+        grid_state.class_sums[k, :, 1 + d:] += own.astype(grid_state.class_sums.dtype)
+    return total
 
 
 def _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time, ledger=None):
