@@ -109,9 +109,9 @@ def _parser():
 def _format_summary(summary, out_dir, backend=None):
     final = summary["final"]
     lines = [
-        f"steps            {summary['steps']} (now at step {final['step']}, t = {final['time']:.6g})",
+        f"steps            {summary['steps']} (each to a synchronised time; now at step {final['step']}, t = {final['time']:.6g})",
         f"wall time        {summary['wall_s']:.3f} s (kernel compilation excluded)",
-        f"particle-steps/s {summary['particle_steps_per_s']:.4g}",
+        f"particle-steps/s {summary['particle_steps_per_s']:.4g} (each particle's own steps)",
         f"particles        {final['n_particles']} (at the domain edge: {final['deleted']} deleted, "
         f"{final['clamped']} clamped back inside)",
         f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
@@ -125,10 +125,11 @@ def _format_summary(summary, out_dir, backend=None):
         execution = f", {backend['execution']}" if backend["execution"] else ""
         lines.insert(0, f"backend          {backend['backend']} ({backend['class']}{version}){execution}")
     if "particle_updates" in summary:
-        lines.insert(3, f"particle updates {summary['particle_updates']} ({summary['ghost_updates']} of them ghosts); "
-                        f"updates saved against sync: {summary['updates_saved']:.2f}x, "
-                        f"{summary['own_updates_saved']:.2f}x without the ghosts (sync at the finest step, "
-                        f"{summary['finest_dt_ticks']} ticks)")
+        lines.insert(3, f"particle updates {summary['particle_updates']}: {summary['own_updates']} own steps + "
+                        f"{summary['ghost_updates']} ghost updates; sync at the finest step "
+                        f"({summary['finest_dt_ticks']} ticks) would make {summary['sync_particle_updates']:.0f}: "
+                        f"update ratio {summary['update_ratio']:.2f}x ({summary['own_update_ratio']:.2f}x own steps "
+                        f"only), a ratio of work, not of wall time")
         lines.insert(4, f"levels           {summary['levels']} at the end (log2 of each particle's step in ticks); "
                         f"{summary['stale_shadows']} stale shadows")
     return "\n".join(lines)

@@ -148,23 +148,23 @@ class Simulation:
 
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
-        again); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
+        again, ending at the first tick at or after ``t_end`` at the latest); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
         (:func:`mpmref.emitters.emit`). A ``dt`` that is not a finite number > 0, or a ``t_end`` that is not after the
         current time, raises :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
         """
         dt = None if dt is None else arguments.time_step(dt)
         t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
-        synchronous = self.stepper.name == "sync"
         if self.scene.emitters:  # releases due now join before the step (docs/scenes.md, [[emitters]])
             self.state = emit(self.scene, self.state, self._releases)
-        if synchronous and self.step_count == 0:
+        if self.step_count == 0:
             first_dt = dt if dt is not None else self.stepper.time_step(self.particles)
-            warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, first_dt))
+            if first_dt is not None:
+                warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, first_dt))
         new = self.stepper.advance(self.state, dt=dt, t_end=t_end)
         dt = new.time - self.state.time
         self.last_updates = self.stepper.updates(self.state, new)
         self._check_finite(new.particles, dt)
-        if synchronous:
+        if self.stepper.uniform_step:
             self._check_bounded(new.particles, dt)
         new.particles = self._apply_domain_policy(new)
         self.state = new
@@ -284,7 +284,7 @@ class Simulation:
     @property
     def compiles(self):
         """Whether :meth:`warm_up` has anything to compile (a compiled backend, or asynchronous bookkeeping)."""
-        return hasattr(self.backend, "warm_up") or hasattr(self.stepper, "warm_up")
+        return hasattr(self.backend, "warm_up") or self.stepper.compiles
 
     def warm_up(self):
         """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene, so that a timed
@@ -293,8 +293,7 @@ class Simulation:
 
         if hasattr(self.backend, "warm_up"):
             self.backend.warm_up(self.particles, substep)
-        if hasattr(self.stepper, "warm_up"):
-            self.stepper.warm_up(self.particles)
+        self.stepper.warm_up(self.particles)
 
     def step_clipped(self, t_end):
         """One step, shortened if the stepper can so as not to pass ``t_end``."""

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpmref import SceneBuilder, Simulation
+from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
 from mpmref.errors import TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
@@ -246,18 +246,19 @@ def test_the_bookkeeping_visits_what_the_updates_touch():
 
     sim = Simulation(example_scene("stork2d", 0.004))
     sim.run()
-    counts, summary, n = sim.stepper.counts, sim.stepper.summary(sim.state), sim.n_particles
+    counts, summary, n = sim.stepper.work.counts, sim.stepper.summary(sim.state), sim.n_particles
     found = summary["ghost_updates"]
     assert found > 0 and counts["ghost_candidates"] <= 1.5 * found
-    assert counts["ghost_candidates"] < 0.2 * n * sim.stepper.level_updates  # a scan of everyone would be n each
+    assert counts["ghost_candidates"] < 0.2 * n * sim.stepper.work.level_updates  # a scan of everyone would be n each
     assert counts["boundary_particles"] == summary["own_updates"]
     assert counts["interval_particles"] == n * sim.step_count and counts["intervals"] == sim.step_count
     assert counts["group_rows"] == summary["particle_updates"]
 
 
-def test_the_run_summary_gives_the_savings_the_levels_and_the_ledger(tmp_path, capsys):
-    """``mpmref run`` of the async example: the updates saved with and without the ghosts, the levels at the end;
-    with the energy ledger asked for, its ``ledger_interface`` column in diagnostics.csv."""
+def test_the_run_summary_gives_the_updates_the_levels_and_the_ledger(tmp_path, capsys):
+    """``mpmref run`` of the async example: own steps and ghost updates, the update ratio named as a ratio of work
+    (never a "saved" figure alone), the levels at the end, the run ending at ``t_end``; with the energy ledger asked
+    for, its ``ledger_interface`` column in diagnostics.csv."""
     import csv
 
     from mpmref.cli import main
@@ -267,6 +268,24 @@ def test_the_run_summary_gives_the_savings_the_levels_and_the_ledger(tmp_path, c
     scene.write_text(text.replace("[output]\n", "[output]\nenergy_ledger = true\n"))
     assert main(["run", str(scene), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
     out = capsys.readouterr().out
-    assert "without the ghosts" in out and "levels           [" in out and "stale shadows" in out
+    assert "own steps +" in out and "ghost updates" in out and "update ratio" in out and "not of wall time" in out
+    assert "saved" not in out
+    assert "levels           [" in out and "stale shadows" in out and "t = 0.002)" in out
     rows = list(csv.DictReader(open(tmp_path / "o" / "diagnostics.csv")))
     assert "ledger_interface" in rows[-1] and float(rows[-1]["ledger_closure"]) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("t_end, ticks", [(0.002, 1250), (0.0020005, 1251)])
+def test_an_asynchronous_run_ends_at_t_end(t_end, ticks):
+    """The stork (tick 1.6e-6 s) run to ``t_end``: it ends at that tick exactly when ``t_end`` is a whole number of
+    ticks (0.002 s = 1 250 ticks, with steps of up to 2^7 ticks that do not divide it), else at the next tick; the
+    steps near the end are shortened, and the finest step reported is still the one the limits chose."""
+    scene = Scene.from_toml(EXAMPLES / "stork2d.toml")
+    free = Simulation(scene)
+    free.run(steps=3)
+    sim = Simulation(scene)
+    sim.run(t_end=t_end)
+    assert sim.state.tick == ticks
+    assert sim.time == ticks * scene.time.tick
+    assert 1250 % 128 != 0  # the unshortened intervals would not stop there
+    assert sim.stepper.summary(sim.state)["finest_dt_ticks"] == free.stepper.summary(free.state)["finest_dt_ticks"]

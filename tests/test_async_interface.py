@@ -13,7 +13,7 @@ import pytest
 
 from mpmref import Simulation
 from mpmref.backends import BACKENDS
-from mpmref.steppers.asynchronous import _Interval
+from mpmref.steppers import AsyncInterval
 from verification import sync_vs_async as case
 
 SCHEMES = {"pic": {}, "flip": {"flip_alpha": 0.95}, "apic": {}, "polypic": {}, "mls": {}}
@@ -66,7 +66,7 @@ def test_the_reference_interface_does_not(scheme):
     assert P > 1e4 * BOUND
 
 
-class _TwiceApplied(_Interval):
+class _TwiceApplied(AsyncInterval):
     def apply_registers(self, idx):
         """Broken on purpose: each register applied twice."""
         if self.s.conservative and idx.size:
@@ -75,7 +75,7 @@ class _TwiceApplied(_Interval):
         super().apply_registers(idx)
 
 
-class _Dropped(_Interval):
+class _Dropped(AsyncInterval):
     def apply_registers(self, idx):
         """Broken on purpose: registers cleared without being applied."""
         if self.s.conservative and idx.size:
@@ -86,7 +86,7 @@ class _Dropped(_Interval):
 @pytest.mark.parametrize("broken", [_TwiceApplied, _Dropped], ids=["applied twice", "dropped"])
 def test_a_broken_register_fails_the_momentum_bound(broken, monkeypatch):
     sim = Simulation(pressed_disks("mls"))
-    monkeypatch.setattr(sim.stepper, "interval", broken)
+    monkeypatch.setattr(sim.stepper, "interval_type", broken)
     P, L, _ = drifts(sim)
     assert P > 1e4 * BOUND and L > 1e4 * BOUND
 
@@ -143,6 +143,6 @@ def test_a_body_force_hook_acts_in_every_update_with_ghosts(scheme):
     P = np.sum(sim.mass[:, None] * sim.v, axis=0)
     summary = sim.stepper.summary(sim.state)
     assert summary["ghost_updates"] > 0 and max(sim.particles.level) - min(sim.particles.level) >= 2
-    assert len(calls) == sim.stepper.level_updates  # once per level update
+    assert len(calls) == sim.stepper.work.level_updates  # once per level update
     assert np.linalg.norm(P - P0 - expected * sim.time) <= BOUND * scale_P
     assert np.linalg.norm(expected * sim.time) > 1e-3 * scale_P  # the force's effect is far above the bound

@@ -48,16 +48,16 @@ def test_both_interface_treatments_run_and_the_trade_has_a_front(result):
 @pytest.mark.parametrize("broken", ["applied twice", "dropped"])
 def test_a_broken_conservative_interface_fails_the_momentum_check(broken, monkeypatch):
     """The recorded exchange applied twice, or dropped: the isolated scene's momentum check fails."""
-    from mpmref.steppers.asynchronous import _Interval
+    from mpmref.steppers import AsyncInterval
 
-    class Broken(_Interval):
+    class Broken(AsyncInterval):
         def apply_registers(self, idx):
             if self.s.conservative and idx.size:
                 self.dP[idx] *= 2.0 if broken == "applied twice" else 0.0
                 self.dL[idx] *= 2.0 if broken == "applied twice" else 0.0
             super().apply_registers(idx)
 
-    monkeypatch.setattr(case.AsynchronousStepper, "interval", Broken)
+    monkeypatch.setattr(case.AsynchronousStepper, "interval_type", Broken)
     params = case.Params.quick()
     iso = {"conservative": case.isolated(params, "numpy", "conservative")}
     failing = {c.name for c in failed(case.checks({**_passing(params), "isolated": iso}))}

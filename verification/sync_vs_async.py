@@ -53,7 +53,7 @@ from mpmref.backends import BACKENDS
 from mpmref.bench.asynchronous import example_scene
 from mpmref.io.atomic import write_text_atomic
 from mpmref.steppers import AsynchronousStepper
-from mpmref.steppers.asynchronous import _Interval
+from mpmref.steppers import AsyncInterval
 
 from .case import Case
 from .common import Check, Finding, checks_table
@@ -216,7 +216,7 @@ class RandomLevels(AsynchronousStepper):
         return np.exp2(per_block[self.owner_blocks(x)]).astype(float)
 
 
-class _FrozenShadows(_Interval):
+class _FrozenShadows(AsyncInterval):
     def refresh_shadows(self, proposals):
         """Broken on purpose: shadows stay at the coarse step's start (no sub-cycling)."""
 
@@ -224,7 +224,7 @@ class _FrozenShadows(_Interval):
 class FrozenShadows(AsynchronousStepper):
     """A deliberately broken variant for the case's tests: shadows are never refreshed."""
 
-    interval = _FrozenShadows
+    interval_type = _FrozenShadows
 
 
 #: the worked example: (tick, level, active blocks, same-time ghost blocks, shadow ghosts (block, tick))
@@ -253,10 +253,10 @@ def schedule(params, backend):
     stages make its thousands of tiny updates about 3x faster than the NumPy reference's.
     """
     sim = with_stepper(Simulation(two_bodies(cfl=0.5, tick=1e-4, levels=3, steps=2), backend=backend), ForcedLevels)
-    sim.stepper.trace = []
+    sim.stepper.record_trace = True
     sim.step()
     sim.step()
-    trace = [(e["tick"], e["level"], e["active"], e["level_ghosts"], e["shadow_ghosts"]) for e in sim.stepper.trace]
+    trace = [(e.tick, e.level, e.active, e.level_ghosts, e.shadow_ghosts) for e in sim.stepper.work.trace]
     census = with_stepper(Simulation(census_scene(), backend="numba"), RandomLevels)
     ids, levels, intervals = np.sort(census.id.copy()), set(), 0
     while census.state.tick < params.census_ticks:

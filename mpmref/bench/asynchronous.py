@@ -16,7 +16,7 @@ that step is the asynchronous machinery's own cost. The ratios are those of regi
 the ideal ratio (the particles' own steps, no ghosts), the work ratio (ghosts included) and the wall ratio, with
 the two efficiencies between them, work over ideal (what the ghosts cost) and wall over work (what the
 implementation costs). What the bookkeeping visited, per level update and per tick, comes from the stepper's
-counts (:data:`mpmref.steppers.asynchronous.COUNTS`).
+counts (:class:`mpmref.steppers.asynchronous.WorkRecord`, :data:`~mpmref.steppers.asynchronous.COUNTS`).
 """
 
 import tomllib
@@ -62,7 +62,7 @@ def example_scene(name, t_end, dt=None, cells=None, interface=None, levels=None,
 
 def ghost_us(stepper):
     """Microseconds in the step's stages per level update that had ghosts."""
-    return 1e6 * stepper.ghost_stage_seconds / max(stepper.ghost_level_updates, 1)
+    return 1e6 * stepper.work.ghost_stage_seconds / max(stepper.work.ghost_level_updates, 1)
 
 
 def _run(scene, backend):
@@ -83,7 +83,8 @@ def time_case(case, t_end, backend, threads, repeats):
     a_scene = example_scene(name, t_end, cells=cells)
     rec_a, a = timed()
     summary = a.stepper.summary(a.state)
-    stages_s, n_updates = a.stepper.stage_seconds, a.stepper.level_updates
+    record = a.stepper.work
+    stages_s, n_updates = record.stage_seconds, record.level_updates
     finest = summary["finest_dt_ticks"]
     dt = finest * a_scene.time.tick
     s_scene = example_scene(name, t_end, dt=dt, cells=cells)
@@ -101,11 +102,11 @@ def time_case(case, t_end, backend, threads, repeats):
     return {"case": case, "backend": backend, "threads": threads, "particles": a.n_particles, "t_end": t_end,
             "levels": sorted(set(a.particles.level.tolist())), "sync_dt": dt,
             "async": {**rec_a, "updates": summary["particle_updates"], "own_updates": summary["own_updates"],
-                      "level_updates": n_updates, "stages_s": stages_s, "stepping_s": a.stepper.advance_seconds,
+                      "level_updates": n_updates, "stages_s": stages_s, "stepping_s": record.seconds,
                       "stages_us_per_update": 1e6 * stages_s / max(n_updates, 1),
-                      "bookkeeping_us_per_update": 1e6 * (a.stepper.advance_seconds - stages_s) / max(n_updates, 1),
+                      "bookkeeping_us_per_update": 1e6 * (record.seconds - stages_s) / max(n_updates, 1),
                       "interface": a_scene.time.interface,
-                      "ghost_stages_us_per_update": ghost_us(a.stepper), "counts": dict(a.stepper.counts)},
+                      "ghost_stages_us_per_update": ghost_us(a.stepper), "counts": dict(record.counts)},
             "reference_interface": {**rec_r, "ghost_stages_us_per_update": ghost_us(r.stepper)},
             "interface_cost_ratio": ghost_us(a.stepper) / max(ghost_us(r.stepper), 1e-300),
             "sync": {**rec_s, "updates": sync_updates},

@@ -2,15 +2,19 @@
 
 * :class:`SynchronousStepper`: every particle, one Δt (fixed or CFL);
 * :class:`AsynchronousStepper`: regional power-of-two steps per block (Fang et al. 2018).
+
+Both fulfil :class:`Stepper` (:mod:`.protocol`), the contract the simulation and the command line use.
 """
 
 from ..errors import MpmrefError
 from ..ledger import EnergyLedger, LevelLedger
-from .asynchronous import AsynchronousStepper
+from .asynchronous import AsynchronousStepper, AsyncInterval, AsyncSchedule, LevelUpdate, WorkRecord
 from .pipeline import NO_HOOKS, Hooks, substep
+from .protocol import Stepper
 from .synchronous import SynchronousStepper
 
-__all__ = ["AsynchronousStepper", "Hooks", "NO_HOOKS", "SynchronousStepper", "make_stepper", "substep"]
+__all__ = ["AsyncInterval", "AsyncSchedule", "AsynchronousStepper", "Hooks", "LevelUpdate", "NO_HOOKS", "Stepper",
+           "SynchronousStepper", "WorkRecord", "make_stepper", "substep"]
 
 
 def make_stepper(scene, backend, hooks=None):

@@ -46,7 +46,7 @@ registers (``dP``, ``dL``) and are applied at the end of each particle's own ste
 read again (at its next boundary tick, or when the interval ends).
 """
 
-from dataclasses import replace
+from dataclasses import dataclass, field, fields, replace
 from time import perf_counter
 
 import numpy as np
@@ -74,9 +74,109 @@ COUNTS = ("ticks", "boundary_particles", "due_blocks", "ghost_candidates", "zone
           "group_rows", "intervals", "interval_particles")
 
 
+@dataclass(frozen=True)
+class AsyncSchedule:
+    """The asynchronous stepper's state at a synchronised time, kept in :attr:`mpmref.state.State.stepper` as one
+    array per field (so checkpoints carry it bit for bit; :meth:`of` reads it back).
+
+    Attributes
+    ----------
+    block_dt : ndarray of int64, (n_blocks,)
+        Each block's step in ticks, a power of two.
+    updates, own_updates : int
+        Particle updates done so far, ghosts included, and the particles' own steps (no ghosts).
+    sync_updates : float
+        What synchronous stepping at each interval's finest step would have done over the same time.
+    stale_shadows : int
+        Shadows used by an update that no earlier update had brought to its tick.
+    finest_dt : int
+        The finest step the stability limits chose, in ticks (steps shortened to end at ``t_end`` not counted).
+    sync_times : int
+        Synchronised times reached (intervals done).
+    """
+
+    block_dt: np.ndarray
+    updates: int
+    own_updates: int
+    sync_updates: float
+    stale_shadows: int
+    finest_dt: int
+    sync_times: int
+
+    @classmethod
+    def start(cls, n_blocks, max_units):
+        """The schedule of a run that has not stepped: every block at the coarsest step."""
+        return cls(np.full(n_blocks, max_units, dtype=np.int64), 0, 0, 0.0, 0, max_units, 0)
+
+    @classmethod
+    def of(cls, state):
+        """The schedule held in ``state.stepper``."""
+        held = state.stepper
+        return cls(np.asarray(held["block_dt"]), *(f.type(held[f.name]) for f in fields(cls)[1:]))
+
+    def arrays(self):
+        """The fields as arrays, for :attr:`mpmref.state.State.stepper`."""
+        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class LevelUpdate:
+    """One level update, as :attr:`WorkRecord.trace` records it: its tick and step (ticks), the blocks of its active
+    particles and of its level ghosts, and its shadow ghosts' (block, shadow tick) pairs."""
+
+    tick: int
+    level: int
+    active: list
+    level_ghosts: list
+    shadow_ghosts: list
+
+
+@dataclass
+class WorkRecord:
+    """What asynchronous stepping did and what it cost: returned by each interval, summed by the stepper
+    (:attr:`AsynchronousStepper.work`). The benchmark's split of an update's cost into stages and bookkeeping and
+    the tests' measure of how the bookkeeping's work grows.
+
+    Attributes
+    ----------
+    counts : dict
+        What the bookkeeping visited (:data:`COUNTS`).
+    level_updates, ghost_level_updates : int
+        Level updates, in all and those with ghosts.
+    stage_seconds, ghost_stage_seconds : float
+        Wall time in the step's stages (the substeps), in all and in the updates with ghosts.
+    seconds : float
+        Wall time of the intervals (stages and bookkeeping).
+    trace : list of LevelUpdate, or None
+        Every level update, in order, when the stepper records a trace (``record_trace``).
+    """
+
+    counts: dict = field(default_factory=lambda: dict.fromkeys(COUNTS, 0))
+    level_updates: int = 0
+    ghost_level_updates: int = 0
+    stage_seconds: float = 0.0
+    ghost_stage_seconds: float = 0.0
+    seconds: float = 0.0
+    trace: list | None = None
+
+    def __add__(self, other):
+        trace = None if self.trace is None and other.trace is None else (self.trace or []) + (other.trace or [])
+        return WorkRecord({k: self.counts[k] + other.counts[k] for k in COUNTS},
+                          self.level_updates + other.level_updates,
+                          self.ghost_level_updates + other.ghost_level_updates,
+                          self.stage_seconds + other.stage_seconds,
+                          self.ghost_stage_seconds + other.ghost_stage_seconds,
+                          self.seconds + other.seconds, trace)
+
+
 def alignment(t, cap):
     """The largest power of two (at most ``cap``) that divides tick ``t`` (``cap`` for ``t = 0``)."""
     return cap if t == 0 else min(t & -t, cap)
+
+
+def within(room):
+    """The largest power of two at most ``room`` ticks (``room >= 1``)."""
+    return 1 << (int(room).bit_length() - 1)
 
 
 def relevel(dt, limit, t):
@@ -91,167 +191,6 @@ def relevel(dt, limit, t):
     while (grow := (2 * dt <= limit) & (t % (2 * dt) == 0)).any():
         dt[grow] *= 2
     return dt
-
-
-class AsynchronousStepper:
-    """Regional power-of-two time steps over the grid's blocks; see the module docstring.
-
-    ``advance`` moves a :class:`~mpmref.state.State` from one synchronised time (every particle at the same
-    tick) to the next. Its stepper state: ``block_dt`` (each block's step in ticks), ``updates`` (particle
-    updates done, ghosts included), ``own_updates`` (the particles' own steps), ``sync_updates`` (what
-    synchronous stepping at each interval's finest step would have done), ``finest_dt`` (the finest step
-    taken, ticks), ``stale_shadows`` and ``sync_times``; with a ``ledger`` (:class:`~mpmref.ledger.LevelLedger`),
-    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.ledger.ASYNC_COLUMNS`. Set ``trace = []`` to
-    record every update as a dict (tick, level, active blocks, ghost blocks) for inspection.
-    """
-
-    name = "async"
-
-    def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
-        if hooks.grid_folds:
-            raise MpmrefError("asynchronous stepping takes no grid folds: a fold changes the node totals of a level "
-                              "update, not the sums of its particle classes that conservative interfaces exchange; "
-                              "run with time.stepping = \"sync\" (a body force hook acts in every update)")
-        self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
-        t = scene.time
-        self.tick_s, self.max_units = t.tick, 2**t.levels
-        self.strength, self.advection = t.cfl, t.advection_cfl
-        self.grid, self.kernel = scene.grid, scene.kernel
-        self.reach = 2 * (self.kernel.support - 1)
-        self.node_shape = np.array(self.grid.node_shape, dtype=np.int64)
-        #: what the compiled bookkeeping needs of the grid: origin, dx, the kernel's base-node shift, the node
-        #: lattice, the block size and the block lattice
-        self.lattice = (np.asarray(self.grid.origin, dtype=np.float64), float(self.grid.dx),
-                        self.kernel.base_shift, self.node_shape, self.grid.block,
-                        np.asarray(self.grid.blocks_per_axis, dtype=np.int64))
-        self._stores = {}
-        self.conservative = t.interface == "conservative"
-        self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
-        self.levels = t.levels
-        self.block_limit = np.full(self.grid.n_blocks, np.inf)  # scratch of relevel_due: infinite between calls
-        self.trace = None
-        #: what the bookkeeping visited since construction (:data:`COUNTS`): the benchmark's and the tests' measure
-        #: of how its work grows
-        self.counts = dict.fromkeys(COUNTS, 0)
-        #: wall time spent in the step's stages (the substeps) and the number of level updates since
-        #: construction, in all and in the updates that had ghosts, and the wall time of the intervals
-        #: (``advance``): the benchmark's split of an update's cost into stages and bookkeeping
-        self.stage_seconds, self.level_updates, self.advance_seconds = 0.0, 0, 0.0
-        self.ghost_stage_seconds, self.ghost_level_updates = 0.0, 0
-
-    # ------------------------------------------------------------------ state
-    def initial_state(self, particles):
-        if particles.level is None:
-            particles = particles.with_(level=np.zeros(particles.n, dtype=np.int64))
-        stepper = {"block_dt": np.full(self.grid.n_blocks, self.max_units, dtype=np.int64),
-                   "updates": np.array(0), "own_updates": np.array(0), "sync_updates": np.array(0.0),
-                   "stale_shadows": np.array(0), "finest_dt": np.array(self.max_units),
-                   "sync_times": np.array(0)}
-        return State(particles=particles, tick_length=self.tick_s, stepper=stepper)
-
-    def base_nodes(self, x):
-        """Stencil base node (n, d) of each position (clipped to the node lattice)."""
-        base = self.kernel.base_node((np.asarray(x, dtype=np.float64) - self.grid.origin) / self.grid.dx)
-        return np.clip(base, 0, np.array(self.grid.node_shape) - 1)
-
-    def owner_blocks(self, x):
-        """Block of each position's stencil base node."""
-        return self.grid.owner_blocks(self.base_nodes(x))
-
-    # ------------------------------------------------------------------ limits
-    def particle_limits(self, particles, idx=None):
-        """Step limit in ticks, ``min(S_p, A_p, 2^levels)`` (float64; see the module docstring), of each particle
-        of ``particles`` or of its particles ``idx``."""
-        dx = self.grid.dx
-        idx = np.arange(particles.n) if idx is None else idx
-        return step_limits(particles.v, idx, self.backend.wave_speeds(particles, idx), dx, self.strength,
-                           self.advection, self.tick_s, MAX_STEP_S, self.max_units)
-
-    def store(self, particles, names, key):
-        """Arrays shaped like the fields ``names`` of ``particles`` (contents undefined), kept on the stepper and
-        handed out again to the next interval while the particle count and fields stay the same."""
-        arrays = particles.arrays()
-        spec = tuple((k, arrays[k].shape, arrays[k].dtype) for k in names)
-        held = self._stores.get(key)
-        if held is None or held[0] != spec:
-            held = (spec, {k: np.empty(shape, dtype) for k, shape, dtype in spec})
-            self._stores[key] = held
-        return held[1]
-
-    def warm_up(self, particles):
-        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on one particle,
-        and with conservative interfaces the level update by classes on one particle at Δt = 0: ``particles`` is
-        not modified."""
-        interval = self.interval(self, self.initial_state(particles.select(slice(0, 1))))
-        one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
-        boundary_nodes(interval.P.x, none, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
-                       interval.shadow_t)
-        step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-        particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
-        relevel_due(interval.block_dt, interval.order, interval.level_start, interval.owner, none, np.empty(0), 1, 1,
-                    self.max_units, self.block_limit)
-        move_rows(interval.pairs("P", "shadow"), none, none)
-        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
-                     interval.base)
-        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [_Cohort(1, 1, one)], interval.base, 0)
-        group = interval.group(one, none, none)
-        rows = row_views(getattr(group, k) for k in interval.evolving)
-        move_rows(interval.pairs(rows, "P"), none, none)
-        if self.conservative:  # the backend's kernels of a level update by classes, and the registers
-            exchange = LevelExchange(np.zeros(group.n, dtype=np.int64), kicks=True)
-            substep(self.backend, group, 0.0, 0.0, exchange=exchange)
-            dP, dL = exchange.impulses
-            add_rows(interval.dP, one, dP, 0)
-            add_rows(interval.dL, one, dL, 0)
-            interval.kicked = True
-            interval.apply_registers(one)
-
-    # ------------------------------------------------------------------ stepping
-    def advance(self, state, dt=None, t_end=None):
-        """The state at the next synchronised time (``dt`` must be ``None``; ``t_end`` cannot shorten a step)."""
-        if dt is not None:
-            raise MpmrefError("asynchronous stepping chooses every block's step itself: call step() without dt")
-        start = perf_counter()
-        run = self.interval(self, state)
-        while not run.synchronised():
-            run.tick_once()
-        new = run.finish()
-        self.advance_seconds += perf_counter() - start
-        return new
-
-    def cfl_number(self, particles, dt):
-        """The largest ``dt (c_p + |v_p|) / dx`` of a step of ``dt`` (the finest level's CFL number)."""
-        signal = wave_speeds(self.scene.material_list, particles) + particle_speeds(particles)
-        return dt * float(signal.max(initial=0.0)) / self.grid.dx
-
-    def updates(self, old, new):
-        """Particle updates (ghosts included) done between two states."""
-        return int(new.stepper["updates"]) - int(old.stepper["updates"])
-
-    def diagnostics(self, state):
-        """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,
-        the cumulative ledger's (``ledger_<column>`` over :data:`~mpmref.ledger.ASYNC_COLUMNS`)."""
-        s = state.stepper
-        out = {"tick": state.tick, "particle_updates": int(s["updates"]), "sync_times": int(s["sync_times"]),
-               "stale_shadows": int(s["stale_shadows"])}
-        if self.ledger is not None:
-            out |= ledger_columns(s.get("energy_ledger"), ASYNC_COLUMNS)
-        return out
-
-    def summary(self, state):
-        """Run-summary figures: updates done, what synchronous stepping at the finest step would have done, over
-        the updates with ghosts (``updates_saved``) and over the particles' own steps (``own_updates_saved``, the
-        ideal that ghosts cost a share of), and the levels the particles took last (log2 of their steps in
-        ticks)."""
-        s = state.stepper
-        done, own, sync = int(s["updates"]), int(s["own_updates"]), float(s["sync_updates"])
-        return {"particle_updates": done, "own_updates": own,
-                "ghost_updates": done - own, "sync_particle_updates": sync,
-                "updates_saved": sync / done if done else float("nan"),
-                "own_updates_saved": sync / own if own else float("nan"),
-                "finest_dt_ticks": int(s["finest_dt"]),
-                "levels": sorted(set(state.particles.level.tolist())),
-                "stale_shadows": int(s["stale_shadows"])}
 
 
 class _Cohort:
@@ -272,7 +211,7 @@ class _Cohort:
         return self._buckets
 
 
-class _Interval:
+class AsyncInterval:
     """The working state of one :meth:`AsynchronousStepper.advance`: particles with their own clocks.
 
     Three stores hold the particles: ``P`` (the authoritative particles, every field), ``shadow`` (each
@@ -291,11 +230,19 @@ class _Interval:
     once per interval (its set-up, the registers' last application and the census), when every particle has
     stepped at least once: a tick and an update cost what their own particles, ghosts and blocks cost
     (:data:`COUNTS`).
+
+    With an end tick ``deadline``, no particle steps past it: each step is capped at the largest power of two that
+    fits before it, so the interval ends there at the latest; the finest step and the particles' levels it
+    records are those the level rule chose, not the capped steps. What the interval did is its :attr:`work`
+    (:class:`WorkRecord`), returned by :meth:`finish`. A subclass can change one part of the bookkeeping (the
+    verification case's and the tests' broken variants do): give it to the stepper as ``interval_type``.
     """
 
-    def __init__(self, stepper, state):
+    def __init__(self, stepper, state, deadline=None):
         self.s = stepper
         self.state = state
+        self.deadline = deadline
+        self.work = WorkRecord(trace=[] if stepper.record_trace else None)
         # the fields the interval writes are copied (the state it starts from stays as it was); the others (mass,
         # volume, material, id) are shared with it, as a synchronous step's result shares them with its input
         self.P = state.particles.with_(**{k: a.copy() for k, a in state.particles.arrays().items()
@@ -316,7 +263,8 @@ class _Interval:
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
         self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
         self.proposed = stepper.store(self.P, self.evolving, "proposed")
-        self.block_dt = np.asarray(state.stepper["block_dt"]).copy()
+        self.schedule = AsyncSchedule.of(state)
+        self.block_dt = self.schedule.block_dt.copy()
         self.order, self.level_start = blocks_by_level(self.block_dt, stepper.levels)
         self.updates = 0
         self.own_updates = 0
@@ -329,8 +277,8 @@ class _Interval:
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
         self.kicked = False  # whether an update of this interval has added to a register
-        stepper.counts["intervals"] += 1
-        stepper.counts["interval_particles"] += n
+        self.work.counts["intervals"] += 1
+        self.work.counts["interval_particles"] += n
         if stepper.ledger is not None:
             stepper.ledger.begin()
 
@@ -350,12 +298,19 @@ class _Interval:
             bad = int(np.argmin(limit))
             raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
         align = alignment(t, s.max_units)
-        s.counts["due_blocks"] += relevel_due(self.block_dt, self.order, self.level_start, self.owner, at, limit, t,
-                                              align, s.max_units, s.block_limit)
-        taken = particle_steps(at, self.block_dt, self.owner, align, limit, self.dt_p)
-        self.finest = min(self.finest, taken & -taken)
-        s.counts["ticks"] += 1
-        s.counts["boundary_particles"] += at.size
+        self.work.counts["due_blocks"] += relevel_due(self.block_dt, self.order, self.level_start, self.owner, at,
+                                                      limit, t, align, s.max_units, s.block_limit)
+        room = align if self.deadline is None else min(align, within(self.deadline - t))
+        taken = particle_steps(at, self.block_dt, self.owner, room, limit, self.dt_p)
+        chosen = None  # the steps the deadline shortened, as the level rule chose them
+        if room < align:
+            own = np.exp2(np.floor(np.log2(limit))).astype(np.int64)
+            chosen = np.minimum(self.block_dt[self.owner[at]], own)  # the ticks off alignment are the deadline's
+            self.finest = min(self.finest, int(chosen.min()))
+        else:
+            self.finest = min(self.finest, taken & -taken)
+        self.work.counts["ticks"] += 1
+        self.work.counts["boundary_particles"] += at.size
         steps = self.dt_p[at]
         started = [_Cohort(D, t + D, at[steps == D])
                    for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]]  # coarse first
@@ -370,6 +325,8 @@ class _Interval:
             proposals.append(self.update_level(cohort.D, cohort.idx, started[k + 1:], mid))
             mid.append(cohort)
         self.cohorts += started
+        if chosen is not None:  # the particles' levels are those the rule chose, not the shortened steps
+            self.P.level[at] = np.log2(chosen).astype(np.int64)
         self.refresh_shadows(proposals)
         self.t = min(c.end for c in self.cohorts)
 
@@ -429,7 +386,7 @@ class _Interval:
         for cohort in cohorts:
             members, examined = bucket_zone_members(*zone_, drift, s.grid.block, s.lattice[5],
                                                     *cohort.buckets(self.owner), node)
-            s.counts["ghost_candidates"] += examined
+            self.work.counts["ghost_candidates"] += examined
             if members.size:
                 found.append(members)
         if not found:
@@ -446,7 +403,7 @@ class _Interval:
         s, t = self.s, self.t
         if waiting or mid:
             zone_ = zone(active, self.base, s.reach, s.node_shape)
-            s.counts["zone_nodes"] += zone_[2].size
+            self.work.counts["zone_nodes"] += zone_[2].size
             level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
             shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
         else:  # one level at this tick and none mid-step: no ghost to look for
@@ -469,12 +426,13 @@ class _Interval:
                 add_rows(register, active, impulse, 0)
                 add_rows(register, shadow_ghosts, impulse, first_shadow)
         elapsed = perf_counter() - start
-        s.stage_seconds += elapsed
-        s.level_updates += 1
-        s.counts["group_rows"] += group.n
+        work = self.work
+        work.stage_seconds += elapsed
+        work.level_updates += 1
+        work.counts["group_rows"] += group.n
         if n_active < group.n:
-            s.ghost_stage_seconds += elapsed
-            s.ghost_level_updates += 1
+            work.ghost_stage_seconds += elapsed
+            work.ghost_level_updates += 1
         result_rows = row_views(getattr(result, k) for k in self.evolving)
         move_rows(self.pairs(result_rows, "P"), span(0, n_active), active)
         move_rows(self.pairs(result_rows, "proposed"), span(first_shadow, shadow_ghosts.size), shadow_ghosts)
@@ -482,33 +440,197 @@ class _Interval:
         self.t_p[active] = t + D
         self.updates += group.n
         self.own_updates += n_active
-        if s.trace is not None:
-            s.trace.append({"tick": t, "level": D, "active": sorted(set(self.owner[active].tolist())),
-                            "level_ghosts": sorted(set(self.owner[level_ghosts].tolist())),
-                            "shadow_ghosts": sorted(set(zip(s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist(),
-                                                            self.shadow_t[shadow_ghosts].tolist())))})
+        if work.trace is not None:
+            shadow_blocks = s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist()
+            work.trace.append(LevelUpdate(t, D, sorted(set(self.owner[active].tolist())),
+                                          sorted(set(self.owner[level_ghosts].tolist())),
+                                          sorted(set(zip(shadow_blocks, self.shadow_t[shadow_ghosts].tolist())))))
         return shadow_ghosts, t + D
 
     def finish(self):
         """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census (and, with
-        conservative interfaces, every register applied: each particle is at its step end)."""
+        conservative interfaces, every register applied: each particle is at its step end), and the interval's
+        :class:`WorkRecord`."""
         self.apply_registers(np.arange(self.P.n))
         census(self.state.particles.id, self.P.id, self.t)
-        n, ticks = self.P.n, self.t - self.t0
-        old = self.state.stepper
-        stepper = {"block_dt": self.block_dt, "updates": np.array(int(old["updates"]) + self.updates),
-                   "own_updates": np.array(int(old["own_updates"]) + self.own_updates),
-                   "sync_updates": np.array(float(old["sync_updates"]) + n * ticks / self.finest),
-                   "stale_shadows": np.array(int(old["stale_shadows"]) + self.stale),
-                   "finest_dt": np.array(min(int(old["finest_dt"]), self.finest)),
-                   "sync_times": np.array(int(old["sync_times"]) + 1)}
+        n, ticks, old = self.P.n, self.t - self.t0, self.schedule
+        schedule = AsyncSchedule(self.block_dt, old.updates + self.updates, old.own_updates + self.own_updates,
+                                 old.sync_updates + n * ticks / self.finest, old.stale_shadows + self.stale,
+                                 min(old.finest_dt, self.finest), old.sync_times + 1)
+        stepper = schedule.arrays()
         if self.s.ledger is not None:
-            stepper["energy_ledger"] = self.s.ledger.close(old.get("energy_ledger"))
-        return replace(self.state, particles=self.P, step=self.state.step + 1, tick=self.t,
-                       time=self.t * self.s.tick_s, stepper=stepper)
+            stepper["energy_ledger"] = self.s.ledger.close(self.state.stepper.get("energy_ledger"))
+        new = replace(self.state, particles=self.P, step=self.state.step + 1, tick=self.t,
+                      time=self.t * self.s.tick_s, stepper=stepper)
+        return new, self.work
 
 
-AsynchronousStepper.interval = _Interval
+class AsynchronousStepper:
+    """Regional power-of-two time steps over the grid's blocks; see the module docstring.
+
+    A :class:`~mpmref.steppers.Stepper`. ``advance`` moves a :class:`~mpmref.state.State` from one synchronised
+    time (every particle at the same tick) to the next, which is one step of the run; its state is an
+    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger`` (:class:`~mpmref.ledger.LevelLedger`),
+    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.ledger.ASYNC_COLUMNS`). Each interval is an
+    ``interval_type`` (:class:`AsyncInterval`); what they did and cost adds up in :attr:`work` (a
+    :class:`WorkRecord`; set ``record_trace = True`` for its list of every level update).
+    """
+
+    name = "async"
+    #: a step advances particles by different Δt: the synchronous step's velocity bound does not apply
+    uniform_step = False
+    compiles = True
+    interval_type = AsyncInterval
+
+    def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
+        if hooks.grid_folds:
+            raise MpmrefError("asynchronous stepping takes no grid folds: a fold changes the node totals of a level "
+                              "update, not the sums of its particle classes that conservative interfaces exchange; "
+                              "run with time.stepping = \"sync\" (a body force hook acts in every update)")
+        self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
+        t = scene.time
+        self.tick_s, self.max_units = t.tick, 2**t.levels
+        self.strength, self.advection = t.cfl, t.advection_cfl
+        self.grid, self.kernel = scene.grid, scene.kernel
+        self.reach = 2 * (self.kernel.support - 1)
+        self.node_shape = np.array(self.grid.node_shape, dtype=np.int64)
+        #: what the compiled bookkeeping needs of the grid: origin, dx, the kernel's base-node shift, the node
+        #: lattice, the block size and the block lattice
+        self.lattice = (np.asarray(self.grid.origin, dtype=np.float64), float(self.grid.dx),
+                        self.kernel.base_shift, self.node_shape, self.grid.block,
+                        np.asarray(self.grid.blocks_per_axis, dtype=np.int64))
+        self._stores = {}
+        self.conservative = t.interface == "conservative"
+        self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
+        self.levels = t.levels
+        self.block_limit = np.full(self.grid.n_blocks, np.inf)  # scratch of relevel_due: infinite between calls
+        #: whether the intervals record every level update (:attr:`WorkRecord.trace`)
+        self.record_trace = False
+        #: what the intervals did and cost since construction, summed (:class:`WorkRecord`)
+        self.work = WorkRecord()
+
+    # ------------------------------------------------------------------ state
+    def initial_state(self, particles):
+        if particles.level is None:
+            particles = particles.with_(level=np.zeros(particles.n, dtype=np.int64))
+        schedule = AsyncSchedule.start(self.grid.n_blocks, self.max_units)
+        return State(particles=particles, tick_length=self.tick_s, stepper=schedule.arrays())
+
+    def base_nodes(self, x):
+        """Stencil base node (n, d) of each position (clipped to the node lattice)."""
+        base = self.kernel.base_node((np.asarray(x, dtype=np.float64) - self.grid.origin) / self.grid.dx)
+        return np.clip(base, 0, np.array(self.grid.node_shape) - 1)
+
+    def owner_blocks(self, x):
+        """Block of each position's stencil base node."""
+        return self.grid.owner_blocks(self.base_nodes(x))
+
+    # ------------------------------------------------------------------ limits
+    def particle_limits(self, particles, idx=None):
+        """Step limit in ticks, ``min(S_p, A_p, 2^levels)`` (float64; see the module docstring), of each particle
+        of ``particles`` or of its particles ``idx``."""
+        dx = self.grid.dx
+        idx = np.arange(particles.n) if idx is None else idx
+        return step_limits(particles.v, idx, self.backend.wave_speeds(particles, idx), dx, self.strength,
+                           self.advection, self.tick_s, MAX_STEP_S, self.max_units)
+
+    def store(self, particles, names, key):
+        """Arrays shaped like the fields ``names`` of ``particles`` (contents undefined), kept on the stepper and
+        handed out again to the next interval while the particle count and fields stay the same."""
+        arrays = particles.arrays()
+        spec = tuple((k, arrays[k].shape, arrays[k].dtype) for k in names)
+        held = self._stores.get(key)
+        if held is None or held[0] != spec:
+            held = (spec, {k: np.empty(shape, dtype) for k, shape, dtype in spec})
+            self._stores[key] = held
+        return held[1]
+
+    def warm_up(self, particles):
+        """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on one particle,
+        and with conservative interfaces the level update by classes on one particle at Δt = 0: ``particles`` is
+        not modified."""
+        interval = self.interval_type(self, self.initial_state(particles.select(slice(0, 1))))
+        one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
+        boundary_nodes(interval.P.x, none, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
+                       interval.shadow_t)
+        step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+        particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
+        relevel_due(interval.block_dt, interval.order, interval.level_start, interval.owner, none, np.empty(0), 1, 1,
+                    self.max_units, self.block_limit)
+        move_rows(interval.pairs("P", "shadow"), none, none)
+        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
+                     interval.base)
+        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [_Cohort(1, 1, one)], interval.base, 0)
+        group = interval.group(one, none, none)
+        rows = row_views(getattr(group, k) for k in interval.evolving)
+        move_rows(interval.pairs(rows, "P"), none, none)
+        if self.conservative:  # the backend's kernels of a level update by classes, and the registers
+            exchange = LevelExchange(np.zeros(group.n, dtype=np.int64), kicks=True)
+            substep(self.backend, group, 0.0, 0.0, exchange=exchange)
+            dP, dL = exchange.impulses
+            add_rows(interval.dP, one, dP, 0)
+            add_rows(interval.dL, one, dL, 0)
+            interval.kicked = True
+            interval.apply_registers(one)
+
+    # ------------------------------------------------------------------ stepping
+    def advance(self, state, dt=None, t_end=None):
+        """The state at the next synchronised time (``dt`` must be ``None``), at ``t_end`` at the latest: no step
+        passes the first tick at or after ``t_end`` (:meth:`end_tick`)."""
+        if dt is not None:
+            raise MpmrefError("asynchronous stepping chooses every block's step itself: call step() without dt")
+        start = perf_counter()
+        run = self.interval_type(self, state, None if t_end is None else self.end_tick(t_end, state.tick))
+        while not run.synchronised():
+            run.tick_once()
+        new, work = run.finish()
+        work.seconds = perf_counter() - start
+        self.work = self.work + work
+        return new
+
+    def end_tick(self, t_end, tick):
+        """The tick a run to ``t_end`` ends at: ``t_end`` itself when it is a whole number of ticks (to 1e-9 of a
+        tick), else the first tick after it (time is counted in whole ticks); after ``tick``, the current one."""
+        return max(int(np.ceil(t_end / self.tick_s - 1e-9)), tick + 1)
+
+    def time_step(self, particles):
+        """``None``: every block chooses its own step."""
+        return None
+
+    def cfl_number(self, particles, dt):
+        """The largest ``dt (c_p + |v_p|) / dx`` of a step of ``dt`` (the finest level's CFL number)."""
+        signal = wave_speeds(self.scene.material_list, particles) + particle_speeds(particles)
+        return dt * float(signal.max(initial=0.0)) / self.grid.dx
+
+    def updates(self, old, new):
+        """Particle steps done between two states: the particles' own updates (ghost updates not counted)."""
+        return AsyncSchedule.of(new).own_updates - AsyncSchedule.of(old).own_updates
+
+    def diagnostics(self, state):
+        """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,
+        the cumulative ledger's (``ledger_<column>`` over :data:`~mpmref.ledger.ASYNC_COLUMNS`)."""
+        s = AsyncSchedule.of(state)
+        out = {"tick": state.tick, "particle_updates": s.updates, "sync_times": s.sync_times,
+               "stale_shadows": s.stale_shadows}
+        if self.ledger is not None:
+            out |= ledger_columns(state.stepper.get("energy_ledger"), ASYNC_COLUMNS)
+        return out
+
+    def summary(self, state):
+        """Run-summary figures: the particle updates done, owned and ghost; what synchronous stepping at the finest
+        step would have done (``sync_particle_updates``) and its ratio to the updates done (``update_ratio``, the
+        work async saves) and to the owned ones (``own_update_ratio``, the ideal that ghosts cost a share of);
+        the levels the particles took last (log2 of their steps in ticks). Ratios of work, not of wall time
+        (``mpmref bench --only async`` measures that)."""
+        s = AsyncSchedule.of(state)
+        done, own, sync = s.updates, s.own_updates, s.sync_updates
+        return {"particle_updates": done, "own_updates": own,
+                "ghost_updates": done - own, "sync_particle_updates": sync,
+                "update_ratio": sync / done if done else float("nan"),
+                "own_update_ratio": sync / own if own else float("nan"),
+                "finest_dt_ticks": s.finest_dt,
+                "levels": sorted(set(state.particles.level.tolist())),
+                "stale_shadows": s.stale_shadows}
 
 
 def census(before, after, tick):

@@ -12,7 +12,7 @@ from .pipeline import NO_HOOKS, substep
 
 
 class SynchronousStepper:
-    """Chooses one Δt for the whole domain and applies :func:`~.pipeline.substep` to every particle.
+    """A :class:`~mpmref.steppers.Stepper` that chooses one Δt for the whole domain and applies :func:`~.pipeline.substep` to every particle.
 
     The clock counts one tick per step; ``tick_length`` is the fixed Δt (``None`` with a CFL step). With a
     ``ledger`` (:class:`~mpmref.ledger.EnergyLedger`) every step is booked by it, and the cumulative ledger is
@@ -20,6 +20,8 @@ class SynchronousStepper:
     """
 
     name = "sync"
+    uniform_step = True
+    compiles = False
 
     def __init__(self, scene, backend, hooks=NO_HOOKS, ledger=None):
         self.scene, self.backend, self.hooks, self.ledger = scene, backend, hooks, ledger
@@ -74,6 +76,9 @@ class SynchronousStepper:
     def summary(self, state):
         """Stepper figures for the run summary (none for synchronous stepping)."""
         return {}
+
+    def warm_up(self, particles):
+        """Nothing to compile: the backend's stages are all a synchronous step runs."""
 
 
 def with_cpic_tags(particles, n_bodies):
