@@ -343,3 +343,16 @@ def test_the_runs_go_to_a_dask_cluster_and_functions_that_cannot_travel_are_refu
                           executor=Executor(scheduler=cluster.scheduler_address))
     assert "dask.distributed" in study["executor"]
     assert [r["metrics"]["center_x"] == pytest.approx(0.5) for r in study["runs"]] == [True, True]
+
+
+def test_a_study_of_an_asynchronous_scene_books_its_ledger_with_the_interface_term(tmp_path):
+    """The stork (asynchronous, conservative interfaces) at two CFL numbers: each run's ledger, read at synchronised
+    times, has the ``interface`` term, and its terms add up to the measured energy change (over E(0))."""
+    from mpmref.ledger import ASYNC_TERMS
+
+    study = run_study(ROOT / "examples" / "stork2d.toml", {"time.cfl": [0.3, 0.4]}, 0.0008, out=tmp_path,
+                      executor=Executor(workers=1))
+    for run in study["runs"]:
+        m = run["metrics"]
+        assert "ledger_interface" in m
+        assert sum(m[f"ledger_{t}"] for t in ASYNC_TERMS) == pytest.approx(m["energy_change"], abs=1e-10)

@@ -12,7 +12,7 @@ import pytest
 from helpers import assert_every_figure_has_a_caption
 from mpmref.backends.numpy import backend as numpy_backend
 from mpmref.backends.numpy.transfers import wall_bands
-from mpmref.ledger import COLUMNS, TERMS
+from mpmref.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 from verification import energy_ledger as case
 from verification.cli import add_parser
 from verification.common import failed
@@ -38,7 +38,8 @@ def test_the_checks_cover_the_signs_theory_fixes_on_every_run_it_fixes_them(resu
     wherever walls act (not the disks' open domain); plasticity for snow and sand; the candidate on each compared
     run; the friction block and the integration order once."""
     names = [c.name for c in case.checks(result)]
-    projection = ["jelly-pic", "jelly-apic_classic", "jelly-mls", "jelly-polypic", "snow88", "sand", "colliding_disks"]
+    projection = ["jelly-pic", "jelly-apic_classic", "jelly-mls", "jelly-polypic", "snow88", "sand", "colliding_disks",
+                  "stork2d"]
     assert sorted(n.split(":")[0] for n in names if "p2g_transfer in one step" in n) == sorted(projection)
     assert [n.split(":")[0] for n in names if "|g2p_transfer|" in n] == ["jelly-polypic"]
     assert sorted(n.split(":")[0] for n in names if "plastic in one step" in n) == ["sand", "snow88"]
@@ -52,12 +53,15 @@ def test_each_run_books_the_stages_it_exercises(result):
     """The checks are not vacuous: the walls take energy where the bodies land, the return maps dissipate in snow88
     and sand, PolyPIC's modes change as the particles move, and the candidate books the same steps."""
     by = {r["key"]: r for r in result["runs"]}
-    last = {key: dict(zip(COLUMNS, r["ledger"][-1])) for key, r in by.items()}
+    last = {key: dict(zip(ASYNC_COLUMNS, r["ledger"][-1])) for key, r in by.items()}
     for key in ("jelly-mls", "snow88", "sand"):
         assert last[key]["boundary"] < -1e-4 * runs.run_scale(by[key])
     for key in ("snow88", "sand"):
         assert last[key]["plastic"] < -1e-2 * runs.run_scale(by[key])
     assert abs(last["jelly-polypic"]["advection"]) > 1e-4 * runs.run_scale(by["jelly-polypic"])
+    # the asynchronous stork: its level interfaces exchange energy, which only its ledger has a term for
+    assert abs(last["stork2d"]["interface"]) > 1e-8 * runs.run_scale(by["stork2d"])
+    assert all(last[key]["interface"] == 0.0 for key in by if key != "stork2d")
     assert all(len(books) == 2 for books in result["compared"].values())
 
 
@@ -177,7 +181,7 @@ def test_report_writes_the_split_the_figures_and_the_per_particle_terms(result, 
     assert all(f"| {r['key']} |" in text for r in result["runs"]) and "FAIL" not in text
     sand = meshio.read(last_frame(tmp_path / "vtk" / "sand"))
     plastic = sand.point_data["ledger_plastic"]
-    last = dict(zip(COLUMNS, next(r for r in result["runs"] if r["key"] == "sand")["ledger"][-1]))
+    last = dict(zip(ASYNC_COLUMNS, next(r for r in result["runs"] if r["key"] == "sand")["ledger"][-1]))
     assert plastic.sum() == pytest.approx(last["plastic"], rel=1e-9) and plastic.min() < 0.0
     poly = meshio.read(last_frame(tmp_path / "vtk" / "jelly-polypic"))
     assert "ledger_advection" in poly.point_data and "ledger_plastic" not in poly.point_data
@@ -188,7 +192,7 @@ def test_tables_carry_each_runs_split(result):
     rows = {row["run"]: row for row in tables["split"]}
     assert set(rows) == set(result["params"].runs)
     for row in rows.values():
-        assert sum(row[t] for t in TERMS) == pytest.approx(row["energy_change"], abs=1e-12 * abs(row["E0"]) + 1e-15)
+        assert sum(row[t] for t in ASYNC_TERMS) == pytest.approx(row["energy_change"], abs=1e-12 * abs(row["E0"]) + 1e-15)
     json.dumps(tables, allow_nan=False)
     assert len(tables["candidate"]) == 2 * len(result["compared"])
 
@@ -206,5 +210,5 @@ def test_verify_writes_the_tables_into_results_json(monkeypatch, tmp_path):
     (entry,) = data["cases"]
     assert entry["backends"] == ["numpy", "numba"]
     assert [row["run"] for row in entry["tables"]["split"]] == ["jelly-mls", "sand"]
-    assert set(entry["tables"]["split"][0]) >= {"E0", "measured_change", *COLUMNS}
+    assert set(entry["tables"]["split"][0]) >= {"E0", "measured_change", *ASYNC_COLUMNS}
     assert np.isfinite(entry["tables"]["candidate"][0]["error"])

@@ -3,13 +3,13 @@ r"""Energy ledger: where each example's energy goes, stage by stage, and the sig
 Runs (NumPy reference unless another backend is asked for; the ledger on, ``[output] energy_ledger``):
 
 * **the examples** ``jelly`` (under each of the six schemes of the energy case), ``snow88``, ``sand``,
-  ``colliding_disks`` and ``cut2d`` (CPIC), each under its own method. The quick and default presets skip the free
+  ``colliding_disks``, ``cut2d`` (CPIC) and the asynchronous ``stork2d``, each under its own method. The quick and default presets skip the free
   flight before the first contact (each body moved along its free-fall path and given its velocity there, which
   every transfer reproduces exactly; :func:`~.runs.free_flight`) and run each example through its contact for a
   short span (:data:`~.runs.RUNS`); the quick preset also halves every grid. The full preset runs each example from
-  rest to its own end time. An asynchronous example joins as one more entry of :data:`~.runs.RUNS`, its ledger read
-  at synchronised times, once the asynchronous stepper books one (today a ledger with ``time.stepping = "async"``
-  is refused).
+  rest to its own end time. The stork's ledger is read at its synchronised times and has one more term,
+  ``interface`` (the exchanges across its level interfaces; zero in the synchronous runs); it is not compared
+  with the candidate, whose comparison books one synchronous step.
 * **the friction block**: an elastic block slides at 1 m/s on a ``separate`` floor with Coulomb friction
   :math:`\mu = 0.3` under :math:`g = 10`, 300 steps.
 * **the integration study**: the energy case's oscillating jelly (MLS-MPM) to 0.01 s (quick: 0.005 s) at

@@ -3,7 +3,8 @@
 Every combination of the variations becomes a :class:`~verification.study.runs.RunSpec` whose scene has been
 validated and sampled (:func:`verification.study.variations.run_scene`), with two output settings of the study's
 own: a diagnostics row every ``output.diagnostics_every`` steps (:data:`DIAGNOSTICS_EVERY` where the scene does not
-declare it) and the energy ledger, booked where the scene steps synchronously (unless the study is asked not to).
+declare it) and the energy ledger (unless the study is asked not to; an asynchronous scene's at its synchronised
+times, with its ``interface`` term).
 A run's files are named by its identity (:func:`~verification.study.runs.run_id`): ``runs/<id>.json`` and, with
 frames, ``frames/<id>/``.
 """
@@ -92,5 +93,5 @@ def study_output(data, ledger):
     if not isinstance(output, dict):
         return  # the validator names it
     output.setdefault("diagnostics_every", DIAGNOSTICS_EVERY)
-    if ledger and data.get("time", {}).get("stepping", "sync") == "sync":
+    if ledger:
         output["energy_ledger"] = True

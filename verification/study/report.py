@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mpmref.io.atomic import write_text_atomic
-from mpmref.ledger import TERMS
+from mpmref.ledger import ASYNC_TERMS
 
 from ..html_report import figure_html, page
 from ..report import NO_CAPTION, figure_caption, pyplot, save_figure
@@ -161,17 +161,18 @@ def plot_series(out, runs):
 
 def plot_ledger(out, runs):
     """``ledger.png``: each run's energy ledger at the end (bars per term), when the runs booked it."""
-    done = [r for r in runs if r.get("metrics") and f"ledger_{TERMS[0]}" in r["metrics"]]
+    done = [r for r in runs if r.get("metrics") and f"ledger_{ASYNC_TERMS[0]}" in r["metrics"]]
     if not done:
         return []
+    terms = [t for t in ASYNC_TERMS if all(f"ledger_{t}" in r["metrics"] for r in done)]  # interface: async only
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(max(8, 1.2 * len(done) + 3), 4.5))
-    width = 0.8 / len(TERMS)
-    for i, term in enumerate(TERMS):
-        ax.bar(np.arange(len(done)) + (i - len(TERMS) / 2 + 0.5) * width,
+    width = 0.8 / len(terms)
+    for i, term in enumerate(terms):
+        ax.bar(np.arange(len(done)) + (i - len(terms) / 2 + 0.5) * width,
                [r["metrics"][f"ledger_{term}"] for r in done], width, label=term)
     ax.set_xticks(range(len(done)), [label(r["params"]) for r in done], rotation=30, ha="right", fontsize=7)
-    largest = max(abs(r["metrics"][f"ledger_{t}"]) for r in done for t in TERMS)
+    largest = max(abs(r["metrics"][f"ledger_{t}"]) for r in done for t in terms)
     ax.set_yscale("symlog", linthresh=max(1e-4 * largest, 1e-300))
     ax.set_ylabel("energy booked / E(0) (symmetric log scale)")
     ax.axhline(0.0, color="k", lw=0.6)
