@@ -439,8 +439,12 @@ def test_async_case_reports_updates_wall_times_and_the_cost_of_a_level_update():
     assert a["counts"]["ghost_candidates"] > 0 and a["counts"]["ticks"] > 0
     table = render_async({"results": [r]})
     assert "stork2d" in table and "Accounting" in table
-    goal = next(g for g in goals({"async": {"results": [r]}}) if g.name.startswith("stork2d:"))
+    by_name = {g.name: g for g in goals({"async": {"results": [r]}})}
+    goal = by_name["stork2d: sync at the finest async step / async, wall time"]
     assert goal.figure == r["wall_ratio"] and goal.bound == 1.5 and "CFL step" in goal.where
+    control = by_name["stork2d: one-level control / sync, time, |ratio - 1|"]
+    assert control.figure == pytest.approx(abs(r["one_level_overhead"] - 1.0)) and control.at_most
+    assert by_name["stork2d-256: async efficiency, wall ratio / update ratio"].figure is None  # not run here
 
 
 def test_busy_section_times_one_and_two_threads_with_and_without_a_busy_core():

@@ -31,9 +31,11 @@ from .timing import measure, set_threads
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 #: case -> (example, cells along the first axis, simulated time of a timed run: full, quick). The 2D stork
-#: is also run at 4x the example's resolution (16x the particles), where the particles' work, not the
-#: per-update orchestration in Python, dominates a step.
-ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-256": ("stork2d", 256, 0.004, 0.0005),
+#: is also run at 2x and 4x the example's resolution (4x and 16x the particles), the 3D one at 4x: a series over
+#: particle count that shows where the particles' work, not the per-update orchestration, dominates a step and
+#: async starts to pay.
+ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-128": ("stork2d", 128, 0.008, 0.001),
+               "stork2d-256": ("stork2d", 256, 0.004, 0.0005),
                "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002)}
 
 
@@ -165,4 +167,13 @@ def render_async(section):
                      f"{r['cfl_wall_ratio']:>7.2f}x{r['one_level_overhead']:>8.2f}x"
                      f"{counts['ghost_candidates'] / n:>10.0f}{counts['zone_nodes'] / n:>10.0f}"
                      f"{counts['due_blocks'] / max(counts['ticks'], 1):>13.0f}")
+    lines += ["", "Over particle count (the series of each stork): wall x, and where async starts to pay (wall x >= 1)"]
+    for backend in sorted({r["backend"] for r in section["results"]}):
+        for dim in ("2d", "3d"):
+            series = sorted((r["particles"], r["wall_ratio"]) for r in section["results"]
+                            if r["backend"] == backend and dim in r["case"])
+            if series:
+                pays = next((f"from {n:,} particles" for n, wall in series if wall >= 1.0), "not in this series")
+                points = ", ".join(f"{n:,}: {wall:.2f}x" for n, wall in series)
+                lines.append(f"  stork {dim} {backend}: {points}; pays {pays}")
     return "\n".join(lines)

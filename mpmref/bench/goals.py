@@ -116,21 +116,24 @@ def _cpic(results):
     return (None, "") if r is None else (r["ratio"], f"{r['threads']} thread(s), float64")
 
 
-#: asynchronous stepping: wall time of sync at the finest async step over async, per bench case
-ASYNC_GOALS = (("stork2d-256", 3.0), ("stork3d-128", 2.5), ("stork2d", 1.5))
+#: asynchronous stepping, per bench case: the efficiency (wall ratio over update ratio, ghosts included) the large
+#: storks must reach, and the wall ratio (sync at the finest async step over async) of the example stork
+ASYNC_EFFICIENCY_GOALS = (("stork2d-256", 0.75), ("stork3d-128", 0.75))
+ASYNC_WALL_GOALS = (("stork2d", 1.5),)
+#: the one-level control (async on one level over sync at that step) within this fraction of 1
+ONE_LEVEL_OVERHEAD = 0.10
 
 
 def _async_ratio(results, case):
-    """The wall ratio of an async case, with where it stands: the ideal and work ratios it is bounded by, and the
-    comparison with synchronous stepping at its own CFL step (when the run measured them)."""
+    """An async case's result (``None`` when the run did not measure it), with where it stands: the ideal, work and
+    wall ratios and the comparison with synchronous stepping at its own CFL step."""
     r = _first((results.get("async") or {}).get("results", []), case=case, backend=BACKEND)
     if r is None:
         return None, ""
-    where = f"{r['threads']} thread(s), {r['particles']:,} particles"
-    if "cfl_wall_ratio" in r:
-        where += (f"; ideal {r['own_updates_ratio']:.2f}x, work {r['updates_ratio']:.2f}x; "
-                  f"sync at its CFL step / async {r['cfl_wall_ratio']:.2f}x")
-    return r["wall_ratio"], where
+    where = (f"{r['threads']} thread(s), {r['particles']:,} particles; ideal {r['own_updates_ratio']:.2f}x, "
+             f"work {r['updates_ratio']:.2f}x, wall {r['wall_ratio']:.2f}x; sync at its CFL step / async "
+             f"{r['cfl_wall_ratio']:.2f}x")
+    return r, where
 
 
 def goals(results):
@@ -158,9 +161,19 @@ def goals(results):
     out.append(Goal("mpm88 example, one core busy: 2 threads / 1 thread, time", figure, 1.3, True, where))
     figure, where = _cpic(results)
     out.append(Goal("CPIC step / step without bodies", figure, 1.5, True, where))
-    for case, bound in ASYNC_GOALS:
-        figure, where = _async_ratio(results, case)
+    for case, bound in ASYNC_EFFICIENCY_GOALS:
+        r, where = _async_ratio(results, case)
+        figure = None if r is None else r["implementation_efficiency"]
+        out.append(Goal(f"{case}: async efficiency, wall ratio / update ratio", figure, bound, where=where))
+    for case, bound in ASYNC_WALL_GOALS:
+        r, where = _async_ratio(results, case)
+        figure = None if r is None else r["wall_ratio"]
         out.append(Goal(f"{case}: sync at the finest async step / async, wall time", figure, bound, where=where))
+    for case in dict(ASYNC_EFFICIENCY_GOALS + ASYNC_WALL_GOALS):
+        r, where = _async_ratio(results, case)
+        figure = None if r is None else abs(r["one_level_overhead"] - 1.0)
+        out.append(Goal(f"{case}: one-level control / sync, time, |ratio - 1|", figure, ONE_LEVEL_OVERHEAD, True,
+                        where))
     return out
 
 
