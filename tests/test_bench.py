@@ -23,7 +23,8 @@ from mpmref.bench.report import render_peer
 from mpmref.bench.opcount import predicted_ratio
 from mpmref.conformance import relative_error
 from mpmref.bench.table2 import table2_ratios
-from mpmref.bench.scenes import Case, mpm88_scene, table2_cells, table2_particles, table2_scene, throughput_cases
+from mpmref.bench.scenes import (ThroughputCase, mpm88_scene, table2_cells, table2_particles, table2_scene,
+                                 throughput_cases)
 from mpmref.bodies import sample_particles
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -327,7 +328,7 @@ def test_taichi_peer_matches_the_numpy_reference_particle_by_particle(scene):
 
 def test_peer_section_reports_timings_and_centre_of_mass_agreement():
     pytest.importorskip("taichi")
-    section = run_peer([Case("mpm88", mpm88_scene, (512, 128))], ("numpy",), (1,), 1, 5, log=lambda m: None)
+    section = run_peer([ThroughputCase("mpm88", mpm88_scene, (512, 128))], ("numpy",), (1,), 1, 5, log=lambda m: None)
     assert section["available"] and section["dtype"] == "float32" and section["steps"] == 5
     (row,) = section["results"]
     assert row["backend"] == "numpy" and row["threads"] == 1 and row["particles"] == 512

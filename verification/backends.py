@@ -41,7 +41,7 @@ from mpmref.diagnostics import polypic_mode_norms
 from mpmref.io.atomic import write_text_atomic
 from mpmref.state import EVOLVING_FIELDS
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, checks_table
 from .executor import Executor
 from .momentum import VARIANT, VARIANTS
@@ -248,5 +248,5 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, backends_run=backends_run,
-            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, backends_run=backends_run,
+                        compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)
