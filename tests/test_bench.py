@@ -347,7 +347,7 @@ def test_numba_stages_and_scaling_records_are_consistent():
     """The Numba backend computes the stress inside P2G: the stress line is the stage timed alone; the scaling
     figures are the timed rates inverted, and one thread's speed-up over itself is 1."""
     pytest.importorskip("numba")
-    from mpmref.bench.stages import run_scaling, run_stages
+    from mpmref.bench.stage_times import run_scaling, run_stages
 
     stages = run_stages([c for c in throughput_cases(quick=True) if c.name == "mpm88"], ("numba",), (1,),
                         ("float32",), 2, log=lambda m: None)
