@@ -33,6 +33,9 @@ def _field(role, *, required=False, deformation=False):
 class Particles:
     """Particle arrays; ``n`` particles in ``d`` dimensions.
 
+    Each field declares its role (:data:`ROLES`: evolving, constant, identity, stepper or CPIC) in its metadata;
+    every list of fields by role derives from there (:func:`fields_with_role`, :data:`EVOLVING_FIELDS`, ...).
+
     Attributes
     ----------
     x, v : (n, d)        position and velocity
@@ -51,9 +54,6 @@ class Particles:
                          body, kept from step to step (:func:`mpmref.physics.cdf.update_tags`), or ``None``
     phi, normal, near : (n,), (n, d), (n,) bool   CPIC only: the particle's signed distance, normal and ``near``
                          flag reconstructed at the start of its last step (:func:`mpmref.physics.cdf.reconstruct`)
-
-    Each field declares its role (:data:`ROLES`: evolving, constant, identity, stepper or CPIC) in its metadata;
-    every list of fields by role derives from there (:func:`fields_with_role`, :data:`EVOLVING_FIELDS`, ...).
     """
 
     x: np.ndarray = _field("evolving", required=True)
