@@ -22,7 +22,7 @@ from ..state import Grid
 from .bodies import parse_bodies, parse_colliders, parse_emitters
 from .materials import parse_materials
 from .parsers import cell_size_field, parse_boundary, parse_grid, parse_method, parse_output, parse_time
-from .rigid import parse_rigid_bodies
+from .rigid_bodies import parse_rigid_bodies
 from .specs import BoundarySpec, CpicSpec, MethodSpec, OutputSpec, TimeSpec
 from .validation import choice, fail, integer, section, vector
 

@@ -1,6 +1,6 @@
 """The parsers of the scene's settings sections: ``[grid]``, ``[method]`` (with its CPIC options), ``[boundary]``,
 ``[time]`` and ``[output]``. The sections of things (materials, bodies, emitters, colliders, rigid bodies) have
-their own modules: :mod:`mpmref.scene.materials`, :mod:`mpmref.scene.bodies`, :mod:`mpmref.scene.rigid`.
+their own modules: :mod:`mpmref.scene.materials`, :mod:`mpmref.scene.bodies`, :mod:`mpmref.scene.rigid_bodies`.
 """
 
 import numpy as np
