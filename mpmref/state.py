@@ -10,11 +10,31 @@ from functools import cached_property
 
 import numpy as np
 
+#: the roles a field of :class:`Particles` declares (its metadata ``"role"``, read by :func:`fields_with_role`):
+#:
+#: * ``evolving``: what a step changes, the state of the motion and deformation (``x``, ``v``, ``C``, ``F``, ``J``,
+#:   ``Jp``, ``modes``);
+#: * ``constant``: set when the particle is made, never changed by a step (``mass``, ``vol0``, ``material``);
+#: * ``identity``: the stable ``id``;
+#: * ``stepper``: a stepper's own per-particle state (the asynchronous ``level``);
+#: * ``cpic``: CPIC's tags, kept from step to step, and its reconstructed distance, normal and ``near`` flag.
+ROLES = ("evolving", "constant", "identity", "stepper", "cpic")
+
+
+def _field(role, *, required=False, deformation=False):
+    """A field of :class:`Particles` with its ``role`` (one of :data:`ROLES`) in its metadata; ``None`` by default
+    unless ``required``. ``deformation``: a deformation field, carried by the particles whose material evolves it
+    (:func:`mpmref.physics.materials.evolved_fields`)."""
+    metadata = {"role": role, "deformation": deformation}
+    return field(metadata=metadata) if required else field(default=None, metadata=metadata)
 
 
 @dataclass
 class Particles:
     """Particle arrays; ``n`` particles in ``d`` dimensions.
+
+    Each field declares its role (:data:`ROLES`: evolving, constant, identity, stepper or CPIC) in its metadata;
+    every list of fields by role derives from there (:func:`fields_with_role`, :data:`EVOLVING_FIELDS`, ...).
 
     Attributes
     ----------
@@ -36,23 +56,23 @@ class Particles:
                          flag reconstructed at the start of its last step (:func:`mpmref.physics.cdf.reconstruct`)
     """
 
-    x: np.ndarray
-    v: np.ndarray
-    mass: np.ndarray
-    vol0: np.ndarray
-    material: np.ndarray
-    C: np.ndarray | None = None
-    F: np.ndarray | None = None
-    J: np.ndarray | None = None
-    Jp: np.ndarray | None = None
-    modes: np.ndarray | None = None
-    id: np.ndarray | None = None
-    level: np.ndarray | None = None
-    tag_A: np.ndarray | None = None
-    tag_T: np.ndarray | None = None
-    phi: np.ndarray | None = None
-    normal: np.ndarray | None = None
-    near: np.ndarray | None = None
+    x: np.ndarray = _field("evolving", required=True)
+    v: np.ndarray = _field("evolving", required=True)
+    mass: np.ndarray = _field("constant", required=True)
+    vol0: np.ndarray = _field("constant", required=True)
+    material: np.ndarray = _field("constant", required=True)
+    C: np.ndarray | None = _field("evolving")
+    F: np.ndarray | None = _field("evolving", deformation=True)
+    J: np.ndarray | None = _field("evolving", deformation=True)
+    Jp: np.ndarray | None = _field("evolving", deformation=True)
+    modes: np.ndarray | None = _field("evolving")
+    id: np.ndarray | None = _field("identity")
+    level: np.ndarray | None = _field("stepper")
+    tag_A: np.ndarray | None = _field("cpic")
+    tag_T: np.ndarray | None = _field("cpic")
+    phi: np.ndarray | None = _field("cpic")
+    normal: np.ndarray | None = _field("cpic")
+    near: np.ndarray | None = _field("cpic")
 
     def __post_init__(self):
         if self.id is None:
@@ -101,9 +121,24 @@ class Particles:
         return new
 
 
+def fields_with_role(*roles):
+    """The names of the fields of :class:`Particles` whose role (:data:`ROLES`) is one of ``roles``, in declaration
+    order."""
+    unknown = set(roles) - set(ROLES)
+    if unknown:
+        raise ValueError(f"unknown particle field role(s) {sorted(unknown)}; the roles are {list(ROLES)}")
+    return tuple(f.name for f in fields(Particles) if f.metadata["role"] in roles)
+
+
 #: every field of :class:`Particles`, in declaration order
 PARTICLE_FIELDS = tuple(f.name for f in fields(Particles))
 PARTICLE_FIELD_SET = frozenset(PARTICLE_FIELDS)
+#: the fields of each role (:data:`ROLES`), in declaration order
+EVOLVING_FIELDS = fields_with_role("evolving")
+CONSTANT_FIELDS = fields_with_role("constant")
+CPIC_FIELDS = fields_with_role("cpic")
+#: the deformation fields (``F``, ``J``, ``Jp``): each carried by the particles whose material evolves it
+DEFORMATION_FIELDS = tuple(f.name for f in fields(Particles) if f.metadata["deformation"])
 
 
 @dataclass(frozen=True)

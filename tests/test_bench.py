@@ -23,7 +23,8 @@ from mpmref.bench.report import render_peer
 from mpmref.bench.opcount import predicted_ratio
 from mpmref.conformance import relative_error
 from mpmref.bench.table2 import table2_ratios
-from mpmref.bench.scenes import Case, mpm88_scene, table2_cells, table2_particles, table2_scene, throughput_cases
+from mpmref.bench.scenes import (ThroughputCase, mpm88_scene, table2_cells, table2_particles, table2_scene,
+                                 throughput_cases)
 from mpmref.bodies import sample_particles
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -329,7 +330,7 @@ def test_taichi_peer_matches_the_numpy_reference_particle_by_particle(scene):
 
 def test_peer_section_reports_timings_and_centre_of_mass_agreement():
     pytest.importorskip("taichi")
-    section = run_peer([Case("mpm88", mpm88_scene, (512, 128))], ("numpy",), (1,), 1, 5, log=lambda m: None)
+    section = run_peer([ThroughputCase("mpm88", mpm88_scene, (512, 128))], ("numpy",), (1,), 1, 5, log=lambda m: None)
     assert section["available"] and section["dtype"] == "float32" and section["steps"] == 5
     (row,) = section["results"]
     assert row["backend"] == "numpy" and row["threads"] == 1 and row["particles"] == 512
@@ -348,7 +349,7 @@ def test_numba_stages_and_scaling_records_are_consistent():
     """The Numba backend computes the stress inside P2G: the stress line is the stage timed alone; the scaling
     figures are the timed rates inverted, and one thread's speed-up over itself is 1."""
     pytest.importorskip("numba")
-    from mpmref.bench.stages import run_scaling, run_stages
+    from mpmref.bench.stage_times import run_scaling, run_stages
 
     stages = run_stages([c for c in throughput_cases(quick=True) if c.name == "mpm88"], ("numba",), (1,),
                         ("float32",), 2, log=lambda m: None)

@@ -11,8 +11,8 @@ import pytest
 from helpers import valid_methods
 from mpmref.backends import BACKENDS
 from mpmref.backends.numpy import NumpyBackend
-from mpmref.conformance import (CONFORMANCE_STAGES, Case, add_parser, check, export, load_vectors, make_cases,
-                                relative_error)
+from mpmref.conformance import (CONFORMANCE_STAGES, ConformanceCase, add_parser, check, export, load_vectors,
+                                make_cases, relative_error)
 from mpmref.conformance.report import compare_outputs
 from mpmref.conformance.cases import CFL_RANGE, DEFAULT_RTOL, cfl_number, EDGE_CELLS, MIN_WEIGHT
 from mpmref.conformance.stages import STAGES_WITH_DT, particles_from
@@ -114,7 +114,7 @@ def test_float32_reference_is_within_a_tenth_of_its_tolerance_of_float64():
     """The float32 threshold leaves ten times the float32 reference's own error for the candidate (by the harness's
     error rule). Every output is float32 but the ledger's, which books in float64 whatever the run's dtype."""
     for case in make_cases(dtype="float32"):
-        wide = Case(case.stage, case.dim, case.variant, {**case.scene_dict, "dtype": "float64"})
+        wide = ConformanceCase(case.stage, case.dim, case.variant, {**case.scene_dict, "dtype": "float64"})
         inputs = case.inputs()
         exact = wide.reference({k: a.astype(np.float64) if a.dtype == np.float32 else a for k, a in inputs.items()})
         narrow = case.reference(inputs)

@@ -17,7 +17,7 @@ import pytest
 
 from mpmref.backends.numpy import backend as numpy_backend
 from verification import momentum, registry, warmup
-from verification.case import PRESETS, Case
+from verification.case import PRESETS, VerificationCase
 from verification.cli import add_parser
 from verification.common import Check
 from verification.report import case_record, pyplot, save_figure
@@ -61,9 +61,9 @@ def takes(function, *args, **kwargs):
 
 @pytest.mark.parametrize("name", registry.available())
 def test_every_registered_case_satisfies_the_case_protocol(name):
-    """Each case module declares a Case whose members take the arguments the framework passes them."""
+    """Each case module declares a VerificationCase whose members take the arguments the framework passes them."""
     case = registry.load(name)
-    assert isinstance(case, Case) and case.title and case.title == case.doc.strip().splitlines()[0]
+    assert isinstance(case, VerificationCase) and case.title and case.title == case.doc.strip().splitlines()[0]
     params = case.params("quick")
     assert takes(case.run, params, backend="numpy", executor=None)
     assert all(takes(member, "result") for member in (case.checks, case.findings))
@@ -102,8 +102,8 @@ def bare_report(result, out_dir):
 
 def test_a_case_with_only_the_required_members_gets_the_defaults(monkeypatch, tmp_path):
     """No findings, the backend asked for, nothing compiled ahead, not run alone, its first figure shown."""
-    bare = Case("A bare case.\n\nIt declares Params, run, checks and report only.", BareParams, bare_run,
-                bare_checks, bare_report)
+    bare = VerificationCase("A bare case.\n\nIt declares Params, run, checks and report only.", BareParams, bare_run,
+                            bare_checks, bare_report)
     assert bare.title == "A bare case."
     assert tuple(bare.findings({})) == () and tuple(bare.backends_run({}, "numba")) == ("numba",)
     assert bare.compiled_scenes(BareParams(), "numpy") == [] and bare.main_figure is None and not bare.runs_alone

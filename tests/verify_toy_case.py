@@ -9,7 +9,7 @@ declares that it ran two backends, as the cases that compare backends do.
 from dataclasses import dataclass
 from pathlib import Path
 
-from verification.case import Case
+from verification.case import VerificationCase
 from verification.common import Check, Finding
 from verification.report import pyplot, save_figure
 
@@ -59,4 +59,5 @@ def report(result, out_dir):
     return out
 
 
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+                        main_figure=MAIN_FIGURE)

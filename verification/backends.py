@@ -39,8 +39,9 @@ from mpmref.conformance import relative_error
 from mpmref.conformance.cases import MATERIALS
 from mpmref.diagnostics import polypic_mode_norms
 from mpmref.io.atomic import write_text_atomic
+from mpmref.state import EVOLVING_FIELDS
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, checks_table
 from .executor import Executor
 from .momentum import VARIANT, VARIANTS
@@ -49,7 +50,9 @@ from .report import pyplot, save_figure, snapshot, write_series
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "difference_growth.png"
 
-FIELDS = ("x", "v", "C", "F", "J", "Jp")
+#: the particle arrays compared row by row: the evolving ones but the PolyPIC modes (compared by
+#: :func:`mode_difference`)
+COMPARED_FIELDS = tuple(name for name in EVOLVING_FIELDS if name != "modes")
 ONE_STEP_RTOL = 1e-12
 
 
@@ -119,7 +122,7 @@ def differences(ref, cand):
     for mat_id, name in enumerate(ref.scene.materials):
         sel = p.material == mat_id
         out[name] = {f: relative_error(getattr(q, f)[sel], getattr(p, f)[sel])
-                     for f in FIELDS if getattr(p, f) is not None}
+                     for f in COMPARED_FIELDS if getattr(p, f) is not None}
         if norms is not None:
             out[name]["modes"] = mode_difference(q.modes[sel], p.modes[sel], norms[sel], p.v[sel])
     return out
@@ -245,5 +248,5 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, backends_run=backends_run,
-            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, backends_run=backends_run,
+                        compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)

@@ -1,6 +1,6 @@
 """The contract of a verification case: what ``mpmref verify`` runs, judges and reports.
 
-A case module under ``verification/`` declares one :class:`Case`, named ``CASE``, from its functions; the
+A case module under ``verification/`` declares one :class:`VerificationCase`, named ``CASE``, from its functions; the
 registry (:mod:`verification.registry`) maps the case's name to its module and reads ``CASE`` when the case
 runs. Four members are required (``Params``, ``run``, ``checks``, ``report``); every other member has a
 default that says what a case without it means, so the framework calls each member directly.
@@ -34,7 +34,7 @@ def no_compiled_scenes(params, backend):
 
 
 @dataclass(frozen=True)
-class Case:
+class VerificationCase:
     """One verification case.
 
     Attributes
@@ -95,3 +95,7 @@ class Case:
         if preset not in PRESETS:
             raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
         return {"quick": self.Params.quick, "default": self.Params, "full": self.Params.full}[preset]()
+
+
+#: the former name, kept only until verification/sync_vs_async.py imports :class:`VerificationCase` (then removed)
+Case = VerificationCase

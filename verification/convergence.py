@@ -38,7 +38,7 @@ from mpmref.steppers.limits import cfl_time_step
 
 from ._conv_problems import PROBLEMS
 from ._conv_stepping import TREATMENTS, advance
-from .case import Case
+from .case import VerificationCase
 from .common import Check, Finding, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure
@@ -435,4 +435,4 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, main_figure=MAIN_FIGURE)

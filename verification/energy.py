@@ -47,7 +47,7 @@ from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 from mpmref.ledger import TERMS
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, checks_table
 from .executor import Executor
 from .momentum import VARIANT, VARIANTS
@@ -288,4 +288,4 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)

@@ -39,7 +39,7 @@ import numpy as np
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
 from mpmref.stability import StabilityWarning
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, Finding, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure
@@ -410,4 +410,4 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, main_figure=MAIN_FIGURE)

@@ -37,7 +37,7 @@ from mpmref.physics.materials import FixedCorotated
 from mpmref.physics.scheme import resolve
 from mpmref.scene import MethodSpec
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, checks_table
 from .executor import Executor
 from .report import pyplot, save_figure, snapshot, write_series
@@ -336,4 +336,4 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)

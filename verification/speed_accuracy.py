@@ -36,7 +36,7 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 
 from .backends import trajectory_bound
-from .case import Case
+from .case import VerificationCase
 from .common import Check, Finding, checks_table
 from .convergence import LevelRun, Series, run_level
 from .executor import Executor
@@ -282,5 +282,5 @@ def report(result, out_dir):
 
 #: this case, for the registry; it times its runs, so ``mpmref verify`` starts it only after the background
 #: compilation has ended (:mod:`verification.warmup`): no compilation shares the machine with the timed runs
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
-            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE, runs_alone=True)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+                        compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE, runs_alone=True)

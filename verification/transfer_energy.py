@@ -23,7 +23,7 @@ from mpmref import SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 from mpmref.steppers import substep
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, checks_table
 from .report import pyplot, save_figure
 
@@ -180,4 +180,4 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, main_figure=MAIN_FIGURE)

@@ -29,8 +29,8 @@ Asynchronous stepping (:mod:`mpmref.steppers.asynchronous`) adds two stages, :da
 
 A backend that couples rigid bodies by CPIC (:class:`CoupledBackend`, docs/cpic.md) has three more,
 :data:`CPIC_BACKEND_STAGES`: ``cpic_contact`` (the colored distance field, the particles' tags and the
-step's :class:`Contact`), ``cpic_impulses`` (what incompatible nodes did not receive, as impulses on the
-bodies) and ``cpic_g2p`` (G2P with ghost velocities and the penalty). Every backend of
+step's contact, the backend's own object: :class:`mpmref.backends.numpy.cpic.NumpyContact` in the reference),
+``cpic_impulses`` (what incompatible nodes did not receive, as impulses on the bodies) and ``cpic_g2p`` (G2P with ghost velocities and the penalty). Every backend of
 :data:`mpmref.backends.BACKENDS` is both; :func:`mpmref.backends.make_backend` checks it.
 
 A backend may also have ``p2g_fused(particles, dt, prepared=None)`` (:class:`FusedBackend`): P2G with the step's
@@ -102,7 +102,7 @@ class CoupledBackend(Backend, Protocol):
     """A backend that also couples rigid bodies by CPIC (see the module docstring)."""
 
     def cpic_contact(self, particles, prepared, rigid, dt):
-        """-> (particles, Contact): the colored distance field and the particles' tags"""
+        """-> (particles, contact): the colored distance field and the particles' tags"""
 
     def cpic_impulses(self, grid_state, contact, rigid, dt):
         """-> (J, L): impulses on the bodies of what incompatible nodes did not receive"""

@@ -20,7 +20,7 @@ Sections of the JSON document (each ``null`` when not run):
   ``async`` the split ``stages_s``/``stepping_s`` and the bookkeeping's ``counts``; :mod:`mpmref.bench.asynchronous`).
 * ``stages``: ``stages`` and ``results`` (case, backend, threads, dtype, particles, ``step_s``, ``stages_s``
   per stage, ``stress_inside_p2g``, ``stress_alone_s``, ``p2g_fused`` whether the step's P2G was the fused one;
-  :mod:`mpmref.bench.stages`).
+  :mod:`mpmref.bench.stage_times`).
 * ``scaling``: ``sizes`` (dim, cells, particles, a timing record, ``ns_per_particle_step``) and ``threads``
   (the 262 144-particle 2D case at each thread count, ``speedup_over_1``).
 * ``domain``: ``domains``, ``body_cells`` and ``results`` (backend, dtype, threads, cells, nodes, particles, a

@@ -6,7 +6,7 @@ same particles are stepped twice from the same state: with the three bodies coup
 scene without them (no ``[[rigid_bodies]]``, ``coupling = "none"``). Both are whole steps of
 :func:`mpmref.steppers.substep` (the coupled one with the bodies' state), the median of ``repeats`` runs of
 ``steps`` steps, compilation excluded (reported as ``first_call_s``). The coupled step's stages are also
-timed inside real steps (:class:`mpmref.bench.stages.TimedStages`): ``cpic_contact`` (the field, the tags and
+timed inside real steps (:class:`mpmref.bench.stage_times.TimedStages`): ``cpic_contact`` (the field, the tags and
 the fit, the stress), ``p2g``, ``cpic_impulses``, ``grid_update``, ``cpic_g2p``, ``return_map``. Float64
 only (the CPIC kernels keep the field and the fit in float64).
 """
@@ -21,7 +21,7 @@ from ..physics.rigid_dynamics import initial_state
 from ..scene import SceneBuilder
 from ..steppers import substep
 from ..steppers.synchronous import with_cpic_tags
-from .stages import TimedStages
+from .stage_times import TimedStages
 from .timing import measure, set_threads, thread_counts
 
 #: cells across the unit domain: the benchmark, and ``--quick``

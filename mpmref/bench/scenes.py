@@ -89,7 +89,7 @@ def fluid3d_scene(cells=64, dtype="float64"):
 
 
 @dataclass(frozen=True)
-class Case:
+class ThroughputCase:
     """A throughput case: a scene builder and its arguments (the dtype is chosen per run)."""
 
     name: str
@@ -105,7 +105,7 @@ def throughput_cases(quick=False):
     65 536 particles) and ``large2d`` (262 144 particles, 512² grid); tiny versions if ``quick``."""
     sizes = QUICK_SIZES if quick else THROUGHPUT_SIZES
     builders = {"mpm88": mpm88_scene, "fluid3d": fluid3d_scene, "large2d": mpm88_scene}
-    return [Case(name, builders[name], sizes[name]) for name in ("mpm88", "fluid3d", "large2d")]
+    return [ThroughputCase(name, builders[name], sizes[name]) for name in ("mpm88", "fluid3d", "large2d")]
 
 
 def peer_cases(quick=False):

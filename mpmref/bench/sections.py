@@ -17,7 +17,7 @@ from .ledger import render_ledger, run_ledger
 from .peer import run_peer
 from .report import render_peer, render_table2, render_throughput
 from .scenes import peer_cases, throughput_cases
-from .stages import plot_scaling, render_scaling, render_stages, run_scaling, run_stages
+from .stage_times import plot_scaling, render_scaling, render_stages, run_scaling, run_stages
 from .table2 import run_table2
 from .throughput import run_throughput
 

@@ -79,12 +79,12 @@ energy scale :math:`S` (:func:`.report.output_scale`): a term theory puts at zer
 error is one factor everywhere, that factor (:mod:`.diagnosis`).
 """
 
-from .cases import Case, make_cases, valid_methods
+from .cases import ConformanceCase, make_cases, valid_methods
 from .cli import add_parser
 from .report import CaseResult, Report, check, relative_error, stage_functions
 from .stages import ALL_CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, CONFORMANCE_STAGES
 from .vectors import export, load_vectors
 
-__all__ = ["ALL_CONFORMANCE_STAGES", "CPIC_CONFORMANCE_STAGES", "CONFORMANCE_STAGES", "Case", "CaseResult", "Report",
-           "add_parser", "check", "export", "load_vectors", "make_cases", "relative_error", "stage_functions",
+__all__ = ["ALL_CONFORMANCE_STAGES", "CPIC_CONFORMANCE_STAGES", "CONFORMANCE_STAGES", "CaseResult", "ConformanceCase",
+           "Report", "add_parser", "check", "export", "load_vectors", "make_cases", "relative_error", "stage_functions",
            "valid_methods"]

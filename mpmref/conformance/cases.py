@@ -295,7 +295,7 @@ def _as_dtype(flat, dtype):
 
 # -------------------------------------------------------------------------------------------- cases
 @dataclass(frozen=True, eq=False)
-class Case:
+class ConformanceCase:
     """One stage of a backend on one scene, with a seeded random state.
 
     Attributes
@@ -391,7 +391,7 @@ def cpic_methods():
 
 
 def _cpic_case(stage, label, method, dim=2):
-    return Case(stage, dim, label, cpic_scene_dict(scene_dict(dim, TRANSFER_MATERIALS), method))
+    return ConformanceCase(stage, dim, label, cpic_scene_dict(scene_dict(dim, TRANSFER_MATERIALS), method))
 
 
 def _cpic_cases(stage, dim, dtype):
@@ -433,7 +433,7 @@ def drawn_case(stage, dim, variant, dtype, materials, method=None, boundary=None
     declared = scene_dict(dim, materials, method, boundary, collider_dicts(dim, grid) if colliders else (), dtype,
                           grid)
     declared["time"] = {"dt": draw_step(label, Scene.from_dict(declared))}
-    return Case(stage, dim, variant, declared, dtype)
+    return ConformanceCase(stage, dim, variant, declared, dtype)
 
 
 def _material_cases(stage, dim, dtype, set_names):
@@ -480,7 +480,8 @@ _STAGE_CASES = {
 
 
 def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", materials=None):
-    """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of :class:`Case`).
+    """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of
+    :class:`ConformanceCase`).
 
     The default is the seven stages of every backend (its six and the energy ledger of a step); the CPIC stages
     (:data:`.stages.CPIC_CONFORMANCE_STAGES`, 2D and float64 only) are included when asked for, e.g.

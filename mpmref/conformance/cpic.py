@@ -40,15 +40,15 @@ orientation quaternion (nb, 4) and ``rigid_angular_velocity``, ``rigid_angular_i
 
 import numpy as np
 
+from dataclasses import fields
+
 from ..physics.rigid_dynamics import RigidState
 from ..physics.rigid_dynamics3d import quaternion_from_rotation_vector
-from ..state import Particles
-from .stages import with_running
-#: the particle fields of a CPIC state besides the plain ones
-TAG_FIELDS = ("tag_A", "tag_T", "phi", "normal", "near")
-RIGID_FIELDS = ("position", "angle", "velocity", "angular_velocity", "impulse", "angular_impulse")
-PLAIN_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp")
-EVOLVING = ("x", "v", "C", "F", "J", "Jp")
+from ..state import CPIC_FIELDS
+from .stages import particle_outputs, particles_from, with_running
+
+#: the fields of the bodies' state (:class:`~mpmref.physics.rigid_dynamics.RigidState`), flat as ``rigid_<field>``
+RIGID_STATE_FIELDS = tuple(f.name for f in fields(RigidState) if f.init)
 
 #: the bodies of every CPIC case (unit box, 8 cells): a dynamic "V", a scripted turning triangle, a fixed segment
 BODIES = (
@@ -113,19 +113,18 @@ def _random_state_3d(flat, rng, center, moving):
 
 
 def rigid_from(flat):
-    return RigidState(**{k: np.array(flat[f"rigid_{k}"]) for k in RIGID_FIELDS})
+    return RigidState(**{k: np.array(flat[f"rigid_{k}"]) for k in RIGID_STATE_FIELDS})
 
 
 def rigid_outputs(rigid):
-    return {f"rigid_{k}": getattr(rigid, k) for k in RIGID_FIELDS}
+    return {f"rigid_{k}": getattr(rigid, k) for k in RIGID_STATE_FIELDS}
 
 
 def cpic_particles(flat):
     """The particles of ``flat`` with their previous tags (distance, normal and ``near`` start at zero)."""
     n, d = flat["x"].shape
-    p = Particles(**{k: np.array(flat[k]) for k in PLAIN_FIELDS if k in flat})
-    return p.with_(tag_A=np.array(flat["tag_A"]), tag_T=np.array(flat["tag_T"]), phi=np.zeros(n),
-                   normal=np.zeros((n, d)), near=np.zeros(n, dtype=bool))
+    return particles_from(flat).with_(tag_A=np.array(flat["tag_A"]), tag_T=np.array(flat["tag_T"]), phi=np.zeros(n),
+                                      normal=np.zeros((n, d)), near=np.zeros(n, dtype=bool))
 
 
 def _contact(backend, flat):
@@ -145,7 +144,7 @@ def tags_stage(backend, flat):
     particles, _, contact = _contact(backend, flat)
     fit = contact.per_body_fit
     per_body = {} if fit is None else {"fit_phi": fit[0], "fit_normal": fit[1], "fit_near": fit[2]}
-    return {**{k: getattr(particles, k) for k in TAG_FIELDS}, "compatible": contact.compatible, **per_body}
+    return {**{k: getattr(particles, k) for k in CPIC_FIELDS}, "compatible": contact.compatible, **per_body}
 
 
 def p2g_stage(backend, flat):
@@ -161,7 +160,7 @@ def g2p_stage(backend, flat):
     particles, prepared, contact = _contact(backend, flat)
     new, (J, L) = backend.cpic_g2p(particles, np.array(flat["grid_v"]), float(flat["dt"]), prepared, contact,
                                    rigid_from(flat))
-    return {**_evolving(new), "penalty_J": J, "penalty_L": L}
+    return {**particle_outputs(new), "penalty_J": J, "penalty_L": L}
 
 
 def step_stage(backend, flat):
@@ -169,11 +168,7 @@ def step_stage(backend, flat):
 
     new, rigid = substep(with_running(backend), cpic_particles(flat), float(flat["dt"]), float(flat["time"]),
                          rigid=rigid_from(flat))
-    return {**_evolving(new), **{k: getattr(new, k) for k in TAG_FIELDS}, **rigid_outputs(rigid)}
-
-
-def _evolving(particles):
-    return {k: getattr(particles, k) for k in EVOLVING if getattr(particles, k) is not None}
+    return {**particle_outputs(new), **{k: getattr(new, k) for k in CPIC_FIELDS}, **rigid_outputs(rigid)}
 
 
 #: each CPIC stage as ``runner(backend, flat) -> flat outputs``

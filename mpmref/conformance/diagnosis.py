@@ -17,9 +17,8 @@ and whether it is one uniform ratio.
 import numpy as np
 
 from ..physics.materials import evolved_fields
+from ..state import DEFORMATION_FIELDS
 
-#: the particle fields that only some materials carry (see the module docstring)
-MATERIAL_FIELDS = ("F", "J", "Jp")
 #: output names whose rows are grid nodes
 NODE_PREFIXES = ("grid_", "cdf_")
 
@@ -31,7 +30,7 @@ def compared_rows(scene, inputs):
         return {}
     material = np.asarray(inputs["material"])
     rows = {}
-    for name in MATERIAL_FIELDS:
+    for name in DEFORMATION_FIELDS:  # the fields only some materials carry (module docstring)
         ids = [i for i, m in enumerate(scene.material_list) if name in evolved_fields(m)]
         rows[name] = np.isin(material, ids)
     return rows

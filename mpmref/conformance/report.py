@@ -228,7 +228,7 @@ def check(candidate, cases=None, rtol=None, progress=False):
     ----------
     candidate : str, mapping or callable
         What to check; see :func:`stage_functions`. A factory is called once per distinct scene.
-    cases : iterable of :class:`~mpmref.conformance.cases.Case`, optional
+    cases : iterable of :class:`~mpmref.conformance.cases.ConformanceCase`, optional
         Default :func:`~mpmref.conformance.cases.make_cases` ``()``.
     rtol : float, optional
         Pass threshold on each case's relative error (:func:`relative_error`, largest over its outputs).

@@ -23,7 +23,7 @@ from contextlib import nullcontext
 import numpy as np
 
 from ..ledger import COLUMNS, EnergyLedger
-from ..state import GridState, Particles
+from ..state import EVOLVING_FIELDS, GridState, Particles, fields_with_role
 
 CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "p2g_fused", "grid_update", "g2p", "step", "ledger")
 #: the stages of backends that couple rigid bodies by CPIC (run through :mod:`mpmref.conformance.cpic`)
@@ -36,14 +36,14 @@ STAGES_WITH_DT = ("p2g_fused", "grid_update", "g2p", "step", "ledger")
 STAGES_WITH_TIME = ("grid_update", "step", "ledger")
 #: the outputs of the ledger stage: one step's ledger columns, then the energy scale of its input state
 LEDGER_OUTPUTS = (*(f"ledger_{c}" for c in COLUMNS), "energy_scale")
-PARTICLE_FIELDS = ("x", "v", "mass", "vol0", "material", "C", "F", "J", "Jp", "modes")
-#: the particle fields a stage may change: the outputs of ``return_map``, ``g2p`` and ``step``
-EVOLVING_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
+#: the particle fields of a case's flat dicts: the evolving and the constant ones (:data:`mpmref.state.ROLES`); the
+#: evolving ones are those a stage may change, the outputs of ``return_map``, ``g2p`` and ``step``
+CASE_PARTICLE_FIELDS = fields_with_role("evolving", "constant")
 
 
 def particles_from(flat):
     """A fresh :class:`~mpmref.state.Particles` (copied arrays) from the particle entries of ``flat``."""
-    return Particles(**{k: np.array(flat[k]) for k in PARTICLE_FIELDS if k in flat})
+    return Particles(**{k: np.array(flat[k]) for k in CASE_PARTICLE_FIELDS if k in flat})
 
 
 def particle_outputs(particles):

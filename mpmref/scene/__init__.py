@@ -7,7 +7,7 @@ The package, bottom up: :mod:`~mpmref.scene.validation` (the checks: numbers, in
 flags, tables), :mod:`~mpmref.scene.specs` (the validated sections: :class:`MethodSpec`, :class:`CpicSpec`,
 ...), the parsers of the sections (:mod:`~mpmref.scene.parsers` for grid, method, boundary, time and output;
 :mod:`~mpmref.scene.materials`, derived from the materials' own declarations; :mod:`~mpmref.scene.bodies` for
-bodies, emitters and colliders; :mod:`~mpmref.scene.rigid` for the CPIC rigid bodies, 2D and 3D), and
+bodies, emitters and colliders; :mod:`~mpmref.scene.rigid_bodies` for the CPIC rigid bodies, 2D and 3D), and
 :mod:`~mpmref.scene.builder` (:class:`Scene`, which runs them all, and :class:`SceneBuilder`).
 """
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import limits
+from .. import memory_limits
 from ..errors import SceneError
 from ..physics.kernels import get_kernel
 from ..physics.scheme import resolve
@@ -22,7 +22,7 @@ from ..state import Grid
 from .bodies import parse_bodies, parse_colliders, parse_emitters
 from .materials import parse_materials
 from .parsers import cell_size_field, parse_boundary, parse_grid, parse_method, parse_output, parse_time
-from .rigid import parse_rigid_bodies
+from .rigid_bodies import parse_rigid_bodies
 from .specs import BoundarySpec, CpicSpec, MethodSpec, OutputSpec, TimeSpec
 from .validation import choice, fail, integer, section, vector
 
@@ -86,11 +86,11 @@ class Scene:
         rigid_bodies = parse_rigid_bodies(data.get("rigid_bodies", []), dim, grid, cpic, time, base_dir)
         output = parse_output(data.get("output", {}), time)
         emitters = parse_emitters(data.get("emitters", []), dim, materials, grid, get_kernel(method.kernel), time)
-        limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
-                                   "transfer": resolve(method, dim, list(materials.values())),
-                                   "bodies": bodies, "colliders": colliders,
-                                   "grid_field": cell_size_field(data["grid"])[0],
-                                   "grid_value": cell_size_field(data["grid"])[1]})
+        memory_limits.check_scene_memory({"dim": dim, "dtype": dtype, "grid": grid,
+                                          "transfer": resolve(method, dim, list(materials.values())),
+                                          "bodies": bodies, "colliders": colliders,
+                                          "grid_field": cell_size_field(data["grid"])[0],
+                                          "grid_value": cell_size_field(data["grid"])[1]})
         name = data.get("name", "scene")
         if not isinstance(name, str) or not name or any(c in name for c in "/\\"):
             fail("name", name, "a non-empty string without path separators")

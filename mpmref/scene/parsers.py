@@ -1,11 +1,11 @@
 """The parsers of the scene's settings sections: ``[grid]``, ``[method]`` (with its CPIC options), ``[boundary]``,
 ``[time]`` and ``[output]``. The sections of things (materials, bodies, emitters, colliders, rigid bodies) have
-their own modules: :mod:`mpmref.scene.materials`, :mod:`mpmref.scene.bodies`, :mod:`mpmref.scene.rigid`.
+their own modules: :mod:`mpmref.scene.materials`, :mod:`mpmref.scene.bodies`, :mod:`mpmref.scene.rigid_bodies`.
 """
 
 import numpy as np
 
-from .. import limits
+from .. import memory_limits
 from ..physics.boundary import BOUNDARY_TYPES
 from ..physics.kernels import KERNELS
 from ..state import Grid
@@ -46,7 +46,7 @@ def parse_grid(g, dim, support):
     else:
         dx = size[0] / integer(g, "cells", "grid", lo=4, hi=4096)
     cells_f = size / dx
-    limits.check_cells_per_axis(cells_f, *cell_size_field(g), dim)
+    memory_limits.check_cells_per_axis(cells_f, *cell_size_field(g), dim)
     cells = np.rint(cells_f).astype(int)
     if np.any(np.abs(cells_f - cells) > 1e-9 * cells_f) or np.any(cells < 4):
         fail("grid.size", size.tolist(), f"a whole number (>= 4) of cells of dx = {dx} along every axis")

@@ -1,7 +1,7 @@
 """The validated parts of a scene: what each section of a scene file declares, once checked.
 
 The parsers (:mod:`mpmref.scene.parsers`, :mod:`~mpmref.scene.materials`, :mod:`~mpmref.scene.bodies`,
-:mod:`~mpmref.scene.rigid`) build these; :class:`mpmref.scene.Scene` holds them.
+:mod:`~mpmref.scene.rigid_bodies`) build these; :class:`mpmref.scene.Scene` holds them.
 """
 
 from dataclasses import dataclass

@@ -53,7 +53,7 @@ and what each measures, :func:`~verification.cpic.measurements.run`), :mod:`.res
 :mod:`.reporting` (checks, findings, figures and tables).
 """
 
-from ..case import Case
+from ..case import VerificationCase
 from .measurements import components, parts, run, run_part
 from .reporting import backends_run, checks, findings, report
 from .scenes import Params
@@ -62,8 +62,8 @@ from .scenes import Params
 MAIN_FIGURE = "momentum.png"
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
-            main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+                        main_figure=MAIN_FIGURE)
 
 __all__ = ["CASE", "MAIN_FIGURE", "Params", "backends_run", "checks", "components", "findings", "parts", "report",
            "run", "run_part"]

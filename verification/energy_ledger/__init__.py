@@ -61,7 +61,7 @@ The case is a package: :mod:`.runs` (its parameters, scenes and simulations) and
 findings, tables and figures).
 """
 
-from ..case import Case
+from ..case import VerificationCase
 from ..executor import Executor
 from .reporting import checks, findings, report, tables
 from .runs import RUN, Params, candidate_of, compared_runs, example_scene, parts, run_part
@@ -96,8 +96,8 @@ def compiled_scenes(params, backend="numpy"):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
-            compiled_scenes=compiled_scenes, tables=tables, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+                        compiled_scenes=compiled_scenes, tables=tables, main_figure=MAIN_FIGURE)
 
 __all__ = ["CASE", "MAIN_FIGURE", "Params", "backends_run", "checks", "compiled_scenes", "findings", "report", "run",
            "tables"]

@@ -35,7 +35,8 @@ def _or_empty(array, dtype, *shape):
 
 
 def _stress_adapter(kernel):
-    """A :class:`~mpmref.backends.base.MaterialTable` stress kernel from one of :data:`.materials.KERNELS`."""
+    """A :class:`~mpmref.backends.base.MaterialTable` stress kernel from one of
+    :data:`.materials.MATERIAL_ARRAY_KERNELS`."""
     def stress(material, particles, idx, tau):
         n, d = particles.x.shape
         dtype = particles.x.dtype
@@ -45,7 +46,8 @@ def _stress_adapter(kernel):
 
 
 #: the Numba material kernels in the shape of :class:`~mpmref.backends.base.MaterialTable`
-KERNELS = {cls: (_stress_adapter(stress), return_map) for cls, (stress, return_map) in materials.KERNELS.items()}
+MATERIAL_KERNELS = {cls: (_stress_adapter(stress), return_map)
+                    for cls, (stress, return_map) in materials.MATERIAL_ARRAY_KERNELS.items()}
 
 
 #: P2G hands out slabs when each of their two colours has at least this many, else single blocks in
@@ -120,7 +122,7 @@ class NumbaBackend:
         self.wall_type = np.array([WALL_CODES[w.type] for w in walls], dtype=np.int64)
         self.wall_friction = np.array([w.friction for w in walls], dtype=np.float64)
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
-        self.materials = MaterialTable(scene.material_list, KERNELS)
+        self.materials = MaterialTable(scene.material_list, MATERIAL_KERNELS)
         self.fluid_params = materials.fluid_parameters(scene.material_list)
         self.wave_params = materials.wave_parameters(scene.material_list)
         self.buffers = BufferPool(self.dtype)

@@ -2,8 +2,8 @@ r"""Materials of the Numba backend: Kirchhoff stress and return map, one particl
 
 The equations are those of :mod:`mpmref.physics.materials` and :mod:`mpmref.physics.plasticity` (see their
 docstrings for sources and symbols). Each material has a stress kernel and, if plastic, a return-map
-kernel over the index list of its particles; :data:`KERNELS` maps a material class to them and to the
-parameters they take. Adding a material adds its kernels and one entry here.
+kernel over the index list of its particles; :data:`MATERIAL_ARRAY_KERNELS` maps a material class to them and to
+the parameters they take. Adding a material adds its kernels and one entry here.
 
 The singular value and polar decompositions are the fast ones of :mod:`mpmref.backends.numba.svd` (closed form in 2D, Jacobi
 sweeps and a Givens QR in 3D; :mod:`mpmref.physics.svd` gives the method and its accuracy), not LAPACK's
@@ -242,7 +242,7 @@ def _elastic(kernel):
 
 
 #: material class -> (stress(material, F, J, Jp, idx, tau), return_map(material, F, Jp, idx) or None)
-KERNELS = {
+MATERIAL_ARRAY_KERNELS = {
     FixedCorotated: (_elastic(fixed_corotated_stress), None),
     NeoHookean: (_elastic(neo_hookean_stress), None),
     WeaklyCompressibleFluid: (lambda m, F, J, Jp, idx, tau: fluid_stress(J, idx, m.K, m.gamma, tau), None),

@@ -16,8 +16,8 @@ def _return_map_kernel(material, F, Jp, idx):
 
 
 #: the reference's material kernels: every material's own NumPy methods
-KERNELS = {cls: (_stress_kernel, _return_map_kernel if getattr(cls, "plastic", False) else None)
-           for cls in MATERIALS.values()}
+MATERIAL_KERNELS = {cls: (_stress_kernel, _return_map_kernel if getattr(cls, "plastic", False) else None)
+                    for cls in MATERIALS.values()}
 
 
 class NumpyBackend:
@@ -33,7 +33,7 @@ class NumpyBackend:
     def __init__(self, scene):
         self.scene = scene
         self.kernel = scene.kernel
-        self.materials = MaterialTable(scene.material_list, KERNELS)
+        self.materials = MaterialTable(scene.material_list, MATERIAL_KERNELS)
         self.bands = transfers.wall_bands(scene.grid, scene.boundary.width)
         self.gravity = scene.gravity.astype(scene.dtype)
         self.node_x = scene.grid.node_positions() if scene.colliders else None

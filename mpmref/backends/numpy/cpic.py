@@ -28,7 +28,7 @@ from .transfers import node_index
 
 
 @dataclass
-class Contact:
+class NumpyContact:
     """What one CPIC step's transfers need, per stencil offset ``k`` (``K`` offsets) and particle.
 
     Attributes
@@ -136,7 +136,7 @@ def force_velocity(stencil, offset, gradient_weight, particles, tau, dt):
 
 
 def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient_weight, ghost_force, per_body=False):
-    r"""Build the step's :class:`Contact` and return ``(particles with updated tags, contact)``.
+    r"""Build the step's :class:`NumpyContact` and return ``(particles with updated tags, contact)``.
 
     The field is rebuilt from the bodies' current pose (:func:`mpmref.physics.cdf.build_cdf`, docs/cpic.md); the
     tags are updated with sticky side memory and the distance :math:`\phi_p`, normal :math:`\mathbf n_p`
@@ -168,9 +168,9 @@ def contact(particles, prepared, bodies, rigid, grid, dt, gravity, tau, gradient
         mu.append(friction[r, T[rows, r].astype(int)])
         a.append(force_velocity(stencil, offset, gradient_weight, particles, tau, dt) if ghost_force
                  else np.zeros_like(particles.v))
-    c = Contact(cdf=cdf, compatible=np.array(compat), node=np.array(nodes), body=np.array(body),
-                node_x=np.array(node_x),
-                mu=np.array(mu), v_star=particles.v + dt * gravity, force_velocity=np.array(a), tau=tau)
+    c = NumpyContact(cdf=cdf, compatible=np.array(compat), node=np.array(nodes), body=np.array(body),
+                     node_x=np.array(node_x),
+                     mu=np.array(mu), v_star=particles.v + dt * gravity, force_velocity=np.array(a), tau=tau)
     c.fit = reconstruct_per_body(cdf, x, A, T) if per_body else None
     c.ghost_body, c.ghost_normal, c.ghost_mu, c.ghost_near = ghost_frames(c, particles, friction, c.fit)
     c.ghost = ghost_velocities(c, rigid, particles)

@@ -91,7 +91,7 @@ def p2g(particles, tau, grid, kernel, transfer, prepared=None, contact=None, cla
     kernel : kernel object  (``mpmref.physics.kernels``)
     transfer : TransferSpec the resolved scheme (:mod:`mpmref.physics.scheme`)
     prepared : output of :func:`prepare` for these particles (computed here if ``None``)
-    contact : CPIC only (:class:`mpmref.backends.numpy.cpic.Contact`): particles give mass, momentum and
+    contact : CPIC only (:class:`mpmref.backends.numpy.cpic.NumpyContact`): particles give mass, momentum and
         force only to compatible nodes; what they would have given an incompatible node is collected there
         as ``rejected_momentum`` :math:`\sum_p m_p w_{ip}(v^*_p - \tilde v_i)` and ``rejected_force``
         :math:`-\sum_p V_p^0 \tau_p g_{ip}` (Hu et al. 2018 §4–5; docs/cpic.md)

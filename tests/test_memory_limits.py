@@ -2,7 +2,7 @@
 
 import pytest
 
-from mpmref import Scene, SceneBuilder, SceneError, limits
+from mpmref import Scene, SceneBuilder, SceneError, memory_limits
 from mpmref.bodies import sample_particles
 
 GIB = 2**30
@@ -11,7 +11,7 @@ GIB = 2**30
 @pytest.fixture
 def one_gib(monkeypatch):
     """Pretend this machine has 1 GiB available, so the limit (half of it) is 512 MiB."""
-    monkeypatch.setattr(limits, "available_memory", lambda: (GIB, "a test figure"))
+    monkeypatch.setattr(memory_limits, "available_memory", lambda: (GIB, "a test figure"))
     return GIB // 2
 
 
@@ -43,7 +43,7 @@ def test_cells_per_axis_bound_depends_on_the_dimension(one_gib):
 
 
 def test_grid_that_fits_is_accepted_and_one_node_more_per_axis_is_not(one_gib):
-    per_node = limits.bytes_per_node(3)
+    per_node = memory_limits.bytes_per_node(3)
     n = int((one_gib // per_node) ** (1 / 3))  # nodes per axis that fit
     scene(3, size=1.0, cells=n - 1, upper=0.31).build()
     with pytest.raises(SceneError) as info:
@@ -68,22 +68,22 @@ def test_too_many_particles_per_cell_name_the_ppc(one_gib):
 def test_the_particle_estimate_bounds_the_sampled_count():
     for body in ({"ppc": 4}, {"ppc": 4, "sampling": "jittered"}, {"sampling": "random", "count": 77}):
         s = scene(body=body).build()
-        estimate = limits.estimated_particles(s.bodies[0], 2, s.grid.dx)
+        estimate = memory_limits.estimated_particles(s.bodies[0], 2, s.grid.dx)
         assert sample_particles(s).n <= estimate <= 1.5 * sample_particles(s).n + 16
 
 
 def test_available_memory_reads_meminfo_or_falls_back(monkeypatch):
-    available, source = limits.available_memory()
+    available, source = memory_limits.available_memory()
     assert available > 0 and source
     def fail(*args, **kwargs):
         raise OSError("not on this machine")
 
-    monkeypatch.setattr(limits, "open", fail, raising=False)
-    from_sysconf = limits.available_memory()
+    monkeypatch.setattr(memory_limits, "open", fail, raising=False)
+    from_sysconf = memory_limits.available_memory()
     assert from_sysconf[0] > 0 and "os.sysconf" in from_sysconf[1]
-    monkeypatch.setattr(limits.os, "sysconf", fail)
-    fallback, source = limits.available_memory()
-    assert fallback == limits.FALLBACK_AVAILABLE and "assumed 4 GiB" in source
+    monkeypatch.setattr(memory_limits.os, "sysconf", fail)
+    fallback, source = memory_limits.available_memory()
+    assert fallback == memory_limits.FALLBACK_AVAILABLE and "assumed 4 GiB" in source
 
 
 @pytest.mark.parametrize("content, expected", [
