@@ -96,6 +96,3 @@ class VerificationCase:
             raise ValueError(f"unknown preset {preset!r}; choose one of {PRESETS}")
         return {"quick": self.Params.quick, "default": self.Params, "full": self.Params.full}[preset]()
 
-
-#: the former name, kept only until verification/sync_vs_async.py imports :class:`VerificationCase` (then removed)
-Case = VerificationCase

@@ -52,10 +52,10 @@ from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
 from mpmref.bench.asynchronous import example_scene
 from mpmref.io.atomic import write_text_atomic
-from mpmref.steppers import AsynchronousStepper
-from mpmref.steppers import AsyncInterval
+from mpmref.state import EVOLVING_FIELDS
+from mpmref.steppers import AsynchronousStepper, AsyncInterval
 
-from .case import Case
+from .case import VerificationCase
 from .common import Check, Finding, checks_table
 from .report import pyplot, save_figure, snapshot, write_series
 
@@ -140,7 +140,7 @@ def max_relative_difference(a, b):
     """Largest ``|a - b| / max|b|`` over the evolving arrays of two particle states."""
     worst = 0.0
     for name, arr in b.arrays().items():
-        if name in ("id", "level", "mass", "vol0", "material"):
+        if name not in EVOLVING_FIELDS:
             continue
         other = getattr(a, name).astype(np.float64)
         scale = max(float(np.max(np.abs(arr))), 1e-300)
@@ -783,5 +783,5 @@ def report(result, out_dir):
 
 
 #: this case, for the registry
-CASE = Case(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
-            compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)
+CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
+                        compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE)

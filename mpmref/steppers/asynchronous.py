@@ -54,15 +54,16 @@ import numpy as np
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
-from ..state import Particles, State
+from ..state import CONSTANT_FIELDS, EVOLVING_FIELDS, Particles, State, fields_with_role
 from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
                             bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
                             span, step_limits, zone)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, LevelExchange, substep
 
-#: the particle fields a step changes: the shadows store only these
-EVOLVING = ("x", "v", "C", "F", "J", "Jp", "modes")
+#: the fields an interval writes: those a step changes and the particles' levels (the others are shared with the
+#: state it starts from); and the fields a step reads but does not change (mpmref.state's roles)
+WRITTEN_FIELDS = fields_with_role("evolving", "stepper")
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
 #: what :attr:`AsynchronousStepper.counts` counts: ticks with work; particles at a step
@@ -216,7 +217,7 @@ class AsyncInterval:
 
     Three stores hold the particles: ``P`` (the authoritative particles, every field), ``shadow`` (each
     particle's shadow) and ``proposed`` (the shadows proposed by the updates of the current tick, committed
-    at its end); the shadow stores hold only the fields a step changes (:data:`EVOLVING`), the others are
+    at its end); the shadow stores hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`), the others are
     read from ``P``. Every update copies its group's rows out of them and its results back with the
     compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
     the particle count.
@@ -246,7 +247,7 @@ class AsyncInterval:
         # the fields the interval writes are copied (the state it starts from stays as it was); the others (mass,
         # volume, material, id) are shared with it, as a synchronous step's result shares them with its input
         self.P = state.particles.with_(**{k: a.copy() for k, a in state.particles.arrays().items()
-                                          if k in EVOLVING or k == "level"})
+                                          if k in WRITTEN_FIELDS})
         n = self.P.n
         self.t0 = self.t = state.tick
         self.t_p = np.full(n, self.t, dtype=np.int64)  # each particle's clock
@@ -255,9 +256,9 @@ class AsyncInterval:
         self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
         self.cohorts = [_Cohort(0, self.t, np.arange(n, dtype=np.int64))]  # all due at the first tick
         self.names = tuple(self.P.arrays())
-        self.evolving = tuple(k for k in self.names if k in EVOLVING)
+        self.evolving = tuple(k for k in self.names if k in EVOLVING_FIELDS)
         # the fields a step reads but does not change (id and level are the stepper's, not the step's)
-        self.constant = tuple(k for k in self.names if k not in EVOLVING and k not in ("id", "level"))
+        self.constant = tuple(k for k in self.names if k in CONSTANT_FIELDS)
         self.shadow = stepper.store(self.P, self.evolving, "shadow")  # a cohort's rows filled as it begins
         self.shadow_t = np.full(n, self.t, dtype=np.int64)
         self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
