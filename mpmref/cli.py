@@ -16,7 +16,7 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from . import arguments
+from .run import arguments
 from .backends import OPTION_HELP, reference_argument
 from .errors import ArgumentError, BackendError, MpmrefError, SceneError
 
@@ -43,7 +43,7 @@ class _Parser(argparse.ArgumentParser):
 
 def option_value(parse, check, kind, problem="is out of range"):
     """An argparse ``type``: ``text`` parsed by ``parse`` (``int``, ``float``, ``str``) and checked by ``check``, which
-    raises :class:`~mpmref.errors.ArgumentError` (such as the definitions of :mod:`mpmref.arguments` that the Python
+    raises :class:`~mpmref.errors.ArgumentError` (such as the definitions of :mod:`mpmref.run.arguments` that the Python
     API checks its arguments with); either failure becomes one line naming the option (exit status 2)."""
     def convert(text):
         try:
@@ -154,9 +154,9 @@ def _check_out(out_dir, resume, overwrite):
 
 
 def _open_simulation(scene, args, out_dir):
-    """A new or resumed :class:`~mpmref.simulation.Simulation` writing to ``out_dir``."""
+    """A new or resumed :class:`~mpmref.run.simulation.Simulation` writing to ``out_dir``."""
     from .io.run_output import clear_run
-    from .simulation import Simulation
+    from .run.simulation import Simulation
 
     try:
         if args.resume:

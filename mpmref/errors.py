@@ -24,7 +24,7 @@ class SceneError(MpmrefError, ValueError):
 
 
 class InstabilityError(MpmrefError):
-    """A step blew up: its new state is not bounded (see :mod:`mpmref.stability`) or not finite.
+    """A step blew up: its new state is not bounded (see :mod:`mpmref.run.stability`) or not finite.
 
     Raised before any domain-exit policy sees the new state. Attributes name the step, the first
     offending particle and quantity, and the CFL number ``dt * (c_max + |v|_max) / dx`` of the step that
@@ -121,7 +121,7 @@ class ArgumentError(MpmrefError, ValueError):
     value : object
         The value given.
     allowed : str
-        What would have been accepted (:mod:`mpmref.arguments`).
+        What would have been accepted (:mod:`mpmref.run.arguments`).
     """
 
     def __init__(self, name, value, allowed):

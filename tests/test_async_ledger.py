@@ -1,4 +1,4 @@
-r"""The energy ledger of asynchronous stepping (mpmref.ledger.LevelLedger): every level update books its active
+r"""The energy ledger of asynchronous stepping (mpmref.observe.ledger.LevelLedger): every level update books its active
 particles' energy change by stage, the registers of conservative interfaces book theirs to ``interface``, and
 together they are the run's measured energy change at every synchronised time.
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mpmref import Scene, Simulation
-from mpmref.ledger import ASYNC_COLUMNS, ASYNC_TERMS, TERMS
+from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, TERMS
 from verification import sync_vs_async as case
 
 from helpers import full_and_resumed_runs

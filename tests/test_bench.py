@@ -25,7 +25,7 @@ from mpmref.conformance import relative_error
 from mpmref.bench.table2 import table2_ratios
 from mpmref.bench.scenes import (ThroughputCase, mpm88_scene, table2_cells, table2_particles, table2_scene,
                                  throughput_cases)
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 
 ROOT = Path(__file__).resolve().parent.parent
 TIMING_KEYS = {"first_call_s", "times_s", "median_s"}
@@ -473,7 +473,7 @@ def test_ledger_section_times_the_same_steps_with_the_ledger_off_and_on():
     apart, so its steps run the unfused P2G: the same sums in another order), and the section reports both
     timings and their ratio. The figures are not judged here (benchmarks, not tests)."""
     from mpmref.bench.ledger import booked_steps, ledger_cases, render_ledger, run_ledger
-    from mpmref.ledger import EnergyLedger
+    from mpmref.observe.ledger import EnergyLedger
 
     for scene, particles in ledger_cases(quick=True).values():
         backend = make_backend("numpy", scene)

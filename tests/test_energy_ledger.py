@@ -1,4 +1,4 @@
-"""The energy ledger (mpmref/ledger.py): each term against its sign from theory or an independent figure.
+"""The energy ledger (mpmref/observe/ledger.py): each term against its sign from theory or an independent figure.
 
 Scenes are small (NumPy reference, 24-32 cells). ``E0`` below is the run's initial total energy; "round-off"
 is 1e-12 of it.
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mpmref import Scene, SceneBuilder, SceneError, Simulation
-from mpmref.ledger import COLUMNS, TERMS, EnergyLedger
+from mpmref.observe.ledger import COLUMNS, TERMS, EnergyLedger
 from mpmref.steppers.pipeline import substep
 from verification.energy import Params, make_simulation
 from verification.energy_ledger import runs as ledger_runs

@@ -14,9 +14,9 @@ import pytest
 from mpmref import (AllParticlesLeftError, DomainExitError, InstabilityError, NonFiniteError, Scene, SceneBuilder,
                     Simulation)
 from mpmref.cli import main
-from mpmref.domain import apply_domain_exit
+from mpmref.run.domain import apply_domain_exit
 from mpmref.io.checkpoint import load_checkpoint
-from mpmref.stability import MEASURED_LIMITS, StabilityWarning, first_unbounded, stable_cfl
+from mpmref.run.stability import MEASURED_LIMITS, StabilityWarning, first_unbounded, stable_cfl
 from mpmref.state import Particles
 from mpmref.steppers.pipeline import substep
 

@@ -2,8 +2,9 @@
 
 import pytest
 
-from mpmref import Scene, SceneBuilder, SceneError, memory_limits
-from mpmref.bodies import sample_particles
+from mpmref import Scene, SceneBuilder, SceneError
+from mpmref.scene import memory_limits
+from mpmref.scene.sampling import sample_particles
 
 GIB = 2**30
 

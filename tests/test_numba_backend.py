@@ -16,7 +16,7 @@ from mpmref.backends import make_backend
 from mpmref.errors import BackendError
 from mpmref.steppers import substep
 from mpmref.backends.numba import threads as numba_threads
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

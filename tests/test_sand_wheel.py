@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mpmref import Scene, SceneBuilder, Simulation
-from mpmref.emitters import emit, release_template
+from mpmref.run.emitters import emit, release_template
 from mpmref.errors import SceneError
 from mpmref.physics.rigid import distance_to_polyline, inside_closed, validate_polyline, wheel
 from mpmref.physics.rigid_dynamics import apply_impulses, end_step, initial_state

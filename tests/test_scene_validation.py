@@ -6,7 +6,7 @@ import pytest
 
 from helpers import box_scene
 from mpmref import Scene, SceneBuilder, SceneError
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 
 
 def good():

@@ -10,7 +10,7 @@ import pytest
 
 from mpmref import SceneBuilder, Simulation
 from mpmref.backends import make_backend
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.steppers import Hooks, substep
 
 

@@ -27,9 +27,9 @@ def test_both_steppers_fulfil_the_contract(example):
 
 def test_the_simulation_and_the_command_line_do_not_test_the_steppers_name():
     import mpmref.cli
-    import mpmref.simulation
+    import mpmref.run.simulation
 
-    for module in (mpmref.simulation, mpmref.cli):
+    for module in (mpmref.run.simulation, mpmref.cli):
         source = inspect.getsource(module)
         assert "stepper.name" not in source and "hasattr(self.stepper" not in source
 

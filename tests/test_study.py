@@ -17,7 +17,7 @@ import pytest
 from helpers import assert_every_figure_has_a_caption
 from mpmref import Scene, Simulation
 from mpmref.cli import main
-from mpmref.diagnostics import angular_momentum_scale, momentum_scale
+from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError, SceneError
 from mpmref.scene.builder import read_scene_file
 from verification import convergence as case
@@ -348,7 +348,7 @@ def test_the_runs_go_to_a_dask_cluster_and_functions_that_cannot_travel_are_refu
 def test_a_study_of_an_asynchronous_scene_books_its_ledger_with_the_interface_term(tmp_path):
     """The stork (asynchronous, conservative interfaces) at two CFL numbers: each run's ledger, read at synchronised
     times, has the ``interface`` term, and its terms add up to the measured energy change (over E(0))."""
-    from mpmref.ledger import ASYNC_TERMS
+    from mpmref.observe.ledger import ASYNC_TERMS
 
     study = run_study(ROOT / "examples" / "stork2d.toml", {"time.cfl": [0.3, 0.4]}, 0.0008, out=tmp_path,
                       executor=Executor(workers=1))

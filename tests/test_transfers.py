@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from helpers import box_scene, random_particles, valid_methods
 from mpmref.backends.numpy import NumpyBackend
-from mpmref.diagnostics import angular_momentum
+from mpmref.observe.diagnostics import angular_momentum
 
 METHODS = valid_methods()
 IDS = [f"{m['scheme']}-{m['force']}-{m['kernel']}" for m in METHODS]

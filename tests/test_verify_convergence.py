@@ -8,7 +8,7 @@ import pytest
 
 from mpmref import SceneBuilder, Simulation
 from mpmref.backends import make_backend
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.physics.materials import NeoHookean
 from helpers import assert_every_figure_has_a_caption
 from verification import convergence as case

@@ -38,8 +38,8 @@ def test_pic_loses_a_sizeable_fraction_and_polypic_almost_nothing(result):
 def test_the_ledger_of_every_run_adds_up_to_its_energy_change(result):
     """The stacked terms of the ledger figures are each scheme's change of total energy, step by step (to round-off
     of E0, over a few hundred steps); PIC's transfers take most of its loss (the ledger chapter's table)."""
-    for problem, runs in result["runs"].items():
-        for key, r in runs.items():
+    for runs in result["runs"].values():
+        for r in runs.values():
             e0 = r["total"][0]
             assert sum(r["ledger"].values()) == pytest.approx(r["total"] - e0, abs=1e-12 * e0)
         pic = runs["pic"]

@@ -12,7 +12,7 @@ import pytest
 from helpers import assert_every_figure_has_a_caption
 from mpmref.backends.numpy import backend as numpy_backend
 from mpmref.backends.numpy.transfers import wall_bands
-from mpmref.ledger import ASYNC_COLUMNS, ASYNC_TERMS
+from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 from verification import energy_ledger as case
 from verification.cli import add_parser
 from verification.common import failed
@@ -163,7 +163,7 @@ def test_coarsening_keeps_the_mass_of_a_body_sampled_by_count():
     full = runs.example_scene(runs.RUN["snow88"], case.Params())
     coarse = runs.example_scene(runs.RUN["snow88"], case.Params.quick())
     assert coarse.grid.cells == (32, 32) and full.grid.cells == (64, 64)
-    from mpmref.bodies import sample_particles
+    from mpmref.scene.sampling import sample_particles
 
     assert sample_particles(coarse).mass.sum() == pytest.approx(sample_particles(full).mass.sum(), rel=1e-12)
 

@@ -30,7 +30,7 @@ def test_the_ledger_part_books_the_measured_change_and_reports_the_interfaces(re
     names = {c.name for c in case.checks(result)}
     assert {f"ledger, {itf}: max |booked - measured energy change| / E_0 per synchronised interval"
             for itf in ("conservative", "reference")} <= names
-    for itf, led in result["ledger"].items():
+    for led in result["ledger"].values():
         assert led["terms"]["interface"] < 0.0 < -led["terms"]["energy_change"]  # the disks lose energy, some there
     assert any(f.name.startswith("ledger, conservative") for f in case.findings(result))
 

@@ -37,7 +37,7 @@ import numpy as np
 from mpmref import SceneBuilder, Simulation
 from mpmref.conformance import relative_error
 from mpmref.conformance.cases import MATERIALS
-from mpmref.diagnostics import polypic_mode_norms
+from mpmref.observe.diagnostics import polypic_mode_norms
 from mpmref.io.atomic import write_text_atomic
 from mpmref.state import EVOLVING_FIELDS
 
@@ -107,7 +107,7 @@ def mode_difference(candidate, reference, norms, velocity):
     .. math:: \frac{\max_p \big(\sum_r N_{pr} |c^{a}_{pr} - c^{r}_{pr}|^2\big)^{1/2}}{\max_p |v^{r}_p|}
 
     the RMS over the stencil of the modes' velocity difference (the modes are orthogonal under the weights,
-    :func:`mpmref.diagnostics.polypic_mode_norms`), against the speed scale of the reference particles.
+    :func:`mpmref.observe.diagnostics.polypic_mode_norms`), against the speed scale of the reference particles.
     """
     diff = np.sqrt(np.max(np.sum(norms * np.sum((candidate - reference) ** 2, axis=2), axis=1), initial=0.0))
     scale = np.max(np.linalg.norm(velocity, axis=1), initial=0.0)

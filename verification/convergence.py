@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mpmref.backends import make_backend
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.steppers.limits import cfl_time_step
 
 from ._conv_problems import PROBLEMS

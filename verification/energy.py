@@ -11,9 +11,9 @@ Set-ups (no gravity, open walls, CFL time step):
   :math:`F_0 = \operatorname{diag}(1+s, 1/(1+s))` at rest; it oscillates, exchanging elastic and kinetic
   energy.
 
-Per scheme, kinetic (particle, affine and PolyPIC-mode parts, :mod:`mpmref.diagnostics`), elastic and total
+Per scheme, kinetic (particle, affine and PolyPIC-mode parts, :mod:`mpmref.observe.diagnostics`), elastic and total
 energy :math:`E` are recorded every step; the budget is :math:`E_0`, :math:`E_{end}` and the lost fraction
-:math:`1 - E_{end}/E_0`. The energy ledger (:mod:`mpmref.ledger`) books every step, and its cumulative terms say
+:math:`1 - E_{end}/E_0`. The energy ledger (:mod:`mpmref.observe.ledger`) books every step, and its cumulative terms say
 where the energy went (figures ``energy_ledger_<problem>.png``; the ``energy_ledger`` case checks them).
 
 Theory and bounds
@@ -45,7 +45,7 @@ import numpy as np
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
-from mpmref.ledger import TERMS
+from mpmref.observe.ledger import TERMS
 
 from .case import VerificationCase
 from .common import Check, checks_table

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
-from mpmref.stability import StabilityWarning
+from mpmref.run.stability import StabilityWarning
 
 from .case import VerificationCase
 from .common import Check, Finding, checks_table
@@ -133,7 +133,7 @@ def perturbation(x, speed, seed):
 
 
 def block_simulation(params, scheme, condition, cfl, backend="numpy", out_dir=None):
-    """A :class:`~mpmref.simulation.Simulation` of the test block with its initial :func:`perturbation`."""
+    """A :class:`~mpmref.run.simulation.Simulation` of the test block with its initial :func:`perturbation`."""
     sim = Simulation(block_scene(params, scheme, condition, cfl), backend=backend, out_dir=out_dir)
     sim.v = perturbation(sim.x, params.mach * sim.scene.max_wave_speed(), params.seed)
     return sim

@@ -3,7 +3,7 @@ r"""Momentum conservation: a spinning, drifting elastic disk without gravity or 
 Set-up: a fixed-corotated disk of radius :math:`R` centred on the origin spins at :math:`\omega` and
 drifts at a constant velocity, in an open domain large enough that it never reaches the edge. No external
 force acts, so the exact linear momentum :math:`P` and angular momentum :math:`L` (about the origin,
-affine part included, :mod:`mpmref.diagnostics`) are constant. The step :math:`\Delta t` is fixed from the
+affine part included, :mod:`mpmref.observe.diagnostics`) are constant. The step :math:`\Delta t` is fixed from the
 CFL number and the initial wave and particle speeds.
 
 Theory and bounds
@@ -31,7 +31,7 @@ from time import perf_counter
 import numpy as np
 
 from mpmref import SceneBuilder, Simulation
-from mpmref.diagnostics import angular_momentum
+from mpmref.observe.diagnostics import angular_momentum
 from mpmref.io.atomic import write_text_atomic
 from mpmref.physics.materials import FixedCorotated
 from mpmref.physics.scheme import resolve

@@ -89,7 +89,7 @@ def save_figure(fig, path, caption=None, dpi=110):
     return Path(path)
 
 
-#: a colour per term of the energy ledger (:data:`mpmref.ledger.TERMS`), the same in every figure
+#: a colour per term of the energy ledger (:data:`mpmref.observe.ledger.TERMS`), the same in every figure
 LEDGER_COLOURS = {"p2g_transfer": "tab:blue", "boundary": "tab:brown", "g2p_transfer": "tab:orange",
                   "advection": "tab:purple", "plastic": "tab:red", "rigid_bodies": "tab:gray",
                   "integration": "tab:green", "interface": "tab:olive"}
@@ -107,8 +107,8 @@ def plot_ledger_areas(ax, t, terms, change):
     ----------
     ax : matplotlib Axes
     t : (n,) array       times
-    terms : dict         ``{term: (n,) cumulative joules}`` over :data:`mpmref.ledger.TERMS` (and
-                         ``interface``, :data:`mpmref.ledger.ASYNC_TERMS`, for an asynchronous run)
+    terms : dict         ``{term: (n,) cumulative joules}`` over :data:`mpmref.observe.ledger.TERMS` (and
+                         ``interface``, :data:`mpmref.observe.ledger.ASYNC_TERMS`, for an asynchronous run)
     change : (n,) array  the measured :math:`E(t) - E_0`
     """
     up, down = np.zeros(len(t)), np.zeros(len(t))

@@ -18,7 +18,7 @@ compare stepping schemes, not backends, and time their runs; the rest on the bac
   updates (ghosts included) and wall time of both runs, energy and position difference;
 * **isolated**: a soft and a stiff disk pressed together and spinning, in free space (no gravity, no wall
   reached): nothing external acts, so total linear and angular momentum must stay constant;
-* **ledger**: the same disks with the energy ledger (:class:`mpmref.ledger.LevelLedger`): at every synchronised
+* **ledger**: the same disks with the energy ledger (:class:`mpmref.observe.ledger.LevelLedger`): at every synchronised
   time the change it books (each level update's active particles, and the registers) must be the change of total
   energy the diagnostics measure; how much of it crosses the level interfaces is a finding;
 * **both interface treatments** (``time.interface``, :mod:`mpmref.physics.interface`) side by side in the
@@ -459,8 +459,9 @@ def ball_series(params, backend):
     end state against sync at the same finest step and at a 4x finer one (the balls' velocity, and energy)."""
     rows = []
     for cfl in params.series_cfls:
-        ends = {itf: run_async(lambda stepping, dt, itf=itf: balls(params, stepping, cfl=cfl, tick=1e-6, levels=10,
-                                                                     t_end=params.series_t_end, interface=itf),
+        ends = {itf: run_async(lambda stepping, dt, itf=itf, cfl=cfl: balls(params, stepping, cfl=cfl, tick=1e-6,
+                                                                              levels=10, t_end=params.series_t_end,
+                                                                              interface=itf),
                                backend, frames=0) for itf in params.series_interfaces}
         finest = min(e["summary"]["finest_dt_ticks"] for e in ends.values())
         syncs = {}
@@ -498,7 +499,8 @@ def trade(params, backend):
     runs = []
     for cfl in params.trade_cfls:
         for levels in params.trade_levels:
-            run = run_async(lambda stepping, dt: _stork_async(t_end, cfl, levels), backend, frames=0)
+            run = run_async(lambda stepping, dt, cfl=cfl, levels=levels: _stork_async(t_end, cfl, levels), backend,
+                            frames=0)
             runs.append({"kind": "async", "label": f"async cfl {cfl} levels {levels}", "sim": run["sim"],
                          "wall": run["wall"], "finest": run["summary"]["finest_dt_ticks"]})
     finest = min(r["finest"] for r in runs)

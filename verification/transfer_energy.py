@@ -2,7 +2,7 @@ r"""Transfer-only energy study: repeated P2G → G2P with Δt = 0 on a random sm
 
 With :math:`\Delta t = 0` nothing moves and no force acts, so every change of kinetic energy is the
 transfers' own dissipation. The energy counted on the particles includes what APIC and PolyPIC carry in
-their affine and higher modes (:func:`mpmref.diagnostics.diagnostics`: ``kinetic + kinetic_affine +
+their affine and higher modes (:func:`mpmref.observe.diagnostics.diagnostics`: ``kinetic + kinetic_affine +
 kinetic_modes``). Theory (Jiang et al. 2015 §6; Fu et al. 2017 §5):
 
 * PIC averages the field twice per cycle, so it loses energy every cycle, more at short wavelengths;

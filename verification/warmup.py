@@ -29,7 +29,7 @@ import multiprocessing
 from dataclasses import dataclass
 
 from mpmref.backends import make_backend, resolve
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.steppers.pipeline import substep
 
 from . import registry

@@ -9,7 +9,7 @@ times its start.
 
 Prediction. For symplectic Euler on a grid of springs, the limit is :math:`C^* \approx 1`; MPM's
 B-spline stencil spreads a particle's stiffness over several nodes, so the limits should be of order
-one, with MLS-MPM above PIC (``mpmref.stability.MEASURED_LIMITS`` orders them that way).
+one, with MLS-MPM above PIC (``mpmref.run.stability.MEASURED_LIMITS`` orders them that way).
 
 Worked solution. ``verification.extremes.is_stable`` runs the probe at one CFL number. Bisect between
 0.3 (stable) and 3.0 (unstable) with eight halvings (resolution 0.0105). The result is the same

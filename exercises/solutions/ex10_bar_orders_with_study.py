@@ -26,7 +26,7 @@ compared with the predictions within the convergence case's own rate tolerance, 
 
 import math
 
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from verification import convergence as case
 from verification._conv_problems import VibratingBar
 from verification.executor import Executor

@@ -28,8 +28,8 @@ from exercises.leaky_backend import LeakyBackend
 from mpmref.backends import make_backend
 from mpmref.conformance import check, make_cases
 from mpmref.conformance.stages import ledger_step
-from mpmref.diagnostics import kinetic_parts
-from mpmref.ledger import COLUMNS
+from mpmref.observe.diagnostics import kinetic_parts
+from mpmref.observe.ledger import COLUMNS
 from mpmref.steppers import substep
 from verification import energy
 from verification.momentum import VARIANT

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import MpmrefError
 from ..scene import Scene
-from ..simulation import Simulation
+from ..run.simulation import Simulation
 from .timing import measure, set_threads
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

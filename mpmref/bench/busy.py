@@ -4,7 +4,7 @@ A thread pool whose idle workers spin (OpenMP's active wait, GNU libgomp's defau
 trap: a worker that waits for the core the other process holds keeps the step's join waiting, and two threads
 run slower than one (2.3 times slower was measured here; docs/performance.md, "Threads on a shared machine").
 This section runs the ``examples/mpm88.toml`` fluid (:func:`.scenes.mpm88_scene`, 8 192 particles) through
-:class:`~mpmref.simulation.Simulation` (checks included, as ``mpmref run`` does) for ``steps`` steps on one and
+:class:`~mpmref.run.simulation.Simulation` (checks included, as ``mpmref run`` does) for ``steps`` steps on one and
 on two threads, in turn, ``repeats`` times: first with the machine as it is, then with a busy loop holding one
 core (a child process that spins for at most :data:`BUSY_SECONDS` and is ended after the measurement). Each run
 is a process of its own, as ``mpmref run --threads N`` is (``python -m mpmref.bench.busy THREADS STEPS``): in one
@@ -19,7 +19,7 @@ import subprocess
 import sys
 import time
 
-from ..simulation import Simulation
+from ..run.simulation import Simulation
 from .scenes import mpm88_scene
 
 #: the particles of examples/mpm88.toml

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..backends import make_backend
 from ..backends.base import BACKEND_STAGES
-from ..bodies import sample_particles
+from ..scene.sampling import sample_particles
 from ..physics.rigid import SAND_WHEEL, inside_closed, validate_polyline, wheel
 from ..physics.rigid_dynamics import initial_state
 from ..scene import SceneBuilder

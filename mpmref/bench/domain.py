@@ -17,7 +17,7 @@ design, so the section times the compiled backends only.
 """
 
 from ..backends import make_backend
-from ..bodies import sample_particles
+from ..scene.sampling import sample_particles
 from ..scene import SceneBuilder
 from ..steppers import substep
 from .memory import STATUS, _reset_peak, _status_bytes, in_fresh_process

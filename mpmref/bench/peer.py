@@ -35,7 +35,7 @@ the bound does not apply and ``agree`` is ``None``.
 
 import numpy as np
 
-from ..bodies import sample_particles
+from ..scene.sampling import sample_particles
 from .throughput import time_steps
 from .timing import measure, thread_counts
 

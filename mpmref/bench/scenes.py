@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..bodies import sample_particles
+from ..scene.sampling import sample_particles
 from ..scene import SceneBuilder
 
 #: the two columns of Table 2: classic MPM (APIC transfer, kernel-gradient force) and MLS-MPM

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..backends import make_backend
 from ..backends.base import BACKEND_STAGES, FUSED_BACKEND_STAGES
-from ..bodies import sample_particles
+from ..scene.sampling import sample_particles
 from ..steppers import substep
 from .scenes import fluid3d_scene, mpm88_scene, throughput_cases
 from .throughput import time_steps

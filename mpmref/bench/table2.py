@@ -69,9 +69,10 @@ def time_stages(backend_name, scene, particles, threads, repeats, method):
         set_threads(backend_name, k)
         prep, prepared = measure(lambda: backend.prepare(particles), repeats)
         stress, _ = measure(lambda: backend.stress(particles), repeats)
-        p2g, grid_state = measure(lambda: stepped_p2g(backend, particles, dt, prepared), repeats)
+        p2g, grid_state = measure(lambda prepared=prepared: stepped_p2g(backend, particles, dt, prepared), repeats)
         v_grid, v_tilde = backend.grid_update(grid_state, dt)
-        g2p, _ = measure(lambda: backend.g2p(particles, v_grid, v_tilde, dt, prepared), repeats)
+        g2p, _ = measure(lambda v=v_grid, v_t=v_tilde, prepared=prepared: backend.g2p(particles, v, v_t, dt, prepared),
+                         repeats)
         key = {"backend": backend_name, "threads": k, "dtype": str(scene.dtype), "method": method}
         records += [{**key, "stage": stage, **rec} for stage, rec in zip(TABLE2_STAGES, (prep, stress, p2g, g2p))]
     return records
@@ -91,7 +92,7 @@ def table2_ratios(timings, dim=3):
     median = {(t["backend"], t["threads"], t["dtype"], t["method"], t["stage"]): t["median_s"] for t in timings}
     ratios = []
     for key in sorted({k[:3] for k in median}):
-        def of(method, stage):
+        def of(method, stage, key=key):
             return median[(*key, method, stage)]
 
         transfer = [of(method, "p2g") - of(method, "stress") for method in ("mpm", "mls")]

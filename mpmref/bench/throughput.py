@@ -7,7 +7,7 @@ thread and is the denominator of ``vs_numpy``.
 
 from ..backends import make_backend
 from ..steppers import substep
-from ..bodies import sample_particles
+from ..scene.sampling import sample_particles
 from .timing import measure, set_threads, thread_counts
 
 REFERENCE = ("numpy", "float64")

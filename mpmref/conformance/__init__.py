@@ -16,7 +16,7 @@ Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend
 * ``g2p(particles, v, v_tilde, dt) -> Particles``;
 * ``step(particles, dt, time) -> Particles``: P2G, grid update, G2P and return map;
 * ``ledger(particles, dt, time) -> {"ledger_<column>": float, ..., "energy_scale": float}``: the energy ledger of
-  that step (:class:`mpmref.ledger.EnergyLedger`, docs/energy_ledger.md), computed from the candidate's stage
+  that step (:class:`mpmref.observe.ledger.EnergyLedger`, docs/energy_ledger.md), computed from the candidate's stage
   outputs, and the energy scale :math:`S = K + \Psi + |U|` of the input state.
 
 Backends that couple rigid bodies by CPIC also have the stages ``cpic_field``, ``cpic_tags``, ``cpic_p2g``,

@@ -12,9 +12,9 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
   ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
   P2G cases (for a P2G that takes the stress, :func:`takes_stress`);
-* the ledger stage's outputs (0-d, float64): ``ledger_<column>`` for each column of :data:`mpmref.ledger.COLUMNS`
+* the ledger stage's outputs (0-d, float64): ``ledger_<column>`` for each column of :data:`mpmref.observe.ledger.COLUMNS`
   (the terms, flows, energy change and closure of one step, docs/energy_ledger.md) and ``energy_scale``
-  (:func:`mpmref.ledger.energy_scale` of the input state, the denominator of the terms' errors).
+  (:func:`mpmref.observe.ledger.energy_scale` of the input state, the denominator of the terms' errors).
 """
 
 import inspect
@@ -22,7 +22,7 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from ..ledger import COLUMNS, EnergyLedger
+from ..observe.ledger import COLUMNS, EnergyLedger
 from ..state import EVOLVING_FIELDS, GridState, Particles, fields_with_role
 
 CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "p2g_fused", "grid_update", "g2p", "step", "ledger")
@@ -133,7 +133,7 @@ def composed_step(stages, particles, dt, time):
 
 def ledger_step(stages, particles, dt, time, rigid=None):
     """The energy ledger of one step of an object with the six backend stages (the pipeline over them, observed by a
-    fresh :class:`~mpmref.ledger.EnergyLedger` of ``stages.scene``), as the ledger stage's outputs
+    fresh :class:`~mpmref.observe.ledger.EnergyLedger` of ``stages.scene``), as the ledger stage's outputs
     (:data:`LEDGER_OUTPUTS`: ``{"ledger_<column>": float, ..., "energy_scale": float}``). With rigid bodies,
     ``rigid`` is their state (:func:`mpmref.steppers.substep`)."""
     from ..steppers.pipeline import substep

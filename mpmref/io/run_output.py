@@ -52,7 +52,7 @@ class RunOutput:
         """Write one frame: particles, and the grid and rigid bodies (``polylines``) if given.
 
         ``grid_data`` is ``(first_node, node_shape, arrays)``: node arrays in C order over the box of nodes
-        that starts at the node index ``first_node`` (see :meth:`mpmref.simulation.Simulation.grid_data`).
+        that starts at the node index ``first_node`` (see :meth:`mpmref.run.simulation.Simulation.grid_data`).
         """
         name = f"particles_{step:06d}.vtu"
         write_particles_vtu(self.dir / name, x, point_data)

@@ -93,7 +93,7 @@ def moment(x, impulse):
 
 def skew_from_axial(s):
     r"""The skew matrix :math:`W` with axial vector ``s`` in the sense of
-    :func:`mpmref.diagnostics.affine_spin`, :math:`\operatorname{spin}(W) = s`: (n, 2, 2) from (n,),
+    :func:`mpmref.observe.diagnostics.affine_spin`, :math:`\operatorname{spin}(W) = s`: (n, 2, 2) from (n,),
     (n, 3, 3) from (n, 3). In 2D :math:`W_{yx} = -W_{xy} = s/2`; in 3D :math:`W = \tfrac12 [s]_\times`."""
     if s.ndim == 1:
         W = np.zeros((s.shape[0], 2, 2))
@@ -116,7 +116,7 @@ def apply_registers(v, C, x, mass, dP, dL, inertia):
         C_p \leftarrow C_p + W\!\left(\frac{\delta L_p - x_p \times \delta P_p}{m_p D_p}\right)
 
     with :math:`D_p` = ``inertia`` and :math:`W` of :func:`skew_from_axial`, so that the particle's momentum
-    grows by :math:`\delta P_p` and its angular momentum (:func:`mpmref.diagnostics.angular_momentum`,
+    grows by :math:`\delta P_p` and its angular momentum (:func:`mpmref.observe.diagnostics.angular_momentum`,
     :math:`x_p \times m_p v_p + m_p D_p \operatorname{spin}(C_p)`) by :math:`\delta L_p`. ``C`` is ``None`` for
     PIC and FLIP, which carry no affine matrix (and do not conserve angular momentum in any stepping).
     Returns ``(v, C)``, new arrays.

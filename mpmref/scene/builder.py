@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import memory_limits
+from . import memory_limits
 from ..errors import SceneError
 from ..physics.kernels import get_kernel
 from ..physics.scheme import resolve

@@ -5,7 +5,7 @@ their own modules: :mod:`mpmref.scene.materials`, :mod:`mpmref.scene.bodies`, :m
 
 import numpy as np
 
-from .. import memory_limits
+from . import memory_limits
 from ..physics.boundary import BOUNDARY_TYPES
 from ..physics.kernels import KERNELS
 from ..state import Grid

@@ -99,9 +99,9 @@ class BodySpec:
 class EmitterSpec:
     """A particle source (``[[emitters]]``): a disk (2D) or sphere (3D) of material released again and again.
 
-    ``body`` is the release as a body at time 0 (sampled by :func:`mpmref.bodies.sample_body`); a release
+    ``body`` is the release as a body at time 0 (sampled by :func:`mpmref.scene.sampling.sample_body`); a release
     is made at the first step that starts at or after each time ``start + k interval`` before ``until``
-    (:mod:`mpmref.emitters`).
+    (:mod:`mpmref.run.emitters`).
     """
 
     index: int

@@ -7,7 +7,7 @@ Both fulfil :class:`Stepper` (:mod:`.protocol`), the contract the simulation and
 """
 
 from ..errors import MpmrefError
-from ..ledger import EnergyLedger, LevelLedger
+from ..observe.ledger import EnergyLedger, LevelLedger
 from .asynchronous import AsynchronousStepper, AsyncInterval, AsyncSchedule, LevelUpdate, WorkRecord
 from .pipeline import NO_HOOKS, Hooks, substep
 from .protocol import Stepper
@@ -19,8 +19,8 @@ __all__ = ["AsyncInterval", "AsyncSchedule", "AsynchronousStepper", "Hooks", "Le
 
 def make_stepper(scene, backend, hooks=None):
     """The stepper ``scene.time.stepping`` asks for, composing ``backend``'s stages; it books an energy ledger when
-    ``[output] energy_ledger`` asks for it (:class:`mpmref.ledger.EnergyLedger` for synchronous steps,
-    :class:`mpmref.ledger.LevelLedger` for asynchronous level updates)."""
+    ``[output] energy_ledger`` asks for it (:class:`mpmref.observe.ledger.EnergyLedger` for synchronous steps,
+    :class:`mpmref.observe.ledger.LevelLedger` for asynchronous level updates)."""
     hooks = hooks or NO_HOOKS
     if scene.output.energy_ledger and hooks.body_force is not None:
         raise MpmrefError("the energy ledger has no term for a body force hook's work (it would book it as "

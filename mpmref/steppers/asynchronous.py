@@ -52,7 +52,7 @@ from time import perf_counter
 import numpy as np
 
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
-from ..ledger import ASYNC_COLUMNS, ledger_columns
+from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import CONSTANT_FIELDS, EVOLVING_FIELDS, Particles, State, fields_with_role
 from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
@@ -471,8 +471,8 @@ class AsynchronousStepper:
 
     A :class:`~mpmref.steppers.Stepper`. ``advance`` moves a :class:`~mpmref.state.State` from one synchronised
     time (every particle at the same tick) to the next, which is one step of the run; its state is an
-    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger`` (:class:`~mpmref.ledger.LevelLedger`),
-    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.ledger.ASYNC_COLUMNS`). Each interval is an
+    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger`` (:class:`~mpmref.observe.ledger.LevelLedger`),
+    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.observe.ledger.ASYNC_COLUMNS`). Each interval is an
     ``interval_type`` (:class:`AsyncInterval`); what they did and cost adds up in :attr:`work` (a
     :class:`WorkRecord`; set ``record_trace = True`` for its list of every level update).
     """
@@ -609,7 +609,7 @@ class AsynchronousStepper:
 
     def diagnostics(self, state):
         """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,
-        the cumulative ledger's (``ledger_<column>`` over :data:`~mpmref.ledger.ASYNC_COLUMNS`)."""
+        the cumulative ledger's (``ledger_<column>`` over :data:`~mpmref.observe.ledger.ASYNC_COLUMNS`)."""
         s = AsyncSchedule.of(state)
         out = {"tick": state.tick, "particle_updates": s.updates, "sync_times": s.sync_times,
                "stale_shadows": s.stale_shadows}

@@ -1,4 +1,4 @@
-"""The stepper contract: what :class:`~mpmref.simulation.Simulation` and the command line use of a stepper.
+"""The stepper contract: what :class:`~mpmref.run.simulation.Simulation` and the command line use of a stepper.
 
 A stepper owns the time stepping of a run: it composes the backend's stages through the one step,
 :func:`~mpmref.steppers.pipeline.substep`, and decides who advances, by how much and when. Its state between steps
@@ -23,7 +23,7 @@ class Stepper(Protocol):
     #: the ``time.stepping`` value that selects it
     name: str
     #: whether a step advances every particle by one Δt (then the first step's CFL warning and the per-step
-    #: velocity bound of :mod:`mpmref.stability` apply)
+    #: velocity bound of :mod:`mpmref.run.stability` apply)
     uniform_step: bool
     #: whether :meth:`warm_up` compiles anything
     compiles: bool

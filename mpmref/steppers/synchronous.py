@@ -4,7 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..ledger import accumulate, ledger_columns
+from ..observe.ledger import accumulate, ledger_columns
 from ..physics import rigid_dynamics
 from ..state import State
 from .limits import cfl_time_step, signal_speeds
@@ -15,7 +15,7 @@ class SynchronousStepper:
     """A :class:`~mpmref.steppers.Stepper` that chooses one Δt for the whole domain and applies :func:`~.pipeline.substep` to every particle.
 
     The clock counts one tick per step; ``tick_length`` is the fixed Δt (``None`` with a CFL step). With a
-    ``ledger`` (:class:`~mpmref.ledger.EnergyLedger`) every step is booked by it, and the cumulative ledger is
+    ``ledger`` (:class:`~mpmref.observe.ledger.EnergyLedger`) every step is booked by it, and the cumulative ledger is
     kept in the state (``stepper["energy_ledger"]``, so checkpoints carry it).
     """
 
@@ -67,7 +67,7 @@ class SynchronousStepper:
 
     def diagnostics(self, state):
         """Stepper columns of ``diagnostics.csv``: the rigid bodies' (none without bodies) and, with a ledger, the
-        cumulative energy ledger's (``ledger_<term>``, :func:`mpmref.ledger.ledger_columns`)."""
+        cumulative energy ledger's (``ledger_<term>``, :func:`mpmref.observe.ledger.ledger_columns`)."""
         out = {} if state.rigid is None else rigid_dynamics.diagnostics(self.scene.rigid_bodies, state.rigid)
         if self.ledger is not None:
             out |= ledger_columns(state.stepper.get("energy_ledger"))

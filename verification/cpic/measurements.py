@@ -13,7 +13,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mpmref import Simulation
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.physics.rigid import distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.physics.rigid_dynamics import current_shapes
 from mpmref.physics.trimesh import TriMesh, triangle_frame

@@ -11,7 +11,7 @@ import numpy as np
 
 from mpmref import Scene, SceneBuilder
 from mpmref.bench.cpic import add_sand_wheel
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.physics.rigid import SAND_WHEEL
 from mpmref.physics.trimesh import validate_trimesh
 

@@ -24,7 +24,7 @@ drawn as stacked areas of the cumulative terms, and written per particle (the cu
 Theory and bounds
 -----------------
 :math:`S` is a run's energy scale, :math:`K + \Psi + |U| + |E_{bodies}|` at its largest over the run
-(:func:`mpmref.ledger.energy_scale`); round-off is :math:`10^{-12} S` per step (the error of a float64 sum of
+(:func:`mpmref.observe.ledger.energy_scale`); round-off is :math:`10^{-12} S` per step (the error of a float64 sum of
 :math:`N \le 9000` terms of one sign is at most :math:`N u S`, Higham 2002 §4.2).
 
 * **The terms add up.** They telescope: their cumulative sum equals the change of total energy the diagnostics

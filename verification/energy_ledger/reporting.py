@@ -6,13 +6,13 @@ from pathlib import Path
 import numpy as np
 
 from mpmref.io.atomic import write_text_atomic
-from mpmref.ledger import ASYNC_COLUMNS, ASYNC_TERMS
+from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 
 from ..common import Check, Finding, checks_table
 from ..report import ledger_figure, pyplot, save_figure, write_series
 from .runs import run_scale, terms_of, total_energy
 
-#: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.ledger.energy_scale`): each energy is
+#: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each energy is
 #: a float64 sum of N terms of one sign, in error by at most N u S (Higham 2002, §4.2; u = 1.1e-16), under 1e-12 for
 #: the N <= 9000 particles or nodes of these runs
 ROUNDOFF = 1e-12

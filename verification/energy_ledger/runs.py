@@ -5,7 +5,7 @@ Each example runs from its TOML file (``examples/``) with the ledger on (``[outp
 coarsened by ``Params.coarsen``, the free flight before its first contact skipped (:func:`free_flight`) and cut to
 its run's span (:func:`span`). A run records the time and the cumulative ledger after every step, the diagnostics'
 energies at its frames, each particle's cumulative share of the per-particle terms
-(:data:`mpmref.ledger.PER_PARTICLE`) for the VTK frames; from its states half-way and at the end, a compared run
+(:data:`mpmref.observe.ledger.PER_PARTICLE`) for the VTK frames; from its states half-way and at the end, a compared run
 books one step on the reference and on the candidate (:func:`compare`).
 """
 
@@ -21,7 +21,7 @@ from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import make_backend
 from mpmref.conformance.report import compare_outputs
 from mpmref.conformance.stages import ledger_step
-from mpmref.ledger import ASYNC_COLUMNS, ASYNC_TERMS, energy_scale
+from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, energy_scale
 from mpmref.physics import rigid_dynamics
 
 from .. import energy
@@ -175,7 +175,7 @@ def bodies_energy(sim):
 
 
 def ledger_row(sim):
-    """``[time, ledger columns...]``: the cumulative ledger (:data:`mpmref.ledger.ASYNC_COLUMNS`: the synchronous
+    """``[time, ledger columns...]``: the cumulative ledger (:data:`mpmref.observe.ledger.ASYNC_COLUMNS`: the synchronous
     columns and the ``interface`` term of asynchronous stepping, zero for a synchronous run) that the stepper keeps
     in the run's state, read as its diagnostics columns."""
     d = sim.stepper.diagnostics(sim.state)
@@ -274,7 +274,7 @@ def total_energy(r):
 
 
 def run_scale(r):
-    """The run's energy scale: the largest :func:`mpmref.ledger.energy_scale` over its sampled states."""
+    """The run's energy scale: the largest :func:`mpmref.observe.ledger.energy_scale` over its sampled states."""
     return max(energy_scale(*row) for row in r["energies"])
 
 

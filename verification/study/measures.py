@@ -1,6 +1,6 @@
 r"""Measures to pass to ``mpmref study --measure`` by name, and the pattern for your own.
 
-A measure is a function of the finished :class:`~mpmref.simulation.Simulation` that returns named scalars; the
+A measure is a function of the finished :class:`~mpmref.run.simulation.Simulation` that returns named scalars; the
 study records them with the run's metrics and measures their orders. Write your own in a module of your own
 folder (the command line can import it from there) and pass it as ``--measure my_module:my_measure``.
 """

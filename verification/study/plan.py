@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mpmref import arguments
+from mpmref.run import arguments
 from mpmref.errors import ArgumentError
 from mpmref.scene.builder import read_scene_file
 

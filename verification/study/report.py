@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mpmref.io.atomic import write_text_atomic
-from mpmref.ledger import ASYNC_TERMS
+from mpmref.observe.ledger import ASYNC_TERMS
 
 from ..html_report import figure_html, page
 from ..report import NO_CAPTION, figure_caption, pyplot, save_figure

@@ -1,6 +1,6 @@
 r"""One run of a study: its scene run to the end time, and what it measures, at the end and as time series.
 
-A run records the diagnostics of :meth:`mpmref.simulation.Simulation.run` (``record=True``) every
+A run records the diagnostics of :meth:`mpmref.run.simulation.Simulation.run` (``record=True``) every
 ``output.diagnostics_every`` steps and turns each row into the drifts of the conserved quantities, with
 :math:`E` the total energy (kinetic, affine, PolyPIC modes, elastic, gravitational), :math:`P` the linear and
 :math:`L` the angular momentum (affine part included, about the origin), :math:`M` the mass:
@@ -12,17 +12,17 @@ A run records the diagnostics of :meth:`mpmref.simulation.Simulation.run` (``rec
     \texttt{angular\_momentum\_drift}(t) = \frac{|L(t) - L(0)|}{S_L}, \qquad
     \texttt{mass\_drift}(t) = \frac{M(t) - M(0)}{M(0)},
 
-with the scales :math:`S_P = \sum_p m_p |v_p|` (:func:`mpmref.diagnostics.momentum_scale`) and :math:`S_L`, the
+with the scales :math:`S_P = \sum_p m_p |v_p|` (:func:`mpmref.observe.diagnostics.momentum_scale`) and :math:`S_L`, the
 sum of the magnitudes of the parts of :math:`L` about the centre of mass
-(:func:`mpmref.diagnostics.angular_momentum_scale`), each the larger of its values in the first and the last
+(:func:`mpmref.observe.diagnostics.angular_momentum_scale`), each the larger of its values in the first and the last
 state: what the particles' contributions could add up to, so that a spinning disk, whose :math:`P` is zero,
 still has a scale, and a rigid rotation's angular momentum drift is its relative change (a drift is 0 when
 nothing changed, also when everything is at rest). ``energy_excursion`` is the largest
 :math:`|E(t) - E(0)| / |E(0)|` of the series. Where the scene steps synchronously the study books the energy
-ledger (:mod:`mpmref.ledger`), and ``ledger_<term>`` is each term's cumulative change over :math:`E(0)`: the
+ledger (:mod:`mpmref.observe.ledger`), and ``ledger_<term>`` is each term's cumulative change over :math:`E(0)`: the
 terms add up to ``energy_change`` (plus the rigid bodies' energy change, which :math:`E` leaves out).
 
-The user's measures are functions of the finished :class:`~mpmref.simulation.Simulation` returning named
+The user's measures are functions of the finished :class:`~mpmref.run.simulation.Simulation` returning named
 scalars; a ``setup`` function of the new simulation sets initial fields a scene cannot declare. Each is a
 ``MODULE:FUNCTION`` reference (resolved again in the worker) or, in a study run in this process, a function.
 """
@@ -40,11 +40,11 @@ from pathlib import Path
 import numpy as np
 
 from mpmref import Scene, Simulation
-from mpmref.diagnostics import angular_momentum_scale, momentum_scale
+from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.run_output import clear_run
-from mpmref.ledger import ASYNC_TERMS
+from mpmref.observe.ledger import ASYNC_TERMS
 
 from ..report import json_number
 

@@ -16,7 +16,7 @@ import tomllib
 from dataclasses import dataclass
 
 from mpmref import Scene
-from mpmref.bodies import sample_particles
+from mpmref.scene.sampling import sample_particles
 from mpmref.errors import ArgumentError, SceneError
 
 #: keys of which a scene declares one: setting one removes the other

@@ -2,7 +2,7 @@
 
 Emitter ``e`` makes its ``k``-th release (``k = 0, 1, ...``) at the first synchronous step that starts at
 or after :math:`t_k = t_{start} + k\\,\\Delta t_{release}`, for every :math:`t_k < t_{until}`: a copy of the
-emitter's disk, sampled once like a ``disk`` body (:func:`mpmref.bodies.sample_body`), with the
+emitter's disk, sampled once like a ``disk`` body (:func:`mpmref.scene.sampling.sample_body`), with the
 emitter's velocity, at rest otherwise (``F = I``, ``C = 0``, no CPIC tags). At most one release per emitter
 per step (a fixed ``time.dt`` longer than the interval is refused by the scene).
 
@@ -16,9 +16,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .bodies import make_particles, sample_body
-from .state import Particles
-from .steppers.synchronous import with_cpic_tags
+from ..scene.sampling import make_particles, sample_body
+from ..state import Particles
+from ..steppers.synchronous import with_cpic_tags
 
 RELEASES = "emitter_releases"
 NEXT_ID = "emitter_next_id"

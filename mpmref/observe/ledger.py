@@ -1,7 +1,7 @@
 r"""The energy ledger: where in the step each joule of the total energy change went.
 
 The total energy of a run is :math:`E = K_p + \Psi + U\ (+ E_{bodies})`: the particles' kinetic energy (velocity,
-affine and PolyPIC-mode parts, :func:`mpmref.diagnostics.diagnostics`), their stored elastic energy, their
+affine and PolyPIC-mode parts, :func:`mpmref.observe.diagnostics.diagnostics`), their stored elastic energy, their
 gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, and with CPIC the rigid bodies' kinetic and
 gravitational energy. A step (:func:`mpmref.steppers.pipeline.substep`) changes it stage by stage; the ledger
 observes the stages' outputs and books each change to the stage that made it, in float64 whatever the run's
@@ -44,9 +44,9 @@ of the last step (:attr:`EnergyLedger.shares`).
 
 import numpy as np
 
-from .backends.numpy.transfers import wall_bands
+from ..backends.numpy.transfers import wall_bands
 from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
-from .physics import rigid_dynamics
+from ..physics import rigid_dynamics
 
 #: the ledger's terms, in step order: their sum is the change of total energy
 TERMS = ("p2g_transfer", "boundary", "g2p_transfer", "advection", "plastic", "rigid_bodies", "integration")
@@ -175,21 +175,21 @@ class EnergyLedger:
     # ------------------------------------------------------------------ energies
     def kinetic(self, particles, norms):
         """Kinetic energy of the particles' velocity fields, float64: the sum of
-        :func:`mpmref.diagnostics.kinetic_parts` (velocity, affine and PolyPIC-mode parts), the modes' with the
+        :func:`mpmref.observe.diagnostics.kinetic_parts` (velocity, affine and PolyPIC-mode parts), the modes' with the
         stencil norms ``norms`` (:meth:`mode_norms`)."""
         return sum(kinetic_parts(particles, self.inertia, norms))
 
     def mode_norms(self, particles):
         """The PolyPIC modes' stencil norms at the particles' positions
-        (:func:`mpmref.diagnostics.polypic_mode_norms`), or ``None`` for particles without modes."""
+        (:func:`mpmref.observe.diagnostics.polypic_mode_norms`), or ``None`` for particles without modes."""
         return None if particles.modes is None else polypic_mode_norms(particles, self.scene.kernel, self.scene.grid)
 
     def elastic(self, particles):
-        """Each particle's stored energy, float64 (n,) (:func:`mpmref.diagnostics.elastic_energies`)."""
+        """Each particle's stored energy, float64 (n,) (:func:`mpmref.observe.diagnostics.elastic_energies`)."""
         return elastic_energies(particles, self.scene.material_list)
 
     def potential(self, particles):
-        """Gravitational potential of the particles (:func:`mpmref.diagnostics.gravitational_energy`)."""
+        """Gravitational potential of the particles (:func:`mpmref.observe.diagnostics.gravitational_energy`)."""
         return gravitational_energy(particles, self.gravity)
 
     def bodies_energy(self, rigid):
@@ -323,7 +323,7 @@ class LevelLedger:
         """Record the energies of the update's active particles (rows of ``particles`` whose class in ``exchange``, a
         :class:`~mpmref.steppers.pipeline.LevelExchange`, is active; ``rigid`` is ``None``: asynchronous stepping
         couples no rigid bodies)."""
-        from .physics.interface import ACTIVE
+        from ..physics.interface import ACTIVE
 
         rows = np.flatnonzero(np.asarray(exchange.classes) == ACTIVE)
         active = particles.select(rows)
@@ -333,7 +333,7 @@ class LevelLedger:
     def grid(self, grid_state, v_grid, dt, time):
         r"""Book P2G, the boundary, the force work and the exchange with the ghosts, from the per-class node sums of
         ``grid_state`` (``class_sums``) and the node velocity ``v_grid`` after the grid update (same rows)."""
-        from .physics.interface import ACTIVE
+        from ..physics.interface import ACTIVE
 
         m = np.asarray(grid_state.mass, dtype=np.float64)
         has = m > 0
@@ -421,13 +421,13 @@ class LevelLedger:
             self.interval[key] += value
 
     def elastic(self, particles):
-        """The particles' stored energy (:func:`mpmref.diagnostics.elastic_energy`), float64."""
+        """The particles' stored energy (:func:`mpmref.observe.diagnostics.elastic_energy`), float64."""
         from .diagnostics import elastic_energy
 
         return elastic_energy(particles, self.scene.material_list)
 
     def kinetic(self, particles, modes=True):
-        """Kinetic energy of the particles' velocity fields (:func:`mpmref.diagnostics.kinetic_parts`), float64;
+        """Kinetic energy of the particles' velocity fields (:func:`mpmref.observe.diagnostics.kinetic_parts`), float64;
         with ``modes=False`` without the PolyPIC modes' part."""
         from .diagnostics import kinetic_parts, polypic_mode_norms
 

@@ -7,18 +7,18 @@ from functools import cached_property
 import numpy as np
 
 from . import arguments
-from .backends import describe, make_backend
-from .bodies import sample_particles
-from .diagnostics import diagnostics, polypic_mode_norms
+from ..backends import describe, make_backend
+from ..scene.sampling import sample_particles
+from ..observe.diagnostics import diagnostics, polypic_mode_norms
 from .domain import apply_domain_exit, outside
 from .emitters import emit, release_template, with_emitters
-from .errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
-from .io.run_output import RunOutput
-from .physics.materials import material_groups
-from .physics.rigid_dynamics import current_shapes
-from .physics.trimesh import TriMesh
+from ..errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
+from ..io.run_output import RunOutput
+from ..physics.materials import material_groups
+from ..physics.rigid_dynamics import current_shapes
+from ..physics.trimesh import TriMesh
 from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
-from .steppers import make_stepper
+from ..steppers import make_stepper
 
 
 class Simulation:
@@ -149,7 +149,7 @@ class Simulation:
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
         again, ending at the first tick at or after ``t_end`` at the latest); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
-        (:func:`mpmref.emitters.emit`). A ``dt`` that is not a finite number > 0, or a ``t_end`` that is not after the
+        (:func:`mpmref.run.emitters.emit`). A ``dt`` that is not a finite number > 0, or a ``t_end`` that is not after the
         current time, raises :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
         """
         dt = None if dt is None else arguments.time_step(dt)
@@ -289,7 +289,7 @@ class Simulation:
     def warm_up(self):
         """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene, so that a timed
         run that follows does not time compilation; the state is not changed."""
-        from .steppers.pipeline import substep
+        from ..steppers.pipeline import substep
 
         if hasattr(self.backend, "warm_up"):
             self.backend.warm_up(self.particles, substep)

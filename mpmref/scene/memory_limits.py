@@ -26,8 +26,8 @@ nodes, 3693 for 4288 MiB; 3D ``cells = 256`` with 125 particles, 2.4 GB measured
 import math
 import os
 
-from .errors import SceneError
-from .physics.polypic import higher_modes
+from ..errors import SceneError
+from ..physics.polypic import higher_modes
 
 #: the share of the available memory a scene may plan to use
 MEMORY_FRACTION = 0.5

@@ -4,10 +4,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SceneError
-from .physics.interface import skew_from_axial
-from .physics.polypic import higher_modes
-from .state import Particles
+from ..errors import SceneError
+from ..physics.interface import skew_from_axial
+from ..physics.polypic import higher_modes
+from ..state import Particles
 
 
 def _lattice(lower, upper, spacing, rng=None):
@@ -107,7 +107,7 @@ def initial_velocity(pts, p):
         v(x) = v_0 + \omega \times (x - c) + G\,(x - c), \qquad \nabla v = W(\omega) + G,
 
     with :math:`v_0` the body's ``velocity``, :math:`\omega` its ``angular_velocity`` (:math:`W(\omega)\,r = \omega
-    \times r`, the skew matrix whose axial vector in the sense of :func:`mpmref.diagnostics.affine_spin` is
+    \times r`, the skew matrix whose axial vector in the sense of :func:`mpmref.observe.diagnostics.affine_spin` is
     :math:`2\omega`), :math:`G` its ``velocity_gradient`` (d × d; :math:`G = sI` is a uniform expansion at rate
     :math:`s`) and :math:`c` its ``rotation_center`` (default: the centroid of ``pts``).
 

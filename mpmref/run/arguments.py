@@ -9,7 +9,7 @@ is allowed; the command line reports the same text with exit status 2.
 import math
 import numbers
 
-from .errors import ArgumentError
+from ..errors import ArgumentError
 
 
 def time_step(value, name="dt"):

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .state import Particles
+from ..state import Particles
 
 #: clamped particles are put this fraction of the region's extent inside its faces
 CLAMP_INSET = 1e-6
