@@ -242,9 +242,9 @@ def test_the_ghost_search_by_block_finds_what_a_search_over_every_candidate_find
 def test_the_bookkeeping_visits_what_the_updates_touch():
     """Counted on the example stork: the ghost searches examine about as many particles as they find (not every
     mid-step particle at every update), and the work over every particle happens once per interval."""
-    from mpmref.bench.asynchronous import example_scene
+    from mpmref.scene.factories import example_with_time
 
-    sim = Simulation(example_scene("stork2d", 0.004))
+    sim = Simulation(example_with_time("stork2d", 0.004))
     sim.run()
     counts, summary, n = sim.stepper.work.counts, sim.stepper.summary(sim.state), sim.n_particles
     found = summary["ghost_updates"]

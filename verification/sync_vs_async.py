@@ -50,7 +50,7 @@ import numpy as np
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
-from mpmref.bench.asynchronous import example_scene
+from mpmref.scene.factories import example_with_time
 from mpmref.io.atomic import write_text_atomic
 from mpmref.state import EVOLVING_FIELDS
 from mpmref.steppers import AsynchronousStepper, AsyncInterval
@@ -366,7 +366,7 @@ def stork_pair(name, t_end, backend, frames, stepper=None, cells=None, interface
     """The example ``name`` (at ``cells`` cells if given, ``time.cfl``/``levels`` if given) asynchronously with
     ``interface``, and synchronously (:func:`run_pair`)."""
     def make(stepping, dt):
-        scene = example_scene(name, t_end, dt if stepping == "sync" else None, cells)
+        scene = example_with_time(name, t_end, dt if stepping == "sync" else None, cells)
         if stepping == "sync":
             return scene
         src = scene.source
@@ -506,11 +506,11 @@ def trade(params, backend):
     finest = min(r["finest"] for r in runs)
     tick = runs[0]["sim"].scene.time.tick
     for div in params.trade_sync_divisions:
-        s = Simulation(example_scene("stork2d", t_end, dt=finest * tick / div), backend=backend)
+        s = Simulation(example_with_time("stork2d", t_end, dt=finest * tick / div), backend=backend)
         start = perf_counter()
         s.run()
         runs.append({"kind": "sync", "label": f"sync dt {finest / div:g} ticks", "sim": s, "wall": perf_counter() - start})
-    ref = Simulation(example_scene("stork2d", t_end, dt=finest * tick / params.trade_reference_division),
+    ref = Simulation(example_with_time("stork2d", t_end, dt=finest * tick / params.trade_reference_division),
                      backend=backend)
     ref.run()
     for r in runs:
@@ -522,7 +522,7 @@ def trade(params, backend):
 
 
 def _stork_async(t_end, cfl, levels):
-    scene = example_scene("stork2d", t_end)
+    scene = example_with_time("stork2d", t_end)
     src = scene.source
     return scene.__class__.from_dict({**src, "time": {**src["time"], "cfl": cfl, "levels": levels}},
                                      base_dir=scene.base_dir)

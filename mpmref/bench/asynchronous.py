@@ -19,17 +19,12 @@ implementation costs). What the bookkeeping visited, per level update and per ti
 counts (:class:`mpmref.steppers.asynchronous.WorkRecord`, :data:`~mpmref.steppers.asynchronous.COUNTS`).
 """
 
-import tomllib
-from pathlib import Path
-
 import numpy as np
 
-from ..errors import MpmrefError
-from ..scene import Scene
+from ..scene.factories import example_with_time
 from ..run.simulation import Simulation
 from .timing import measure, set_threads
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 #: case -> (example, cells along the first axis, simulated time of a timed run: full, quick). The 2D stork
 #: is also run at 2x and 4x the example's resolution (4x and 16x the particles), the 3D one at 4x: a series over
 #: particle count that shows where the particles' work, not the per-update orchestration, dominates a step and
@@ -37,29 +32,6 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-128": ("stork2d", 128, 0.008, 0.001),
                "stork2d-256": ("stork2d", 256, 0.004, 0.0005),
                "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002)}
-
-
-def example_scene(name, t_end, dt=None, cells=None, interface=None, levels=None, cfl_sync=False):
-    """The example ``name`` ending at ``t_end`` (at ``cells`` cells along the first axis if given): as declared
-    (asynchronous, with ``time.interface`` = ``interface`` and ``time.levels`` = ``levels`` if given), or
-    synchronous with step ``dt``, or with ``cfl_sync`` synchronous at the CFL step of the declared ``time.cfl``."""
-    path = EXAMPLES / f"{name}.toml"
-    if not path.exists():
-        raise MpmrefError(f"the async benchmark needs {path} (run it from a checkout of mpmref)")
-    with open(path, "rb") as fh:
-        data = tomllib.load(fh)
-    declared = data["time"]
-    if dt is not None:
-        data["time"] = {"dt": dt, "t_end": t_end}
-    elif cfl_sync:
-        data["time"] = {"cfl": declared["cfl"], "t_end": t_end}
-    else:
-        data["time"] = {**declared, "t_end": t_end, **({"interface": interface} if interface is not None else {}),
-                        **({"levels": levels} if levels is not None else {})}
-    data.pop("output", None)
-    if cells is not None:
-        data["grid"] = {"size": data["grid"]["size"], "cells": cells}
-    return Scene.from_dict(data, base_dir=EXAMPLES)
 
 
 def ghost_us(stepper):
@@ -79,22 +51,22 @@ def time_case(case, t_end, backend, threads, repeats):
     set_threads(backend, threads)
 
     def timed(**kwargs):
-        return measure(lambda: _run(example_scene(name, t_end, cells=cells, **kwargs), backend), repeats,
-                       first=lambda: _run(example_scene(name, t_end / 10, cells=cells, **kwargs), backend))
+        return measure(lambda: _run(example_with_time(name, t_end, cells=cells, **kwargs), backend), repeats,
+                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, **kwargs), backend))
 
-    a_scene = example_scene(name, t_end, cells=cells)
+    a_scene = example_with_time(name, t_end, cells=cells)
     rec_a, a = timed()
     summary = a.stepper.summary(a.state)
     record = a.stepper.work
     stages_s, n_updates = record.stage_seconds, record.level_updates
     finest = summary["finest_dt_ticks"]
     dt = finest * a_scene.time.tick
-    s_scene = example_scene(name, t_end, dt=dt, cells=cells)
+    s_scene = example_with_time(name, t_end, dt=dt, cells=cells)
     rec_s, s = timed(dt=dt)
     rec_c, c = timed(cfl_sync=True)
     rec_o, o = timed(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
-    rec_r, r = measure(lambda: _run(example_scene(name, t_end, cells=cells, interface="reference"), backend), 1,
-                       first=lambda: _run(example_scene(name, t_end / 10, cells=cells, interface="reference"), backend))
+    rec_r, r = measure(lambda: _run(example_with_time(name, t_end, cells=cells, interface="reference"), backend), 1,
+                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, interface="reference"), backend))
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]

@@ -19,6 +19,7 @@ from ..scene.sampling import sample_particles
 from ..physics.rigid import SAND_WHEEL, inside_closed, validate_polyline, wheel
 from ..physics.rigid_dynamics import initial_state
 from ..scene import SceneBuilder
+from ..scene.factories import add_sand_wheel
 from ..steppers import substep
 from ..steppers.synchronous import with_cpic_tags
 from .stage_times import TimedStages
@@ -29,17 +30,6 @@ CPIC_CELLS, CPIC_QUICK_CELLS = 256, 32
 #: the goal for a CPIC step over a step without bodies
 GOAL = 1.5
 TIMED_CPIC_STAGES = ("prepare", "cpic_contact", "p2g", "cpic_impulses", "grid_update", "cpic_g2p", "return_map")
-
-
-def add_sand_wheel(builder):
-    """Add the sand wheel's bodies to a :class:`~mpmref.scene.SceneBuilder`: the ring and the blades welded to it
-    (:data:`mpmref.physics.rigid.SAND_WHEEL`; pinned, shell density 100, angular damping 2.7/s, slip with
-    friction 0.4), and a sticky floor segment at y = 0.1."""
-    (ring, ring_segments), (blades, blade_segments) = wheel(**SAND_WHEEL)
-    turning = {"motion": "dynamic", "density": 100.0, "pinned": True, "angular_damping": 2.7, "type": "slip",
-               "friction": 0.4}
-    builder.rigid_body(ring, ring_segments, **turning).rigid_body(blades, blade_segments, welded_to=0, **turning)
-    return builder.rigid_body([[0.03, 0.1], [0.97, 0.1]], [[0, 1]], motion="fixed", type="sticky")
 
 
 def wheel_bed_scene(cells, bodies=True):

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpmref import Scene, SceneBuilder
-from mpmref.bench.cpic import add_sand_wheel
+from mpmref.scene.factories import add_sand_wheel
 from mpmref.scene.sampling import sample_particles
 from mpmref.physics.rigid import SAND_WHEEL
 from mpmref.physics.trimesh import validate_trimesh
