@@ -93,9 +93,9 @@ __all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "ind
 
 
 def assert_every_figure_has_a_caption(folder):
-    """Every PNG under ``folder`` carries a caption (:func:`verification.report.save_figure`) that reads as a
+    """Every PNG under ``folder`` carries a caption (:func:`verification.framework.report.save_figure`) that reads as a
     sentence about the figure, not a file name."""
-    from verification.report import figure_caption
+    from verification.framework.report import figure_caption
 
     pngs = sorted(Path(folder).rglob("*.png"))
     assert pngs, f"no figures under {folder}"

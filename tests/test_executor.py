@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from verification.executor import Executor
+from verification.framework.executor import Executor
 
 ITEMS = [3, 7, 1, 12, 5]
 EXPECTED = [math.factorial(k) for k in ITEMS]

@@ -21,7 +21,7 @@ from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError, SceneError
 from mpmref.scene.builder import read_scene_file
 from verification import convergence as case
-from verification.executor import Executor
+from verification.framework.executor import Executor
 from verification.study import Variation, make_plan, parse_vary, run_study
 from verification.study.orders import order, richardson
 from verification.study.variations import assign, combinations, parse_value

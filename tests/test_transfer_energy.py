@@ -6,7 +6,7 @@ import pytest
 
 from helpers import assert_every_figure_has_a_caption
 from verification import transfer_energy as case
-from verification.common import failed
+from verification.framework.common import failed
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import pytest
 from mpmref.backends import BACKENDS
 from helpers import assert_every_figure_has_a_caption
 from verification import backends as case
-from verification.common import failed
+from verification.framework.common import failed
 from verification import momentum
 
 pytestmark = pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")

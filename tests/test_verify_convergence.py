@@ -1,4 +1,4 @@
-"""The convergence case (verification/convergence.py) in its quick preset, and the pieces it stands on."""
+"""The convergence case (verification/convergence/__init__.py) in its quick preset, and the pieces it stands on."""
 
 import math
 from dataclasses import replace
@@ -12,9 +12,9 @@ from mpmref.scene.sampling import sample_particles
 from mpmref.physics.materials import NeoHookean
 from helpers import assert_every_figure_has_a_caption
 from verification import convergence as case
-from verification.common import failed
-from verification._conv_problems import AxisAlignedMMS, VibratingBar
-from verification._conv_stepping import advance
+from verification.framework.common import failed
+from verification.convergence.problems import AxisAlignedMMS, VibratingBar
+from verification.convergence.stepping import advance
 
 
 @pytest.fixture(scope="module")

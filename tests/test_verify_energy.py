@@ -7,7 +7,7 @@ import pytest
 from mpmref.backends.numpy import backend as numpy_backend
 from helpers import assert_every_figure_has_a_caption
 from verification import energy as case
-from verification.common import failed
+from verification.framework.common import failed
 
 
 @pytest.fixture(scope="module")

@@ -14,8 +14,8 @@ from mpmref.backends.numpy import backend as numpy_backend
 from mpmref.backends.numpy.transfers import wall_bands
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 from verification import energy_ledger as case
-from verification.cli import add_parser
-from verification.common import failed
+from verification.framework.cli import add_parser
+from verification.framework.common import failed
 from verification.energy_ledger import runs
 
 

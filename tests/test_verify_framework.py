@@ -1,4 +1,4 @@
-"""The verification framework: the case registry and ``mpmref verify`` (verification/cli.py)."""
+"""The verification framework: the case registry and ``mpmref verify`` (verification/framework/cli.py)."""
 
 import argparse
 import html
@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 
 from mpmref.backends.numpy import backend as numpy_backend
-from verification import momentum, registry, warmup
-from verification.case import PRESETS, VerificationCase
-from verification.cli import add_parser
-from verification.common import Check
-from verification.report import case_record, pyplot, save_figure
+from verification import momentum
+from verification.framework import registry, warmup
+from verification.framework.case import PRESETS, VerificationCase
+from verification.framework.cli import add_parser
+from verification.framework.common import Check
+from verification.framework.report import case_record, pyplot, save_figure
 
 
 def verify(argv):
@@ -212,7 +213,8 @@ def test_the_warm_up_compiles_every_kernel_of_the_compiled_cases_once():
     scene they run on NumPy): each queued Numba scene compiles kernels that the scenes before it do not, the
     positions each case needs cover every kernel of its scenes, and a NumPy-only selection starts no process."""
     from mpmref.backends import make_backend
-    from verification import backends, warmup
+    from verification import backends
+    from verification.framework import warmup
 
     cases = ["momentum", "backends", "speed_accuracy", "sync_vs_async"]
     queue, needs = warmup.plan(cases, "quick", "numpy")
@@ -233,7 +235,7 @@ def test_a_case_starts_early_only_when_its_kernels_are_compiled_and_it_times_not
     """can_start: sync_vs_async once the scenes it needs are done; speed_accuracy (timed) never early."""
     from types import SimpleNamespace
 
-    from verification import warmup
+    from verification.framework import warmup
 
     _, needs = warmup.plan(["sync_vs_async", "speed_accuracy"], "quick", "numpy")
     for flag in (0, 1):
@@ -247,7 +249,7 @@ def test_the_warm_up_queue_hands_out_every_scene_once_from_either_end():
     """The background process takes scenes from the front, the main process from the back: each once."""
     import multiprocessing
 
-    from verification import warmup
+    from verification.framework import warmup
 
     queue = multiprocessing.Array("i", [0, 5])
     taken = [warmup.claim(queue, from_back=k % 2 == 1) for k in range(7)]

@@ -7,7 +7,7 @@ import pytest
 
 from mpmref.backends.numpy import backend as numpy_backend
 from verification import momentum as case
-from verification.common import failed
+from verification.framework.common import failed
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,9 @@ from dataclasses import replace
 import pytest
 
 import verify_toy_case as toy
-from verification import registry
-from verification.cli import add_parser
-from verification.report import NO_CAPTION
+from verification.framework import registry
+from verification.framework.cli import add_parser
+from verification.framework.report import NO_CAPTION
 
 
 def verify(argv):

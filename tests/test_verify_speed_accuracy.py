@@ -5,8 +5,8 @@ import pytest
 from mpmref.backends import BACKENDS
 from helpers import assert_every_figure_has_a_caption
 from verification import speed_accuracy as case
-from verification.common import failed
-from verification.executor import Executor
+from verification.framework.common import failed
+from verification.framework.executor import Executor
 
 pytestmark = pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")
 

@@ -4,7 +4,7 @@
 import pytest
 
 from verification import sync_vs_async as case
-from verification.common import failed
+from verification.framework.common import failed
 
 
 @pytest.fixture(scope="module")

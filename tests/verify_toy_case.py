@@ -9,9 +9,9 @@ declares that it ran two backends, as the cases that compare backends do.
 from dataclasses import dataclass
 from pathlib import Path
 
-from verification.case import VerificationCase
-from verification.common import Check, Finding
-from verification.report import pyplot, save_figure
+from verification.framework.case import VerificationCase
+from verification.framework.common import Check, Finding
+from verification.framework.report import pyplot, save_figure
 
 #: the figure index.html shows for this case
 MAIN_FIGURE = "line.png"

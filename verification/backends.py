@@ -41,11 +41,11 @@ from mpmref.observe.diagnostics import polypic_mode_norms
 from mpmref.io.atomic import write_text_atomic
 from mpmref.state import EVOLVING_FIELDS
 
-from .case import VerificationCase
-from .common import Check, checks_table
-from .executor import Executor
+from .framework.case import VerificationCase
+from .framework.common import Check, checks_table
+from .framework.executor import Executor
 from .momentum import VARIANT, VARIANTS
-from .report import pyplot, save_figure, snapshot, write_series
+from .framework.report import pyplot, save_figure, snapshot, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "difference_growth.png"
@@ -95,7 +95,7 @@ def _scene(params, dim, kernel, variant):
 
 
 def compiled_scenes(params, backend="numpy"):
-    """``[(backend, scene)]`` this case runs on a compiled backend (see :mod:`verification.warmup`)."""
+    """``[(backend, scene)]`` this case runs on a compiled backend (see :mod:`verification.framework.warmup`)."""
     candidate = params.candidate if backend == "numpy" else backend
     return [(candidate, _scene(params, dim, kernel, VARIANT[key])) for dim in params.dims
             for kernel in params.kernels for key in params.variants if candidate != "numpy"]

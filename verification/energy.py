@@ -47,11 +47,11 @@ from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import TERMS
 
-from .case import VerificationCase
-from .common import Check, checks_table
-from .executor import Executor
+from .framework.case import VerificationCase
+from .framework.common import Check, checks_table
+from .framework.executor import Executor
 from .momentum import VARIANT, VARIANTS
-from .report import ledger_figure, pyplot, save_figure, snapshot, write_series
+from .framework.report import ledger_figure, pyplot, save_figure, snapshot, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "energy_total_disks.png"

@@ -39,10 +39,10 @@ import numpy as np
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
 from mpmref.run.stability import StabilityWarning
 
-from .case import VerificationCase
-from .common import Check, Finding, checks_table
-from .executor import Executor
-from .report import pyplot, save_figure
+from .framework.case import VerificationCase
+from .framework.common import Check, Finding, checks_table
+from .framework.executor import Executor
+from .framework.report import pyplot, save_figure
 
 #: scheme label -> method options (the force is the engine's default, MLS, unless stated)
 SCHEMES = {

@@ -37,10 +37,10 @@ from mpmref.physics.materials import FixedCorotated
 from mpmref.physics.scheme import resolve
 from mpmref.scene import MethodSpec
 
-from .case import VerificationCase
-from .common import Check, checks_table
-from .executor import Executor
-from .report import pyplot, save_figure, snapshot, write_series
+from .framework.case import VerificationCase
+from .framework.common import Check, checks_table
+from .framework.executor import Executor
+from .framework.report import pyplot, save_figure, snapshot, write_series
 
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)

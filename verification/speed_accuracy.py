@@ -36,11 +36,11 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 
 from .backends import trajectory_bound
-from .case import VerificationCase
-from .common import Check, Finding, checks_table
+from .framework.case import VerificationCase
+from .framework.common import Check, Finding, checks_table
 from .convergence import LevelRun, Series, run_level
-from .executor import Executor
-from .report import pyplot, save_figure, write_series
+from .framework.executor import Executor
+from .framework.report import pyplot, save_figure, write_series
 
 #: (scheme, force) pairs the convergence case names
 SCHEMES = (("pic", "classic"), ("apic", "classic"), ("mls", "mls"))
@@ -84,7 +84,7 @@ def numba_threads(backend, threads):
 
 def compiled_scenes(params, backend="numpy"):
     """``[(backend, scene)]`` this case runs on a compiled backend: each series' coarsest grid (see
-    :mod:`verification.warmup`)."""
+    :mod:`verification.framework.warmup`)."""
     compared = ("numpy", backend) if backend != "numpy" else params.backends
     return [(b, s.build_problem().scene(params.cells[0], s.method(), params.ppa)) for b in compared if b != "numpy"
             for s in (_series(p, scheme, force, k) for p in params.problems for scheme, force in SCHEMES
@@ -281,6 +281,6 @@ def report(result, out_dir):
 
 
 #: this case, for the registry; it times its runs, so ``mpmref verify`` starts it only after the background
-#: compilation has ended (:mod:`verification.warmup`): no compilation shares the machine with the timed runs
+#: compilation has ended (:mod:`verification.framework.warmup`): no compilation shares the machine with the timed runs
 CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings, backends_run=backends_run,
                         compiled_scenes=compiled_scenes, main_figure=MAIN_FIGURE, runs_alone=True)

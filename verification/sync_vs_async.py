@@ -55,9 +55,9 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.state import EVOLVING_FIELDS
 from mpmref.steppers import AsynchronousStepper, AsyncInterval
 
-from .case import VerificationCase
-from .common import Check, Finding, checks_table
-from .report import pyplot, save_figure, snapshot, write_series
+from .framework.case import VerificationCase
+from .framework.common import Check, Finding, checks_table
+from .framework.report import pyplot, save_figure, snapshot, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "trade.png"
@@ -535,7 +535,7 @@ def pareto_front(points):
 
 
 def compiled_scenes(params, backend="numpy"):
-    """``[(backend, scene)]`` whose kernels this case needs compiled (see :mod:`verification.warmup`), on Numba
+    """``[(backend, scene)]`` whose kernels this case needs compiled (see :mod:`verification.framework.warmup`), on Numba
     whatever ``backend`` is: the one-level comparison's two scenes and the census. Their kernels serve the 2D
     pairs and sweeps too, and their asynchronous bookkeeping (compiled with them) every asynchronous run of the
     case: it depends only on which particle fields a scene allocates."""

@@ -23,9 +23,9 @@ from mpmref import SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 from mpmref.steppers import substep
 
-from .case import VerificationCase
-from .common import Check, checks_table
-from .report import pyplot, save_figure
+from .framework.case import VerificationCase
+from .framework.common import Check, checks_table
+from .framework.report import pyplot, save_figure
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "transfer_energy.png"

@@ -1,9 +1,9 @@
 """Sphinx extension: the figures of the verification cases and of the studies, made at build time by the code itself.
 
 When the build starts, every case of :data:`FIGURE_CASES` runs its quick preset on the NumPy reference
-(:func:`verification.registry.run_case`) into ``docs/_generated/CASE/``, and a Markdown fragment
+(:func:`verification.framework.registry.run_case`) into ``docs/_generated/CASE/``, and a Markdown fragment
 ``docs/_generated/CASE.md`` lists its PNG plots, each with the caption the case stored in the PNG
-(:func:`verification.report.figure_caption`). ``figures.md`` includes the fragments, so a figure in the
+(:func:`verification.framework.report.figure_caption`). ``figures.md`` includes the fragments, so a figure in the
 site is what the code does today, never a hand-made picture. A case whose checks fail, or that stops with
 an error, fails the build (a warning, and the site builds with warnings as errors). Likewise each study of
 :data:`STUDIES` runs on ``docs/breathing_disk.toml`` (:func:`verification.study.run_study`, NumPy, a few
@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 
 def fragment(name, title, folder, level=2):
     """Markdown listing the PNGs of one report folder with their stored captions, under a heading of ``level``."""
-    from verification.report import figure_caption
+    from verification.framework.report import figure_caption
 
     lines = [f"{'#' * level} {title}", ""]
     for png in sorted(folder.glob("*.png")):
@@ -44,7 +44,7 @@ def fragment(name, title, folder, level=2):
 
 def generate(app):
     """Run each case of :data:`FIGURE_CASES` (quick preset) and write its fragment."""
-    from verification import registry
+    from verification.framework import registry
 
     out = Path(app.srcdir) / "_generated"
     shutil.rmtree(out, ignore_errors=True)

@@ -28,8 +28,8 @@ import math
 
 from mpmref.scene.sampling import sample_particles
 from verification import convergence as case
-from verification._conv_problems import VibratingBar
-from verification.executor import Executor
+from verification.convergence.problems import VibratingBar
+from verification.framework.executor import Executor
 from verification.study import run_study
 
 BAR = VibratingBar()

@@ -53,7 +53,7 @@ and what each measures, :func:`~verification.cpic.measurements.run`), :mod:`.res
 :mod:`.reporting` (checks, findings, figures and tables).
 """
 
-from ..case import VerificationCase
+from ..framework.case import VerificationCase
 from .measurements import components, parts, run, run_part
 from .reporting import backends_run, checks, findings, report
 from .scenes import Params

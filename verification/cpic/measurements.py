@@ -2,7 +2,7 @@
 
 :func:`run_watching` runs a scene and counts the particles that cross its bodies; the functions after it run
 one scene each and return what it measures (:mod:`verification.cpic.results`). :func:`parts` lists the case's
-independent simulations and :func:`run` runs them through an :class:`~verification.executor.Executor`.
+independent simulations and :func:`run` runs them through an :class:`~verification.framework.executor.Executor`.
 """
 
 from dataclasses import replace
@@ -18,8 +18,8 @@ from mpmref.physics.rigid import distance_to_polyline, inside_closed, segment_fr
 from mpmref.physics.rigid_dynamics import current_shapes
 from mpmref.physics.trimesh import TriMesh, triangle_frame
 
-from ..executor import Executor
-from ..report import snapshot
+from ..framework.executor import Executor
+from ..framework.report import snapshot
 from .results import Baseline, Collision, CpicResult, Cut, Sliding, Watched, Wheel
 from .scenes import (BASELINES, BLADE, Params, ball_scene, baseline_particles, baseline_scene, cut3d_scene, cut_scene,
                      drop_scene, friction_scene, impact_scene, rotor_scene, sand_scene, wheel_omega_floor, wheel_scene)
@@ -201,7 +201,7 @@ BASELINE_KEY = "baseline/"
 
 def parts(params):
     """``{key: (function, args)}``: the case's independent simulations, each a call ``function(params, *args)``
-    returning its record; the longest first (they run through an :class:`~verification.executor.Executor`). The
+    returning its record; the longest first (they run through an :class:`~verification.framework.executor.Executor`). The
     keys are the fields of :class:`~verification.cpic.results.CpicResult`, the baselines' apart (its ``baselines``)."""
     jobs = {"wheel": (sand_wheel, ()), "drop": (watch, (drop_scene,)), "cut": (cutting, ()),
             "exact": (momentum_run, (True,)), "default": (momentum_run, (False,)), "impact": (watch, (impact_scene,)),

@@ -11,8 +11,8 @@ from mpmref.io.vtk import write_polylines_vtp
 from mpmref.physics.cdf import PENALTY_WINDOW
 from mpmref.physics.trimesh import TriMesh
 
-from ..common import Check, Finding, checks_table
-from ..report import pyplot, save_figure, write_series
+from ..framework.common import Check, Finding, checks_table
+from ..framework.report import pyplot, save_figure, write_series
 from .scenes import fixed_dt
 
 

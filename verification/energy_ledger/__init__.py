@@ -61,8 +61,8 @@ The case is a package: :mod:`.runs` (its parameters, scenes and simulations) and
 findings, tables and figures).
 """
 
-from ..case import VerificationCase
-from ..executor import Executor
+from ..framework.case import VerificationCase
+from ..framework.executor import Executor
 from .reporting import checks, findings, report, tables
 from .runs import RUN, Params, candidate_of, compared_runs, example_scene, parts, run_part
 
@@ -88,7 +88,7 @@ def backends_run(result, backend):
 
 
 def compiled_scenes(params, backend="numpy"):
-    """``[(backend, scene)]`` run on a backend other than the reference (:mod:`verification.warmup`): on the reference,
+    """``[(backend, scene)]`` run on a backend other than the reference (:mod:`verification.framework.warmup`): on the reference,
     the compared runs' scenes on the candidate; on another backend, every run's (the friction block and the
     integration study run the kernels of the jelly under MLS-MPM)."""
     keys = compared_runs(params) if backend == "numpy" else params.runs

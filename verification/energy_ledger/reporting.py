@@ -8,8 +8,8 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 
-from ..common import Check, Finding, checks_table
-from ..report import ledger_figure, pyplot, save_figure, write_series
+from ..framework.common import Check, Finding, checks_table
+from ..framework.report import ledger_figure, pyplot, save_figure, write_series
 from .runs import run_scale, terms_of, total_energy
 
 #: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each energy is

@@ -26,7 +26,7 @@ from mpmref.physics import rigid_dynamics
 
 from .. import energy
 from ..momentum import VARIANT, VARIANTS
-from ..report import snapshot
+from ..framework.report import snapshot
 
 EXAMPLES = Path(__file__).resolve().parent.parent.parent / "examples"
 

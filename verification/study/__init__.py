@@ -5,7 +5,7 @@ the same end time, and measures every run (:mod:`.runs`): the drifts of energy, 
 mass at the end and as time series, the energy ledger, steps, wall time, and the user's own measures. For every
 resolution it varies (cells, Δt or CFL number, particles per cell) it measures the observed order of each
 measure, fitted and by Richardson's estimate (:mod:`.orders`), and writes ``results.json``, ``results.csv``, the
-plots and ``index.html`` (:mod:`.report`). The runs go through :class:`~verification.executor.Executor`, like the
+plots and ``index.html`` (:mod:`.report`). The runs go through :class:`~verification.framework.executor.Executor`, like the
 sweeps of ``mpmref verify``; each writes its result when it finishes, so a study stopped half-way keeps what is
 done, and running it again runs only the rest. ``docs/studying_your_scene.md`` is the chapter.
 
@@ -20,8 +20,8 @@ import time
 from mpmref.backends import describe, make_backend
 from mpmref.errors import ArgumentError
 
-from ..executor import Executor
-from ..report import machine
+from ..framework.executor import Executor
+from ..framework.report import machine
 from .orders import ORDERED, observed_orders
 from .plan import make_plan
 from .report import write_report

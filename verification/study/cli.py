@@ -21,7 +21,7 @@ from mpmref.backends import OPTION_HELP, importable_from_here, reference_argumen
 from mpmref.cli import OptionError, add_threads_option, apply_threads, end_time_option, option_value
 from mpmref.errors import ArgumentError
 
-from ..executor import Executor
+from ..framework.executor import Executor
 from . import run_study
 from .orders import series_label
 from .runs import load

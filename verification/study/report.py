@@ -6,7 +6,7 @@
 metrics, then ``error``). The plots: ``order_<measure>.png`` for each measure with an order (its error against
 the resolution on log-log axes, fitted lines, slopes in the legend), ``energy_change.png`` and ``drifts.png``
 (every run's time series) and, with the ledger, ``ledger.png``. Each PNG carries its caption
-(:func:`verification.report.save_figure`); ``index.html`` is in the style of ``mpmref verify``'s report.
+(:func:`verification.framework.report.save_figure`); ``index.html`` is in the style of ``mpmref verify``'s report.
 """
 
 import csv
@@ -22,8 +22,8 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import ASYNC_TERMS
 
-from ..html_report import figure_html, page
-from ..report import NO_CAPTION, figure_caption, pyplot, save_figure
+from ..framework.html_report import figure_html, page
+from ..framework.report import NO_CAPTION, figure_caption, pyplot, save_figure
 from .orders import series_label
 from .runs import METRICS, jsonable
 from .variations import label

@@ -46,7 +46,7 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.io.run_output import clear_run
 from mpmref.observe.ledger import ASYNC_TERMS
 
-from ..report import json_number
+from ..framework.report import json_number
 
 #: schema of a run's result file, ``runs/<id>.json``
 RUN_SCHEMA = "mpmref-study-run/1"
@@ -58,7 +58,7 @@ METRICS = DRIFTS + ("energy_excursion", "final_time", "steps", "particles", "wal
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One run of a study (picklable, for :class:`~verification.executor.Executor`).
+    """One run of a study (picklable, for :class:`~verification.framework.executor.Executor`).
 
     ``params``: its ``(key, value)`` pairs; ``scene``: its declarations (the variation applied); ``measures`` and
     ``setup``: references (or functions, in this process); ``result``: the path of its JSON; ``frames``: the
@@ -211,12 +211,12 @@ def _non_finite(table):
     return {k: [back(x) for x in v] if isinstance(v, list) else back(v) for k, v in table.items()}
 
 
-#: how :func:`~verification.report.json_number` writes the floats JSON has no numbers for
+#: how :func:`~verification.framework.report.json_number` writes the floats JSON has no numbers for
 NON_FINITE = ("nan", "inf", "-inf")
 
 
 def jsonable(data):
-    """``data`` with every float as :func:`~verification.report.json_number` writes it (NaN and infinities as the
+    """``data`` with every float as :func:`~verification.framework.report.json_number` writes it (NaN and infinities as the
     strings ``"nan"``, ``"inf"``, ``"-inf"``, so the file stays standard JSON)."""
     if isinstance(data, dict):
         return {k: jsonable(v) for k, v in data.items()}

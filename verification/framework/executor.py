@@ -14,7 +14,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 #: unsafe after it has run a parallel Numba kernel (GNU OpenMP aborts the child), and spawning a fresh
 #: interpreter per pool would import NumPy, SciPy and Numba again every time.
 _CONTEXT = multiprocessing.get_context("forkserver")
-_CONTEXT.set_forkserver_preload(["numpy", "scipy.linalg", "mpmref", "verification.registry"])
+_CONTEXT.set_forkserver_preload(["numpy", "scipy.linalg", "mpmref", "verification.framework.registry"])
 
 
 class Executor:

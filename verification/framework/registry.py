@@ -1,6 +1,6 @@
 """The verification cases by name, imported lazily, and one way to run any of them.
 
-A case module declares its :class:`~verification.case.VerificationCase` as ``CASE``: ``Params``,
+A case module declares its :class:`~verification.framework.case.VerificationCase` as ``CASE``: ``Params``,
 ``run(params, backend="numpy", executor=None)``, ``checks(result) -> [Check]``, ``report(result, out_dir)``
 and the optional members, each with its default.
 """
@@ -34,7 +34,7 @@ def available():
 
 
 def load(name):
-    """The :class:`~verification.case.VerificationCase` of case ``name`` (its module's ``CASE``); ``KeyError`` names the
+    """The :class:`~verification.framework.case.VerificationCase` of case ``name`` (its module's ``CASE``); ``KeyError`` names the
     available cases."""
     if name not in CASES:
         raise KeyError(f"unknown verification case {name!r}; available: {', '.join(available())}")

@@ -3,7 +3,7 @@
 Cases use :func:`snapshot`, :func:`write_series` and :func:`save_figure` to write the VTK series of their
 representative runs and their PNG plots (the energy ledger's stacked areas with :func:`plot_ledger_areas`) (each PNG carries its caption, the sentence that says what to
 look for, in its ``Description`` text chunk: :func:`figure_caption`). ``mpmref verify`` turns each
-case's :class:`~verification.registry.Outcome` into a :class:`CaseRecord` (:func:`case_record`: the
+case's :class:`~verification.framework.registry.Outcome` into a :class:`CaseRecord` (:func:`case_record`: the
 backends it ran, its findings, its figures, the one that carries its main claim) and writes the
 per-case ``report.md`` and ``index.html`` (:func:`write_case_report`) and the top-level ``report.md``, ``index.html`` and ``results.json``
 (:func:`write_index`). Every file is written atomically (:mod:`mpmref.io.atomic`).
@@ -204,13 +204,13 @@ class CaseRecord:
 
     Attributes
     ----------
-    outcome : verification.registry.Outcome
+    outcome : verification.framework.registry.Outcome
         The case's run: checks, timing, error.
     backends : tuple of str
         The backends the case ran: its ``backends_run(result, backend)`` (by default the backend it was asked
         for; the cases that compare backends name them all); only the one asked for when the case stopped with
         an error.
-    findings : tuple of verification.common.Finding
+    findings : tuple of verification.framework.common.Finding
         Its ``findings(result)``: measured behaviour reported, not judged.
     figures : tuple of (Path, str)
         Each PNG written by this run (relative to the case folder) with its caption.
@@ -387,7 +387,7 @@ def _error_row(outcome):
 
 
 def index_html(records, meta):
-    """``index.html`` (:func:`verification.html_report.index_html`)."""
+    """``index.html`` (:func:`verification.framework.html_report.index_html`)."""
     return html_report.index_html(records, meta, _summary(records), _all_backends(records))
 
 

@@ -2,7 +2,7 @@
 
 A case's ``checks(result)`` returns :class:`Check` objects (a figure held to a bound derived from
 theory); its ``findings(result)`` returns :class:`Finding` objects (a measured figure that is reported,
-not judged: behaviour worth knowing that is not a failure; see :class:`verification.case.VerificationCase`).
+not judged: behaviour worth knowing that is not a failure; see :class:`verification.framework.case.VerificationCase`).
 """
 
 from dataclasses import dataclass

@@ -1,7 +1,7 @@
 """The contract of a verification case: what ``mpmref verify`` runs, judges and reports.
 
 A case module under ``verification/`` declares one :class:`VerificationCase`, named ``CASE``, from its functions; the
-registry (:mod:`verification.registry`) maps the case's name to its module and reads ``CASE`` when the case
+registry (:mod:`verification.framework.registry`) maps the case's name to its module and reads ``CASE`` when the case
 runs. Four members are required (``Params``, ``run``, ``checks``, ``report``); every other member has a
 default that says what a case without it means, so the framework calls each member directly.
 """
@@ -29,7 +29,7 @@ def no_tables(result):
 
 
 def no_compiled_scenes(params, backend):
-    """The default ``compiled_scenes``: the case compiles nothing ahead (:mod:`verification.warmup`)."""
+    """The default ``compiled_scenes``: the case compiles nothing ahead (:mod:`verification.framework.warmup`)."""
     return []
 
 
@@ -46,22 +46,22 @@ class VerificationCase:
         ``full()``.
     run : callable
         ``run(params, backend="numpy", executor=None) -> result``: every simulation of the case, its
-        independent runs through ``executor`` (a :class:`~verification.executor.Executor`; ``None``: in this
+        independent runs through ``executor`` (a :class:`~verification.framework.executor.Executor`; ``None``: in this
         process).
     checks : callable
-        ``checks(result) -> [Check]``: each figure held to a bound (:class:`~verification.common.Check`).
+        ``checks(result) -> [Check]``: each figure held to a bound (:class:`~verification.framework.common.Check`).
     report : callable
         ``report(result, out_dir)``: the case's plots (saved with
-        :func:`~verification.report.save_figure`), VTK series and tables under ``out_dir``.
+        :func:`~verification.framework.report.save_figure`), VTK series and tables under ``out_dir``.
     findings : callable
         ``findings(result) -> [Finding]``: measured behaviour reported, not judged
-        (:class:`~verification.common.Finding`). Default: none.
+        (:class:`~verification.framework.common.Finding`). Default: none.
     backends_run : callable
         ``backends_run(result, backend) -> [str]``: the backends the case ran when asked for ``backend``, for
         the cases that compare backends. Default: ``(backend,)``.
     compiled_scenes : callable
         ``compiled_scenes(params, backend) -> [(backend name, scene)]``: the scenes the case runs on a compiled
-        backend, which the warm-up compiles ahead (:mod:`verification.warmup`). Default: none.
+        backend, which the warm-up compiles ahead (:mod:`verification.framework.warmup`). Default: none.
     tables : callable
         ``tables(result) -> {name: [row, ...]}``: measured figures the case tabulates for programs, each row a
         dict of column name to a number or a string; ``results.json`` carries them under the case. Default: none.
