@@ -65,3 +65,15 @@ class ContactArrays(NamedTuple):
     phi: np.ndarray
     normal: np.ndarray
     tag_T: np.ndarray
+
+
+class G2POutput(NamedTuple):
+    """The particle arrays a G2P kernel writes: positions, velocities, affine matrices :math:`C_p`, deformation
+    gradients :math:`F_p` and volume ratios :math:`J_p`; ``C``, ``F`` and ``J`` have no rows ((0, d, d), (0,)) where
+    the state does not hold them."""
+
+    x: np.ndarray
+    v: np.ndarray
+    C: np.ndarray
+    F: np.ndarray
+    J: np.ndarray

@@ -9,7 +9,7 @@ from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
-from ..transfers import SOURCE_DIGEST
+from ..source_digest import SOURCE_DIGEST
 from .common import crossed_body, tagged_by_several
 
 
@@ -111,7 +111,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, layout, groups, contact, bodies, gravity_dv, ghost_force, dt, grid_mass,
             grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
         order, block_start, colour_blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
@@ -233,7 +233,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
     @njit(parallel=True, cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, layout, dt, groups, v_grid, contact, bodies, push,
             penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
         order, block_start, blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
