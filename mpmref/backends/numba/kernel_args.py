@@ -83,10 +83,10 @@ class G2POutput(NamedTuple):
 
 class NodeField(NamedTuple):
     r"""A colored distance field on the nodes (:class:`~mpmref.physics.cdf.ColoredDistanceField`): each node's
-    distance :math:`d_i` to its nearest body, :math:`A_{ir}` (node in body :math:`r`'s band), :math:`T_{ir}` (its
-    side of body :math:`r`) and its distance :math:`d_{ir}` to each body."""
+    distance :math:`d_i` to its nearest body (the field's ``d``), :math:`A_{ir}` (node in body :math:`r`'s band),
+    :math:`T_{ir}` (its side of body :math:`r`) and its distance :math:`d_{ir}` to each body."""
 
-    d: np.ndarray
+    distance: np.ndarray
     A: np.ndarray
     T: np.ndarray
     d_body: np.ndarray

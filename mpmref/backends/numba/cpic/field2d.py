@@ -106,7 +106,7 @@ def tag_kernel(KERNEL, S, PER_BODY):
 
     The returned ``tags(x, origin, dx, shape, strides, field, old_tags, new_tags, fit, incompatible, groups, block,
     blocks_per_axis, body_fit)`` reads the field ``field`` (a :class:`~mpmref.backends.numba.kernel_args.NodeField`:
-    ``d``, ``A``, ``T``, ``d_body``) and the particles' tags ``old_tags`` (a
+    ``d``, ``A``, ``T``, ``d_body``, in this order) and the particles' tags ``old_tags`` (a
     :class:`~mpmref.backends.numba.kernel_args.SideTags`: ``tag_A``, ``tag_T``); it fills ``new_tags``
     (``A_new``, ``T_new``), ``fit`` (a :class:`~mpmref.backends.numba.kernel_args.DistanceFit`: ``phi``,
     ``normal``, ``near``) and ``incompatible``, and compiled with ``PER_BODY`` the per-body fits ``body_fit``
