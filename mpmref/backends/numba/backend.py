@@ -312,7 +312,7 @@ class NumbaBackend:
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde,
-                  G2POutput(x_new, v_new, C_new, F_new, J_new), modes_new)
+                  G2POutput(x_new, v_new, C_new, F_new, J_new, modes_new))
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:

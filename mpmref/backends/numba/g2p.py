@@ -23,22 +23,21 @@ def gather_modes(acc, idx, w, ks, v_grid, q, mode_index):
 
 
 @njit(cache=True, inline="always")
-def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, sums, acc, qnorm, mode_index, out, modes_new, affine,
-                    poly, flip, mls_gradient):
+def finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm, mode_index, out,
+                    affine, poly, flip, mls_gradient):
     r"""G2P's per-particle update from the gathered sums (see :func:`mpmref.backends.numpy.transfers.g2p`) into
     ``out`` (a :class:`~.kernel_args.G2POutput`; ``F`` or ``J`` only where the state tracks it, ``out.F`` or
-    ``out.J`` empty otherwise) and ``modes_new``.
+    ``out.J`` empty otherwise).
 
-    ``sums`` = ``(v_pic, dv_flip, B, grad_v)``, the gathered sums as tuples (``B`` and ``grad_v`` flat,
-    row-major). :math:`C_p = B_p D_p^{-1}`; :math:`\nabla v_p = C_p` (MLS, ``mls_gradient``) or the gathered
+    The sums are tuples (``B`` and ``grad_v`` flat, row-major; separate arguments: Numba's parallel array
+    analysis cannot follow tuples of tuples of different lengths). :math:`C_p = B_p D_p^{-1}`; :math:`\nabla v_p = C_p` (MLS, ``mls_gradient``) or the gathered
     :math:`\sum_i v_i \nabla w_{ip}^T`;
     :math:`x_p \leftarrow x_p + \Delta t\, v^{PIC}_p`; the FLIP blend (``dv_flip`` holds
     :math:`\sum_i w_{ip}(v_i - \tilde v_i)` less :math:`v^{PIC}_p`, added back here); :math:`F_p \leftarrow
     F_p + \Delta t\, \nabla v_p F_p`; :math:`J_p \leftarrow J_p (1 + \Delta t \operatorname{tr} \nabla v_p)`;
     PolyPIC modes :math:`c_{pr} = \sum_i w_{ip} s_r v_i / \prod_a \langle q_{r_a}, q_{r_a}\rangle_a`.
     """
-    v_pic, dv_flip, B, grad_v = sums
-    x_new, v_new, C_new, F_new, J_new = out
+    x_new, v_new, C_new, F_new, J_new, modes_new = out
     d = x.shape[1]
     for a in range(d):
         x_new[p, a] = x[p, a] + dt * v_pic[a]

@@ -133,9 +133,9 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out, modes_new)``
+    The returned ``g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out)``
     (``layout`` a :class:`~.kernel_args.SparseLayout`) writes the new particle arrays, ``out`` (a
-    :class:`~.kernel_args.G2POutput`) and ``modes_new``, from the node velocities on the rows of a
+    :class:`~.kernel_args.G2POutput`), from the node velocities on the rows of a
     :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes
     only its own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
     are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
@@ -151,7 +151,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**2
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out, modes_new):
+    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
@@ -195,8 +195,8 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                             dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, 2), 2)
                         if POLY:
                             gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
-                finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, (v_pic, dv_flip, B, grad_v), acc, qnorm,
-                                mode_index, out, modes_new, AFFINE, POLY, FLIP, MLS_GRADIENT)
+                finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
+                                mode_index, out, AFFINE, POLY, FLIP, MLS_GRADIENT)
 
     return g2p
 

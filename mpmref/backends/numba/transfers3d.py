@@ -114,7 +114,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out, modes_new):
+    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
@@ -164,8 +164,8 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                                 dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, 3), 3)
                             if POLY:
                                 gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
-                finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, (v_pic, dv_flip, B, grad_v), acc, qnorm,
-                                mode_index, out, modes_new, AFFINE, POLY, FLIP, MLS_GRADIENT)
+                finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
+                                mode_index, out, AFFINE, POLY, FLIP, MLS_GRADIENT)
 
     return g2p
 
