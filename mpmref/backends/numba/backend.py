@@ -14,7 +14,7 @@ from . import cpic, materials, transfers
 from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
 from .grid_update import block_grid_velocity, grid_velocity
-from .kernel_args import G2POutput, Groups, SparseLayout
+from .kernel_args import Groups, SparseLayout
 from .kicks import class_totals, node_kicks
 from .sparse import BlockLayout
 from .threads import describe_threads, threads_for
@@ -312,7 +312,7 @@ class NumbaBackend:
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
                   self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde,
-                  G2POutput(x_new, v_new, C_new, F_new, J_new, modes_new))
+                  x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:

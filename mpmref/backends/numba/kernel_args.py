@@ -70,17 +70,15 @@ class ContactArrays(NamedTuple):
 
 
 class G2POutput(NamedTuple):
-    """The particle arrays a G2P kernel writes: positions, velocities, affine matrices :math:`C_p`, deformation
-    gradients :math:`F_p`, volume ratios :math:`J_p` and PolyPIC modes; ``C``, ``F``, ``J`` and ``modes`` have no
-    rows ((0, d, d), (0,), (0, 0, d)) where the state does not hold them (or, ``modes``, the G2P does not write
-    them: CPIC's)."""
+    """The particle arrays a CPIC G2P kernel writes: positions, velocities, affine matrices :math:`C_p`, deformation
+    gradients :math:`F_p` and volume ratios :math:`J_p`; ``C``, ``F`` and ``J`` have no rows ((0, d, d), (0,)) where
+    the state does not hold them."""
 
     x: np.ndarray
     v: np.ndarray
     C: np.ndarray
     F: np.ndarray
     J: np.ndarray
-    modes: np.ndarray
 
 
 class NodeField(NamedTuple):

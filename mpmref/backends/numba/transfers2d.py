@@ -13,7 +13,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from .g2p import G2P_CHUNK, finish_particle, gather_modes
+from .g2p import G2P_CHUNK, deform_particle, gather_modes, move_particle
 from .materials import fluid_stress_into
 from .p2g import p2g_node
 from .source_digest import SOURCE_DIGEST
@@ -133,17 +133,18 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out)``
-    (``layout`` a :class:`~.kernel_args.SparseLayout`) writes the new particle arrays, ``out`` (a
-    :class:`~.kernel_args.G2POutput`), from the node velocities on the rows of a
+    The returned ``g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new,
+    F_new, J_new, modes_new)`` (``layout`` a :class:`~.kernel_args.SparseLayout`) writes the new particle arrays
+    from the node velocities on the rows of a
     :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes
     only its own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
     are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
     :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
     :math:`-\sum_i w_{ip} \tilde v_i` (FLIP); PolyPIC's mode projections go to a work array
-    (:func:`~.g2p.gather_modes`); :func:`~.g2p.finish_particle` updates the particle from them.
+    (:func:`~.g2p.gather_modes`); :func:`~.g2p.move_particle` and :func:`~.g2p.deform_particle` update the particle
+    from them.
     ``MLS_GRADIENT``: the velocity gradient is MLS's, :math:`\nabla v_p = C_p` (``transfer.mls_gradient``), chosen
-    apart from the force. ``out.F`` or ``out.J`` is empty where the state does not track that quantity: a run-time
+    apart from the force. ``F_new`` or ``J_new`` is empty where the state does not track that quantity: a run-time
     test per particle, so one compiled kernel serves scenes that track F, J or both.
     """
     NEED_B = AFFINE or MLS_GRADIENT
@@ -151,11 +152,12 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**2
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out):
+    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
+            modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
-        real = out.x.dtype.type
+        real = x_new.dtype.type
         inv_dx = 1.0 / dx
         n = x.shape[0]
         for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
@@ -195,8 +197,10 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                             dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, 2), 2)
                         if POLY:
                             gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
-                finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
-                                mode_index, out, AFFINE, POLY, FLIP, MLS_GRADIENT)
+                move_particle(p, x, v, dt, inertia, flip_alpha, v_pic, dv_flip, B, acc, qnorm, mode_index, x_new,
+                              v_new, C_new, modes_new, AFFINE, POLY, FLIP)
+                deform_particle(p, x, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
+                                J_new.shape[0] > 0)
 
     return g2p
 

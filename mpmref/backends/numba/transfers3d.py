@@ -12,7 +12,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from .g2p import G2P_CHUNK, finish_particle, gather_modes
+from .g2p import G2P_CHUNK, deform_particle, gather_modes, move_particle
 from .materials import fluid_stress_into
 from .p2g import p2g_node
 from .source_digest import SOURCE_DIGEST
@@ -114,11 +114,12 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, out):
+    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
+            modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
-        real = out.x.dtype.type
+        real = x_new.dtype.type
         inv_dx = 1.0 / dx
         n = x.shape[0]
         for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
@@ -164,8 +165,10 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                                 dv_flip = axpy(dv_flip, -w, row(v_tilde, idx, 3), 3)
                             if POLY:
                                 gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
-                finish_particle(p, x, v, F, J, dt, inertia, flip_alpha, v_pic, dv_flip, B, grad_v, acc, qnorm,
-                                mode_index, out, AFFINE, POLY, FLIP, MLS_GRADIENT)
+                move_particle(p, x, v, dt, inertia, flip_alpha, v_pic, dv_flip, B, acc, qnorm, mode_index, x_new,
+                              v_new, C_new, modes_new, AFFINE, POLY, FLIP)
+                deform_particle(p, x, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
+                                J_new.shape[0] > 0)
 
     return g2p
 

@@ -181,7 +181,7 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
            backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
            dense_layout(backend), dt, Groups(blocks.order, blocks.block_start, *blocks.block_colours), v_grid,
            contact_arrays(contact, particles), bodies_of(rigid, contact), float(cpic.pushing_force),
-           float(cpic.penalty), G2POutput(x_new, v_new, C_new, F_new, J_new, empty(0, 0, d)), block_impulse, contact.fits)
+           float(cpic.penalty), G2POutput(x_new, v_new, C_new, F_new, J_new), block_impulse, contact.fits)
     total = sum_in_order(block_impulse)
     J, L = total[:, :d], (total[:, d] if d == 2 else total[:, d:])
     changes = {"x": x_new, "v": v_new}

@@ -223,7 +223,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
             penalty, out, block_impulse, fits):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
-        x_new, v_new, C_new, F_new, J_new = out.x, out.v, out.C, out.F, out.J  # no PolyPIC modes with CPIC
+        x_new, v_new, C_new, F_new, J_new = out.x, out.v, out.C, out.F, out.J
         order, block_start, blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
         position, velocity, omega, friction = bodies
