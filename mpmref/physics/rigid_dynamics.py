@@ -25,16 +25,64 @@ the material could not give to the grid); the integration order is the authors' 
 """
 
 from dataclasses import dataclass, field, fields, replace
+from typing import Protocol
 
 import numpy as np
 
 from . import rigid_dynamics2d, rigid_dynamics3d
 from .rigid import Polyline
 
-#: The rigid-body mechanics of each dimension (a module with ``initial_arrays``, ``posed_shape``, ``begin_step``,
-#: ``point_velocity``, ``body_impulses``, ``apply_impulses``, ``end_step`` and ``diagnostics``), chosen once
-#: per :class:`RigidState` from its arrays' shapes.
-MECHANICS = {2: rigid_dynamics2d, 3: rigid_dynamics3d}
+
+class RigidMechanics(Protocol):
+    r"""The rigid-body mechanics of one dimension: what :data:`MECHANICS` holds for 2D
+    (:mod:`.rigid_dynamics2d`) and 3D (:mod:`.rigid_dynamics3d`), each a module with these functions, the same
+    names and arguments (tests/test_rigid_mechanics.py checks both against this declaration).
+
+    Per dimension ``d``, the state's arrays (:class:`RigidState`) are: ``position``, ``velocity`` and ``impulse``
+    (nb, d); ``angle`` the orientation, :math:`\theta` (nb,) in 2D, a unit quaternion (w, x, y, z) (nb, 4) in 3D;
+    ``angular_velocity`` and ``angular_impulse`` (nb,) in 2D (about :math:`\hat{\mathbf z}`), (nb, 3) in 3D.
+    ``bodies`` is a sequence of :class:`RigidBody`; a function that changes the state returns a new one.
+    """
+
+    def initial_arrays(self, bodies):
+        """The :class:`RigidState` arrays at time 0 of ``bodies`` (a dict of the state's fields)."""
+
+    def posed_shape(self, body, position, angle):
+        r"""The body's shape (:class:`~mpmref.physics.rigid.Polyline` or :class:`~mpmref.physics.trimesh.TriMesh`)
+        at the pose ``position`` :math:`\mathbf c`, ``angle`` (a row of ``RigidState.angle``):
+        :math:`\mathbf x = \mathbf c + R(\text{angle})(\mathbf x^0 - \mathbf c_0)`."""
+
+    def begin_step(self, bodies, state, time, dt):
+        """The state with each scripted body's velocity and angular velocity over ``[time, time + dt]``."""
+
+    def point_velocity(self, state, body_ids, x):
+        r"""Velocity :math:`\mathbf v_r + \boldsymbol\omega_r \times (\mathbf x - \mathbf c_r)` of bodies
+        ``body_ids`` at points ``x`` (..., d)."""
+
+    def body_impulses(self, n_bodies, body_ids, x, impulse, position):
+        r"""Impulses ``impulse`` applied at points ``x`` to bodies ``body_ids``, summed per body: ``(J, L)``,
+        :math:`\mathbf J_r = \sum \mathbf J` and :math:`\mathbf L_r = \sum (\mathbf x - \mathbf c_r)\times
+        \mathbf J` about each body's reference point ``position[r]``."""
+
+    def apply_impulses(self, bodies, state, J, L):
+        r"""The state with impulses ``J`` and angular impulses ``L`` recorded and the dynamic bodies'
+        velocities changed: :math:`\mathbf v_r \mathrel{+}= \mathbf J_r / M_r`,
+        :math:`\boldsymbol\omega_r \mathrel{+}= \mathbf I_r^{-1}\mathbf L_r`."""
+
+    def end_step(self, bodies, state, time, dt, gravity):
+        """The state moved to ``time + dt``: dynamic bodies by their velocities and gravity, scripted ones to their
+        script's pose, fixed ones unchanged."""
+
+    def kinetic_energy(self, bodies, state):
+        """Kinetic energy of each dynamic body (nb,), zero for fixed and scripted bodies."""
+
+    def diagnostics(self, bodies, state):
+        """Per body ``r``: ``rigid{r}_`` pose, velocity, angular velocity and impulses received (a dict)."""
+
+
+#: The rigid-body mechanics of each dimension (:class:`RigidMechanics`), chosen once per :class:`RigidState` from
+#: its arrays' shapes.
+MECHANICS: dict[int, RigidMechanics] = {2: rigid_dynamics2d, 3: rigid_dynamics3d}
 
 MOTIONS = ("fixed", "scripted", "dynamic")
 CONTACT_TYPES = ("sticky", "slip", "separate")
@@ -94,7 +142,7 @@ class RigidState:
     angular_velocity : (nb,)    :math:`\\omega`
     impulse : (nb, 2)           linear impulse received from the material since time 0
     angular_impulse : (nb,)     angular impulse about the reference point received since time 0
-    mechanics : module          the dimension's motion (:data:`MECHANICS`: :mod:`.rigid_dynamics2d` or
+    mechanics : RigidMechanics  the dimension's motion (:data:`MECHANICS`: :mod:`.rigid_dynamics2d` or
                                 :mod:`.rigid_dynamics3d`), chosen when the state is made; not an array
 
     Notes

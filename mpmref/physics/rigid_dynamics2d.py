@@ -10,8 +10,9 @@ about it,
           \mathbf v_r(\mathbf x) = \mathbf v + \omega \hat{\mathbf z} \times (\mathbf x - \mathbf c).
 
 The state arrays: ``position`` and ``velocity`` (nb, 2), ``angle`` and ``angular_velocity`` (nb,), ``impulse``
-(nb, 2), ``angular_impulse`` (nb,). The functions here have the same names and arguments as those of
-:mod:`mpmref.physics.rigid_dynamics3d`.
+(nb, 2), ``angular_impulse`` (nb,). The functions here are the 2D
+:class:`~mpmref.physics.rigid_dynamics.RigidMechanics` (the same names and arguments as those of
+:mod:`mpmref.physics.rigid_dynamics3d`).
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §5; the integration order is the authors' reference

@@ -2,7 +2,8 @@ r"""Rigid-body motion for CPIC in 3D: orientation, scripts, impulses and integra
 
 The 3D motion behind :mod:`mpmref.physics.rigid_dynamics` (chosen once, when a
 :class:`~mpmref.physics.rigid_dynamics.RigidState` of :class:`~mpmref.physics.trimesh.TriMesh` bodies is made);
-its functions have the same names and arguments as those of :mod:`mpmref.physics.rigid_dynamics2d`. A body is declared at time 0 with a reference
+its functions are the 3D :class:`~mpmref.physics.rigid_dynamics.RigidMechanics` (the same names and arguments as
+those of :mod:`mpmref.physics.rigid_dynamics2d`). A body is declared at time 0 with a reference
 point :math:`\mathbf c_0` (its centre of mass for a dynamic body, the declared ``center`` or the vertex
 centroid otherwise). Its pose at a later time is a translation of the reference point to :math:`\mathbf c`
 and a rotation :math:`R(\mathbf q)` about it, given by a unit quaternion :math:`\mathbf q = (w, x, y, z)`:
@@ -117,9 +118,10 @@ def initial_arrays(bodies):
                 impulse=np.zeros((nb, 3)), angular_impulse=np.zeros((nb, 3)))
 
 
-def posed_shape(body, position, q):
-    r"""The body's mesh at pose (``position``, ``q``): :math:`\mathbf x = \mathbf c + R(\mathbf q)(\mathbf x^0 - \mathbf c_0)`."""
-    vertices = position + (body.shape.vertices - body.center) @ rotation_matrix(q).T
+def posed_shape(body, position, angle):
+    r"""The body's mesh at pose (``position``, ``angle``, the orientation quaternion :math:`\mathbf q`):
+    :math:`\mathbf x = \mathbf c + R(\mathbf q)(\mathbf x^0 - \mathbf c_0)`."""
+    vertices = position + (body.shape.vertices - body.center) @ rotation_matrix(angle).T
     return TriMesh(vertices=vertices, triangles=body.shape.triangles, closed=body.shape.closed)
 
 

@@ -13,7 +13,9 @@ from ..base import MaterialTable
 from . import cpic, materials, transfers
 from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
+from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
+from .kicks import class_totals, node_kicks
 from .sparse import BlockLayout
 from .threads import describe_threads, threads_for
 from .stencil import BASE_SHIFT
@@ -187,7 +189,7 @@ class NumbaBackend:
 
         The stress comes from the stress stage (:meth:`stress`), run here first, except in a scene of fluids
         only: a fluid's stress is a function of :math:`J` alone, and P2G computes it per particle instead of
-        storing it (:func:`mpmref.backends.numba.transfers.p2g_kernel`). The node rows of the active
+        storing it (:func:`mpmref.backends.numba.transfers2d.p2g_kernel`). The node rows of the active
         blocks live in one (rows, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
         momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
@@ -206,13 +208,13 @@ class NumbaBackend:
         if classes is not None:
             class_sums = grid.reshape(N_CLASSES, layout.n_rows, 1 + 2 * d)
             grid, = self.buffers.take("grid_totals", (layout.n_rows, 1 + 2 * d))
-            transfers.class_totals(class_sums, grid)
+            class_totals(class_sums, grid)
         state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
                           class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
 
     def p2g_fused(self, particles, dt, prepared=None):
-        """P2G with the internal force folded into the momentum (:func:`.transfers.p2g_kernel` with ``FUSED``; the
+        """P2G with the internal force folded into the momentum (:func:`.transfers2d.p2g_kernel` with ``FUSED``; the
         reference is :func:`mpmref.backends.numpy.transfers.p2g_fused`): node rows of mass and momentum after the
         force, (1 + d) values where :meth:`p2g` scatters (1 + 2d); a :class:`~mpmref.state.GridState` with
         ``force = None``, in ``prepared``'s layout or, without it, dense."""
@@ -252,16 +254,16 @@ class NumbaBackend:
 
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
-        (:func:`.transfers.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`)."""
+        (:func:`.kicks.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`)."""
         sums = grid_state.class_sums
         kicks = np.empty((2, sums.shape[1], (sums.shape[2] - 1) // 2))
-        transfers.node_kicks(sums, dt, kappa, kicks)
+        node_kicks(sums, dt, kappa, kicks)
         return kicks
 
     def grid_update(self, grid_state, dt, time=0.0):
         """Grid velocity after forces, gravity, walls and colliders; returns ``(v, v_tilde)`` (pool arrays) in
         the form of ``grid_state``: the rows of its ``layout``, or dense when it has none."""
-        folded = grid_state.force is None  # a fused P2G's state: no v_tilde (see transfers.node_velocity)
+        folded = grid_state.force is None  # a fused P2G's state: no v_tilde (see grid_update.node_velocity)
         shape = grid_state.momentum.shape
         v, v_tilde = (self.buffers.take("grid_velocity_folded", shape, (0, shape[1])) if folded
                       else self.buffers.take("grid_velocity", shape, shape))
@@ -269,11 +271,11 @@ class NumbaBackend:
         layout = grid_state.layout
         walls = (self.scene.boundary.width, self.wall_type, self.wall_friction, v, v_tilde)
         if layout is None:
-            transfers.grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity,
-                                    self.node_shape, self.strides, *walls)
+            grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity, self.node_shape, self.strides,
+                          *walls)
         else:
-            transfers.block_grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity,
-                                          self.node_shape, self.block, layout.blocks, *walls)
+            block_grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity, self.node_shape,
+                                self.block, layout.blocks, *walls)
         if self.scene.colliders:
             has_mass = grid_state.mass > 0
             node_x = self.node_x if layout is None else self.origin + layout.node_index * self.dx
@@ -290,7 +292,7 @@ class NumbaBackend:
         backend's :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state
         swaps two sets of them instead of allocating a state per step. With ``kicks`` = ``(classes, kick)``
         (conservative interfaces; see :func:`mpmref.backends.numpy.transfers.g2p`) a second gather collects
-        each particle's impulse and its moment about the origin (:func:`.transfers.kick_gather_kernel`: its
+        each particle's impulse and its moment about the origin (:func:`.transfers2d.kick_gather_kernel`: its
         own pass, so that no other run's G2P compiles it), and the result is ``(particles, (dP, dL))``.
         """
         n, d = particles.x.shape
@@ -311,8 +313,8 @@ class NumbaBackend:
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
         self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde, x_new,
-                  v_new, C_new, F_new, J_new, modes_new)
+                  self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde,
+                  x_new, v_new, C_new, F_new, J_new, modes_new)
         changes = {"x": x_new, "v": v_new}
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:

@@ -1,11 +1,13 @@
 """Named groups of the compiled kernels' arguments.
 
-A transfer kernel reads the grid's layout, the order in which particles are visited and, with CPIC, the
-bodies and the particle–node contact: a few dozen arrays and numbers. Numba passes a named tuple of them
-as one argument (its type is part of the compiled signature, like an array's), and a kernel unpacks it in
-its first lines, so the arithmetic that follows reads the same names as before and compiles to the same
-code. The groups are built once per stage call by the backend (:mod:`mpmref.backends.numba.backend`,
-:mod:`mpmref.backends.numba.cpic.stages`).
+A transfer kernel reads the grid's layout, the order in which particles are visited, the arrays it writes
+and, with CPIC, the bodies, the particle–node contact, the colored distance field and the particles' tags and
+fits: a few dozen arrays and numbers. Numba passes a named tuple of them as one argument (its type is part of
+the compiled signature, like an array's; the classes are defined here, at module level, so that a kernel that
+takes them is cached on disk), and a kernel unpacks it in its first lines or reads its fields by name, so the
+arithmetic that follows reads the same names as before and compiles to the same code; no compiled kernel
+takes more than 20 arguments (tests/test_numba_layout.py). The groups are built once per stage call by the
+backend (:mod:`mpmref.backends.numba.backend`, :mod:`mpmref.backends.numba.cpic.stages`).
 """
 
 from typing import NamedTuple
@@ -65,3 +67,59 @@ class ContactArrays(NamedTuple):
     phi: np.ndarray
     normal: np.ndarray
     tag_T: np.ndarray
+
+
+class G2POutput(NamedTuple):
+    """The particle arrays a CPIC G2P kernel writes: positions, velocities, affine matrices :math:`C_p`, deformation
+    gradients :math:`F_p` and volume ratios :math:`J_p`; ``C``, ``F`` and ``J`` have no rows ((0, d, d), (0,)) where
+    the state does not hold them."""
+
+    x: np.ndarray
+    v: np.ndarray
+    C: np.ndarray
+    F: np.ndarray
+    J: np.ndarray
+
+
+class NodeField(NamedTuple):
+    r"""A colored distance field on the nodes (:class:`~mpmref.physics.cdf.ColoredDistanceField`): each node's
+    distance :math:`d_i` to its nearest body (the field's ``d``), :math:`A_{ir}` (node in body :math:`r`'s band),
+    :math:`T_{ir}` (its side of body :math:`r`) and its distance :math:`d_{ir}` to each body."""
+
+    distance: np.ndarray
+    A: np.ndarray
+    T: np.ndarray
+    d_body: np.ndarray
+
+
+class SideTags(NamedTuple):
+    r"""The particles' tags of each body: :math:`A_{pr}` (tagged by body :math:`r`) and :math:`T_{pr}` (its side)."""
+
+    A: np.ndarray
+    T: np.ndarray
+
+
+class DistanceFit(NamedTuple):
+    r"""A least-squares fit of the field at the particles (:func:`mpmref.physics.cdf.reconstruct`): distances
+    :math:`\phi_p`, normals :math:`\mathbf n_p` and whether the fit was accepted (``near``); per particle, or per
+    particle and body for the per-body fit."""
+
+    phi: np.ndarray
+    normal: np.ndarray
+    near: np.ndarray
+
+
+class BodyFits(NamedTuple):
+    r"""What the CPIC transfer kernels read of the per-body fit (:func:`mpmref.physics.cdf.reconstruct_per_body`):
+    whether the scene uses it (``per_body``), the field's :math:`A_{ir}`, :math:`T_{ir}` and :math:`d_{ir}`, the
+    particles' new tags :math:`A_{pr}`, and the fits of the particles tagged by several bodies, :math:`\phi_{pr}`,
+    :math:`\mathbf n_{pr}` and ``near`` (shapes (n, nb, ...); no rows with the single fit)."""
+
+    per_body: bool
+    A: np.ndarray
+    T: np.ndarray
+    d_body: np.ndarray
+    tag_A: np.ndarray
+    phi: np.ndarray
+    normal: np.ndarray
+    near: np.ndarray

@@ -310,7 +310,7 @@ def wave_speeds_kernel(F, J, Jp, material, idx, rules, params, out):
 # --------------------------------------------------------------------------- fluid stress inside P2G
 def fluid_parameters(materials):
     r"""``(k, 2)`` float64: :math:`(K, \gamma)` of each of a scene's materials that is a weakly compressible
-    fluid (zeros for the others), for P2G's own fluid stress (:func:`mpmref.backends.numba.transfers.p2g_kernel`)."""
+    fluid (zeros for the others), for P2G's own fluid stress (:func:`mpmref.backends.numba.transfers2d.p2g_kernel`)."""
     params = np.zeros((len(materials), 2), dtype=np.float64)
     for i, material in enumerate(materials):
         if isinstance(material, WeaklyCompressibleFluid):

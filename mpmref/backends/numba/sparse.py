@@ -20,7 +20,9 @@ the active blocks are never read by G2P, so the sparse step gives the same bits 
 **Rows.** Active blocks get slots in C order of their block coordinates; node ``(i, j[, k])`` of the block
 in slot ``s`` is row :math:`s B^d + \sum_a (i_a \bmod B) B^{d-1-a}` of the node arrays. The table has one
 more block per axis than the grid (:attr:`BlockLayout.table_shape`), so the upper neighbour of any owner
-block exists; blocks beyond the domain's last node hold only empty padding rows.
+block exists; blocks beyond the domain's last node hold only empty padding rows. The transfer kernels find the
+rows of a particle's stencil with :func:`block_rows_2d` or :func:`block_rows_3d` (the first rows of the blocks
+it spans) and, per axis, :func:`hops` and :func:`local_rows`.
 """
 
 from functools import cached_property
@@ -161,3 +163,65 @@ def active_blocks(block_start, blocks_per_axis, table_shape):
                     rest //= table_shape[a]
                 slot += 1
     return slot_of, blocks
+
+
+@njit(cache=True, inline="always")
+def hops(local_base, block, S):
+    """Per stencil node ``k = 0 .. S-1`` of one axis whose base node lies ``local_base`` nodes into its block:
+    whether node ``k`` lies in the next block along the axis (a tuple of bools)."""
+    if S == 2:
+        return (local_base >= block, local_base + 1 >= block)
+    if S == 3:
+        return (local_base >= block, local_base + 1 >= block, local_base + 2 >= block)
+    return (local_base >= block, local_base + 1 >= block, local_base + 2 >= block, local_base + 3 >= block)
+
+
+@njit(cache=True, inline="always")
+def local_rows(local_base, block, row_stride, next_block, S):
+    """Per stencil node of one axis (a tuple of ``S``): its index within its block times ``row_stride`` (the
+    block's row stride along the axis, :math:`B^{d-1-a}`), plus ``next_block`` for a node in the next block."""
+    if S == 2:
+        return (node_row(local_base, block, row_stride, next_block),
+                node_row(local_base + 1, block, row_stride, next_block))
+    if S == 3:
+        return (node_row(local_base, block, row_stride, next_block),
+                node_row(local_base + 1, block, row_stride, next_block),
+                node_row(local_base + 2, block, row_stride, next_block))
+    return (node_row(local_base, block, row_stride, next_block),
+            node_row(local_base + 1, block, row_stride, next_block),
+            node_row(local_base + 2, block, row_stride, next_block),
+            node_row(local_base + 3, block, row_stride, next_block))
+
+
+@njit(cache=True, inline="always")
+def node_row(local, block, row_stride, next_block):
+    """Row offset of a node ``local`` nodes past the start of its owner block (at most ``2 block - 1``)."""
+    if local >= block:
+        return (local - block) * row_stride + next_block
+    return local * row_stride
+
+
+@njit(cache=True, inline="always")
+def block_rows_2d(b0, b1, slot_of, table_strides, block):
+    r"""First rows of the owner block of a 2D stencil with base node ``(b0, b1)`` and of its upper neighbour
+    along axis 0 (look-ups in the block-pointer table ``slot_of``; see the module doc, "Rows").
+
+    With per axis :func:`hops` and :func:`local_rows`, node ``(i, j)`` of the stencil is row
+    ``(k1 if hop0[i] else k0) + r0[i] + r1[j]``: the upper neighbour along the last axis needs no look-up, as it
+    is the next slot (:math:`B^d` rows on) in C order of the blocks, so ``r1`` holds that step.
+    """
+    n = block * block
+    t = b0 // block * table_strides[0] + b1 // block * table_strides[1]
+    return slot_of[t] * n, slot_of[t + table_strides[0]] * n
+
+
+@njit(cache=True, inline="always")
+def block_rows_3d(b0, b1, b2, slot_of, table_strides, block):
+    r"""First rows of the owner block of a 3D stencil with base node ``(b0, b1, b2)`` and of its upper neighbours
+    along axes 0 and 1 (``k10`` one block up along axis 0); node ``(i, j, l)`` is row
+    ``k[hop0[i]][hop1[j]] + r0[i] + r1[j] + r2[l]`` (see :func:`block_rows_2d`)."""
+    n = block * block * block
+    s0, s1 = table_strides[0], table_strides[1]
+    t = b0 // block * s0 + b1 // block * s1 + b2 // block * table_strides[2]
+    return slot_of[t] * n, slot_of[t + s1] * n, slot_of[t + s0] * n, slot_of[t + s0 + s1] * n
+

@@ -128,12 +128,12 @@ def body_target(p, flat, r, dx, d_body, T, T_p):
 
 @njit(cache=True, inline="always")
 def crossed_body(p, idx, tag_T, fits):
-    r"""With the per-body fit (``fits = (per_body, A, T, d_body, tag_A, fit_normal, fit_near)``), the body :math:`c`
+    r"""With the per-body fit (``fits`` a :class:`~mpmref.backends.numba.kernel_args.BodyFits`), the body :math:`c`
     whose own fit gives the ghost velocity of incompatible node ``idx`` for particle ``p``: :math:`A_{ic} = A_{pc}
     = 1`, :math:`T_{ic} \ne T_{pc}`, the least :math:`d_{ic}`, the lowest id on a tie, if its per-body fit is
     accepted; otherwise -1 (the single fit then applies; :func:`mpmref.backends.numpy.cpic.ghost_frames`). The
     kernels call it only when compiled for the per-body fit (their ``PER_BODY``)."""
-    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
+    A, T, d_body, tag_A, fit_near = fits.A, fits.T, fits.d_body, fits.tag_A, fits.near
     c, best = -1, np.inf
     for r in range(tag_A.shape[1]):
         if A[idx, r] and tag_A[p, r] and T[idx, r] != tag_T[p, r] and d_body[idx, r] < best:

@@ -13,7 +13,7 @@ from ....physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, Col
 from ....physics.rigid import surface_samples
 from ....physics.rigid_dynamics import current_shapes
 from ..stencil import kernel_axis, quadratic_axis
-from ..transfers import SOURCE_DIGEST
+from ..source_digest import SOURCE_DIGEST
 from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
                      settle_body, sticky_tags, tagged_by_several)
 
@@ -104,20 +104,31 @@ def tag_kernel(KERNEL, S, PER_BODY):
     r"""Sticky tags, least-squares distance and normal of every particle (2D, quadratic stencil), and the
     mask of the incompatible nodes of its transfer stencil (``S`` nodes per axis, kernel code ``KERNEL``).
 
-    The returned ``tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
-    incompatible, order, block_start, blocks, block, blocks_per_axis, d_body, fit_phi, fit_normal, fit_near)``
-    fills the arrays from ``A_new`` to ``incompatible``, and compiled with ``PER_BODY`` the per-body fits
-    ``fit_*`` (n, nb) of particles tagged by several bodies (:func:`per_body_fits`), which must be zero on entry:
-    only particles near a body are written (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the
-    particles' blocks (``prepare``'s
-    sort, :mod:`.blocks`) and skips a block at once when no node its particles' stencils reach is in a band.
+    The returned ``tags(x, origin, dx, shape, strides, field, old_tags, new_tags, fit, incompatible, groups, block,
+    blocks_per_axis, body_fit)`` reads the field ``field`` (a :class:`~mpmref.backends.numba.kernel_args.NodeField`:
+    ``d``, ``A``, ``T``, ``d_body``, in this order) and the particles' tags ``old_tags`` (a
+    :class:`~mpmref.backends.numba.kernel_args.SideTags`: ``tag_A``, ``tag_T``); it fills ``new_tags``
+    (``A_new``, ``T_new``), ``fit`` (a :class:`~mpmref.backends.numba.kernel_args.DistanceFit`: ``phi``,
+    ``normal``, ``near``) and ``incompatible``, and compiled with ``PER_BODY`` the per-body fits ``body_fit``
+    (``fit_phi``, ``fit_normal``, ``fit_near``, (n, nb, ...)) of particles tagged by several bodies
+    (:func:`per_body_fits`); all must be zero on entry: only particles near a body are written
+    (:func:`tag_particle`, :func:`incompatibility_mask`). It runs over the particles' blocks (``groups`` a
+    :class:`~mpmref.backends.numba.kernel_args.Groups` of ``prepare``'s sort, :mod:`.blocks`; ``block`` cells
+    per block edge, ``blocks_per_axis`` of the grid) and skips a block at once when no node its particles'
+    stencils reach is in a band.
     """
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
-    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
-             order, block_start, blocks, block, blocks_per_axis, d_body, fit_phi, fit_normal, fit_near):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+    def tags(x, origin, dx, shape, strides, field, old_tags, new_tags, fit, incompatible, groups, block,
+             blocks_per_axis, body_fit):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
+        d, A, T, d_body = field
+        tag_A, tag_T = old_tags
+        A_new, T_new = new_tags
+        phi, normal, near = fit
+        fit_phi, fit_normal, fit_near = body_fit
+        order, block_start, blocks = groups.order, groups.start, groups.groups
         n_bodies = tag_A.shape[1]
         for bi in prange(blocks.shape[0]):
             b = blocks[bi]

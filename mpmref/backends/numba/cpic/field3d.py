@@ -12,7 +12,7 @@ from ....physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRE
 from ....physics.rigid_dynamics import current_shapes
 from ....physics.trimesh import surface_samples
 from ..stencil import kernel_axis, quadratic_axis
-from ..transfers import SOURCE_DIGEST
+from ..source_digest import SOURCE_DIGEST
 from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
                      settle_body, sticky_tags, tagged_by_several)
 
@@ -120,9 +120,15 @@ def tag_kernel(KERNEL, S, PER_BODY):
     SOURCES = SOURCE_DIGEST
 
     @njit(parallel=True, cache=True)
-    def tags(x, origin, dx, shape, strides, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, incompatible,
-             order, block_start, blocks, block, blocks_per_axis, d_body, fit_phi, fit_normal, fit_near):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+    def tags(x, origin, dx, shape, strides, field, old_tags, new_tags, fit, incompatible, groups, block,
+             blocks_per_axis, body_fit):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
+        d, A, T, d_body = field
+        tag_A, tag_T = old_tags
+        A_new, T_new = new_tags
+        phi, normal, near = fit
+        fit_phi, fit_normal, fit_near = body_fit
+        order, block_start, blocks = groups.order, groups.start, groups.groups
         n_bodies = tag_A.shape[1]
         for bi in prange(blocks.shape[0]):
             b = blocks[bi]

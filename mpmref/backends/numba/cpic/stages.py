@@ -10,7 +10,8 @@ from numba import njit
 from ....physics.cdf import ColoredDistanceField
 from ....physics.rigid_dynamics import initial_state
 from ....state import GridState
-from ..kernel_args import Bodies, ContactArrays, DenseLayout, Groups
+from ..kernel_args import (Bodies, BodyFits, ContactArrays, DenseLayout, DistanceFit, G2POutput, Groups, NodeField,
+                           SideTags)
 from ..stencil import KERNEL_CODES
 from . import field2d, field3d, transfer2d, transfer3d
 
@@ -52,10 +53,10 @@ class Contact:
     ghost_force : bool          ghost velocities include the particle's own internal force (``scene.cpic.ghost_force``)
     dim : int                   2, or 3 (vectors then have 3 components)
     kernels : DimensionKernels  the kernels of ``dim`` (:data:`KERNELS`), which the step's stages call
-    fits : tuple                ``(per_body, A, T, d_body, tag_A, fit_normal, fit_near)``, what the kernels'
-                                ``ghost_frame`` needs for the per-body fit (``scene.cpic.fit``; empty
-                                ``fit_*`` arrays with the single fit)
-    fit_phi : (n, nb) or (0, nb) the per-body distances :math:`\phi_{pr}` (``per_body_fits`` of the field kernels)
+    fits : BodyFits             what the transfer kernels read of the per-body fit (``scene.cpic.fit``): the
+                                field's ``A``, ``T``, ``d_body``, the new tags ``tag_A`` and the per-body fits
+                                ``phi``, ``normal``, ``near`` (``per_body_fits`` of the field kernels; no rows
+                                with the single fit)
     """
 
     cdf: ColoredDistanceField
@@ -69,13 +70,13 @@ class Contact:
     ghost_force: bool
     dim: int = 2
     kernels: DimensionKernels = KERNELS[2]
-    fits: tuple = None
-    fit_phi: np.ndarray = None
+    fits: BodyFits = None
 
     @property
     def per_body_fit(self):
         """The per-body fit ``(phi, normal, near)``, each ``(n, nb, ...)``, or None with the single fit."""
-        return (self.fit_phi, self.fits[5], self.fits[6]) if self.fits is not None and self.fits[0] else None
+        fits = self.fits
+        return (fits.phi, fits.normal, fits.near) if fits is not None and fits.per_body else None
 
     @property
     def compatible(self):
@@ -96,21 +97,19 @@ def contact(backend, particles, blocks, rigid, dt):
     A, T = np.zeros((n, nb), dtype=np.bool_), np.zeros((n, nb), dtype=np.bool_)
     phi, normal, near = np.zeros(n), np.zeros((n, d)), np.zeros(n, dtype=np.bool_)
     incompatible = np.zeros(n, dtype=np.int64)
-    args = (x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, cdf.d, cdf.A, cdf.T,
-            np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T), A, T, phi, normal, near,
-            incompatible, blocks.order, blocks.block_start, blocks.block_colours[0], backend.block,
-            backend.blocks_per_axis)
     per_body = scene.cpic.fit == "per_body"
     m = n if per_body else 0
-    fit_phi, fit_normal, fit_near = np.zeros((m, nb)), np.zeros((m, nb, d)), np.zeros((m, nb), dtype=np.bool_)
-    args += (cdf.d_body, fit_phi, fit_normal, fit_near)
-    fits = (per_body, cdf.A, cdf.T, cdf.d_body, A, fit_normal, fit_near)
-    k.tag_kernel(KERNEL_CODES[transfer.kernel], transfer.support, per_body)(*args)
+    body_fit = DistanceFit(np.zeros((m, nb)), np.zeros((m, nb, d)), np.zeros((m, nb), dtype=np.bool_))
+    k.tag_kernel(KERNEL_CODES[transfer.kernel], transfer.support, per_body)(
+        x, cdf.origin, cdf.dx, backend.node_shape, backend.strides, NodeField(cdf.d, cdf.A, cdf.T, cdf.d_body),
+        SideTags(np.ascontiguousarray(particles.tag_A), np.ascontiguousarray(particles.tag_T)), SideTags(A, T),
+        DistanceFit(phi, normal, near), incompatible, Groups(blocks.order, blocks.block_start, *blocks.block_colours),
+        backend.block, backend.blocks_per_axis, body_fit)
+    fits = BodyFits(per_body, cdf.A, cdf.T, cdf.d_body, A, *body_fit)
     friction = np.array([b.friction for b in bodies], dtype=np.float64).reshape(nb, 2)
     c = Contact(cdf=cdf, incompatible=incompatible, support=transfer.support, friction=friction,
                 gravity_dv=dt * backend.gravity.astype(particles.v.dtype), rigid=rigid, tau=backend.stress(particles),
-                dt=float(dt), ghost_force=bool(scene.cpic.ghost_force), dim=d, kernels=k, fits=fits,
-                fit_phi=fit_phi)
+                dt=float(dt), ghost_force=bool(scene.cpic.ghost_force), dim=d, kernels=k, fits=fits)
     return particles.with_(tag_A=A, tag_T=T, phi=phi, normal=normal, near=near), c
 
 
@@ -123,7 +122,7 @@ def p2g(backend, particles, blocks, contact):
                    force=np.zeros((N, d), dtype=backend.dtype), rejected_momentum=np.zeros((N, d)),
                    rejected_force=np.zeros((N, d)))
     kernel = contact.kernels.p2g_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
-                                        transfer.mls_force, contact.fits[0])
+                                        transfer.mls_force, contact.fits.per_body)
     kernel(particles.x, particles.v, backend._or_empty(particles.C, 0, d, d), particles.mass, particles.vol0,
            contact.tau, dense_layout(backend), Groups(blocks.order, blocks.block_start, *blocks.block_colours),
            contact_arrays(contact, particles), bodies_of(contact.rigid, contact), contact.gravity_dv,
@@ -177,12 +176,12 @@ def g2p(backend, particles, v_grid, dt, blocks, contact, rigid):
     block_impulse = np.zeros((len(blocks.block_colours[0]), nb, 3 if d == 2 else 6))  # J, then L
     kernel = contact.kernels.g2p_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
                                         transfer.mls_force, transfer.mls_gradient, transfer.tracks_F, transfer.tracks_J,
-                                        contact.fits[0])
+                                        contact.fits.per_body)
     kernel(particles.x, particles.v, contact.gravity_dv, backend._or_empty(particles.F, 0, d, d),
            backend._or_empty(particles.J, 0), particles.mass, particles.vol0, contact.tau, contact.ghost_force,
            dense_layout(backend), dt, Groups(blocks.order, blocks.block_start, *blocks.block_colours), v_grid,
            contact_arrays(contact, particles), bodies_of(rigid, contact), float(cpic.pushing_force),
-           float(cpic.penalty), x_new, v_new, C_new, F_new, J_new, block_impulse, contact.fits, contact.fit_phi)
+           float(cpic.penalty), G2POutput(x_new, v_new, C_new, F_new, J_new), block_impulse, contact.fits)
     total = sum_in_order(block_impulse)
     J, L = total[:, :d], (total[:, d] if d == 2 else total[:, d:])
     changes = {"x": x_new, "v": v_new}

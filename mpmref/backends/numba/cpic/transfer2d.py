@@ -9,7 +9,7 @@ from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
-from ..transfers import SOURCE_DIGEST
+from ..source_digest import SOURCE_DIGEST
 from .common import crossed_body, tagged_by_several
 
 
@@ -111,7 +111,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, layout, groups, contact, bodies, gravity_dv, ghost_force, dt, grid_mass,
             grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
         order, block_start, colour_blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
@@ -156,7 +156,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
                                 a0, a1 = force_velocity(ghost_force, dt, f_0, f_1, w, m)
                                 c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
                                 gh0, gh1 = node_ghost(p, idx, c, nx0, nx1, node_body, near, normal, tag_T, friction,
-                                                      fits[5], vs0, vs1, a0, a1, position, velocity, omega)
+                                                      fits.normal, vs0, vs1, a0, a1, position, velocity, omega)
                                 wm = w * m
                                 rejected_momentum[idx, 0] += wm * (vs0 - gh0)
                                 rejected_momentum[idx, 1] += wm * (vs1 - gh1)
@@ -224,7 +224,9 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
     \mathbf J)` over the particles of block ``bi`` in their order. Block-parallel gather; every particle
     writes only its own rows, every block its own impulses. ``MLS_FORCE``: the force's gradient weight
     is MLS's (it enters :math:`\mathbf a_{ip}`, :func:`force_velocity`); ``MLS_GRADIENT``: the velocity gradient
-    is :math:`C_p` (``transfer.mls_gradient``).
+    is :math:`C_p` (``transfer.mls_gradient``). The new particle arrays go to ``out`` (a
+    :class:`~mpmref.backends.numba.kernel_args.G2POutput`); ``fits`` is the step's
+    :class:`~mpmref.backends.numba.kernel_args.BodyFits` (the per-body fit, read only with ``PER_BODY``).
     """
     NEED_B = AFFINE or MLS_GRADIENT
     SOURCES = SOURCE_DIGEST
@@ -232,9 +234,10 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
 
     @njit(parallel=True, cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, layout, dt, groups, v_grid, contact, bodies, push,
-            penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+            penalty, out, block_impulse, fits):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
+        x_new, v_new, C_new, F_new, J_new = out.x, out.v, out.C, out.F, out.J
         order, block_start, blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
         position, velocity, omega, friction = bodies
@@ -262,7 +265,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
                             nx1 = origin[1] + (b1 + j) * dx
                             c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
                             project, r, n0, n1, mu = ghost_frame(p, idx, c, node_body, near, normal, tag_T, friction,
-                                                                 fits[5])
+                                                                 fits.normal)
                             a0, a1 = 0.0, 0.0
                             if project and ghost_force:
                                 g0, g1 = gradient_weight(MLS_FORCE, w, d0, d1, w0[i], w1[j], dw0[i], dw1[j], dx,
@@ -294,8 +297,8 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
                 x_new[p, 0] = x[p, 0] + dt * vp0
                 x_new[p, 1] = x[p, 1] + dt * vp1
                 dv0, dv1 = 0.0, 0.0
-                if PER_BODY and tagged_by_several(p, fits[4]):  # PER_BODY: a closure constant
-                    per_body, A, T, d_body, tag_A, fit_normal, fit_near = fits
+                if PER_BODY and tagged_by_several(p, fits.tag_A):  # PER_BODY: a closure constant
+                    tag_A, fit_phi, fit_normal, fit_near = fits.tag_A, fits.phi, fits.normal, fits.near
                     for r in range(tag_A.shape[1]):
                         if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:
                             kphi = penalty * fit_phi[p, r]

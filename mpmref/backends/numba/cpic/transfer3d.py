@@ -10,7 +10,7 @@ from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
 from ..stencil import kernel_axis
-from ..transfers import SOURCE_DIGEST
+from ..source_digest import SOURCE_DIGEST
 from .common import crossed_body, tagged_by_several
 
 
@@ -119,7 +119,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
     @njit(parallel=True, cache=True)
     def p2g(x, v, C, mass, vol0, tau, layout, groups, contact, bodies, gravity_dv, ghost_force, dt, grid_mass,
             grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
         order, block_start, colour_blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
@@ -161,7 +161,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
                                     acc = force_velocity(ghost_force, dt, f, w, m)
                                     c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
                                     gh = node_ghost(p, idx, c, node_x, node_body, near, normal, tag_T, friction,
-                                                    fits[5], vs, acc, position, velocity, omega)
+                                                    fits.normal, vs, acc, position, velocity, omega)
                                     for a in range(3):
                                         rejected_momentum[idx, a] += wm * (vs[a] - gh[a])
                                         rejected_force[idx, a] -= f[a]
@@ -212,7 +212,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
     ``C_p := 0`` for near particles, and the penalty, whose impulse :math:`m_p\Delta\mathbf v` and its moment
     about the nearest body's centre accumulate per block in ``block_impulse[bi, r]`` (6 components); with the
     per-body fit, a particle tagged by several bodies gets the penalty of each body's own fit instead, each
-    body receiving its part (``fits``, ``fit_phi``) — the 3D
+    body receiving its part (``fits``) — the 3D
     :func:`mpmref.backends.numba.cpic.transfer2d.g2p_kernel` (see :func:`mpmref.backends.numpy.cpic.g2p`)."""
     NEED_B = AFFINE or MLS_GRADIENT
     SOURCES = SOURCE_DIGEST
@@ -220,9 +220,10 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
 
     @njit(parallel=True, cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, layout, dt, groups, v_grid, contact, bodies, push,
-            penalty, x_new, v_new, C_new, F_new, J_new, block_impulse, fits, fit_phi):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see transfers._source_digest)
+            penalty, out, block_impulse, fits):
+        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, strides = layout
+        x_new, v_new, C_new, F_new, J_new = out.x, out.v, out.C, out.F, out.J
         order, block_start, blocks, colour_start = groups
         incompatible, node_body, node_d, near, phi, normal, tag_T = contact
         position, velocity, omega, friction = bodies
@@ -254,7 +255,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
                                           origin[2] + (b2 + k) * dx)
                                 c = crossed_body(p, idx, tag_T, fits) if PER_BODY else -1
                                 project, r, n0, n1, n2, mu = ghost_frame(p, idx, c, node_body, near, normal, tag_T,
-                                                                         friction, fits[5])
+                                                                         friction, fits.normal)
                                 n = (n0, n1, n2)
                                 acc = (0.0, 0.0, 0.0)
                                 if project and ghost_force:
@@ -285,8 +286,8 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
                     x_new[p, a] = x[p, a] + dt * vp[a]
                 xp = (x_new[p, 0], x_new[p, 1], x_new[p, 2])
                 dv = (0.0, 0.0, 0.0)
-                if PER_BODY and tagged_by_several(p, fits[4]):  # PER_BODY: a closure constant
-                    tag_A, fit_normal, fit_near = fits[4], fits[5], fits[6]
+                if PER_BODY and tagged_by_several(p, fits.tag_A):  # PER_BODY: a closure constant
+                    tag_A, fit_phi, fit_normal, fit_near = fits.tag_A, fits.phi, fits.normal, fits.near
                     for r in range(tag_A.shape[1]):
                         if fit_near[p, r] and fit_phi[p, r] > LO * dx and fit_phi[p, r] < HI * dx and penalty > 0.0:
                             kphi = penalty * fit_phi[p, r]

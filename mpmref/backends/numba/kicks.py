@@ -1,0 +1,44 @@
+r"""The node kicks of conservative level interfaces (impulse refluxing, :mod:`mpmref.physics.interface`), compiled:
+the per-class node sums of a P2G by particle classes summed back (:func:`class_totals`) and the kicks of each
+node (:func:`node_kicks`), written once for 2D and 3D (the loops run over the columns of the node rows). Each
+dimension's kick gather, which hands the kicks to the particles, is its transfer kernels' ``kick_gather_kernel``
+(:mod:`.transfers2d`, :mod:`.transfers3d`).
+"""
+
+from numba import njit
+
+
+@njit(cache=True)
+def class_totals(class_sums, total):
+    """``total[r] = class_sums[0, r] + class_sums[1, r] + class_sums[2, r]``: the node sums of a P2G by
+    particle classes (:mod:`mpmref.physics.interface`), row by row (serial: a pass over memory, which a second
+    thread hardly speeds up, and a parallel loop takes seconds longer to compile)."""
+    for r in range(total.shape[0]):
+        for c in range(total.shape[1]):
+            total[r, c] = class_sums[0, r, c] + class_sums[1, r, c] + class_sums[2, r, c]
+
+
+@njit(cache=True)
+def node_kicks(class_sums, dt, kappa, kicks):
+    r"""The node kicks of impulse refluxing, row by row (the equations of
+    :func:`mpmref.physics.interface.interface_kicks`): ``kicks[0]`` :math:`= -I_i(A \leftarrow F)/m^A_i` for
+    the active particles, ``kicks[1]`` :math:`= -I_i(A \leftarrow S)/m^S_i` for the coarser shadows, with
+    :math:`I_i(A \leftarrow Y) = (\kappa (m^A (mv)^Y - m^Y (mv)^A) + \Delta t (m^A f^Y - m^Y f^A)) / m_i`;
+    zero where the receiving class (or the node) has no mass.
+
+    Docs: docs/async.md#what-is-conserved-at-level-interfaces
+    """
+    d = kicks.shape[2]
+    for r in range(kicks.shape[1]):
+        mA, mF, mS = class_sums[0, r, 0], class_sums[1, r, 0], class_sums[2, r, 0]
+        m = mA + mF + mS
+        for k in range(2):
+            y, receiver = (1, mA) if k == 0 else (2, mS)
+            mY = class_sums[y, r, 0]
+            for a in range(d):
+                if m > 0 and receiver > 0:
+                    exchange = (kappa * (mA * class_sums[y, r, 1 + a] - mY * class_sums[0, r, 1 + a])
+                                + dt * (mA * class_sums[y, r, 1 + d + a] - mY * class_sums[0, r, 1 + d + a])) / m
+                    kicks[k, r, a] = -exchange / receiver
+                else:
+                    kicks[k, r, a] = 0.0
