@@ -257,10 +257,10 @@ def test_impulses_go_to_each_node_s_nearest_body(backend):
     grid_state = SimpleNamespace(rejected_momentum=rejected, rejected_force=np.zeros_like(rejected))
     rigid = RigidState(position=np.array([[0.5, 0.49], [0.5, 0.52]]), angle=np.zeros(2), velocity=np.zeros((2, 2)),
                        angular_velocity=np.zeros(2), impulse=np.zeros((2, 2)), angular_impulse=np.zeros(2))
-    from mpmref.backends.numba.cpic.stages import KERNELS
+    from mpmref.backends.numba.cpic.stages import CPIC_KERNELS_BY_DIM
 
     impulses = importlib.import_module(f"mpmref.backends.{backend}.cpic").impulses
-    contact = SimpleNamespace(cdf=cdf, kernels=KERNELS[2])  # the Numba stages call the kernels the contact chose
+    contact = SimpleNamespace(cdf=cdf, kernels=CPIC_KERNELS_BY_DIM[2])  # the Numba stages call the kernels the contact chose
     J, L = impulses(grid_state, contact, rigid, dt=1e-3)
     assert np.array_equal(J, [[1.0, -2.0], [0.0, 0.0]])
     assert L[0] == pytest.approx(-0.01 * 1.0) and L[1] == 0.0  # (x - c) = (0, 0.01): L = -0.01 * J_x

@@ -1,8 +1,8 @@
 r"""Floating-point operations and bytes per particle of the Numba P2G (fused) and G2P kernels, read off their code,
 and the ratio of classic MPM to MLS-MPM they predict for the talk's Table 2.
 
-The counts follow :func:`mpmref.backends.numba.transfers.p2g_kernel` (``FUSED``) and
-:func:`~mpmref.backends.numba.transfers.g2p_kernel` line by line for the Table-2 set-up (quadratic B-spline,
+The counts follow :func:`mpmref.backends.numba.transfers3d.p2g_kernel` (``FUSED``) and
+:func:`~mpmref.backends.numba.transfers3d.g2p_kernel` line by line for the Table-2 set-up (quadratic B-spline,
 :math:`S = 3` nodes per axis, :math:`S^d` per particle; "mpm" is APIC with the classic force and velocity gradient,
 "mls" MLS-MPM), one operation per addition, subtraction, multiplication or division and two per fused multiply-add
 (the kernels' ``fastmath={"contract"}`` turns a product and a sum into one instruction, which counts as the two

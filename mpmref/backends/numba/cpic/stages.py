@@ -1,6 +1,6 @@
 r"""The CPIC stages of the Numba backend (``cpic_contact``, P2G with a contact, ``cpic_impulses``,
 ``cpic_g2p``), one code path for 2D and 3D over the dimension's kernels, chosen once per step when the
-contact is formed (:data:`KERNELS`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`, :mod:`.transfer3d`)."""
+contact is formed (:data:`CPIC_KERNELS_BY_DIM`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`, :mod:`.transfer3d`)."""
 
 from dataclasses import dataclass
 
@@ -29,9 +29,9 @@ class DimensionKernels:
 
 
 #: The kernels of each dimension, chosen once per step by :func:`contact` (``Contact.kernels``).
-KERNELS = {d: DimensionKernels(field.build_cdf, field.tag_kernel, transfer.p2g_kernel, transfer.node_impulses,
-                               transfer.g2p_kernel)
-           for d, field, transfer in ((2, field2d, transfer2d), (3, field3d, transfer3d))}
+CPIC_KERNELS_BY_DIM = {d: DimensionKernels(field.build_cdf, field.tag_kernel, transfer.p2g_kernel,
+                                           transfer.node_impulses, transfer.g2p_kernel)
+                       for d, field, transfer in ((2, field2d, transfer2d), (3, field3d, transfer3d))}
 
 
 @dataclass
@@ -52,7 +52,7 @@ class Contact:
     dt : float                  the step
     ghost_force : bool          ghost velocities include the particle's own internal force (``scene.cpic.ghost_force``)
     dim : int                   2, or 3 (vectors then have 3 components)
-    kernels : DimensionKernels  the kernels of ``dim`` (:data:`KERNELS`), which the step's stages call
+    kernels : DimensionKernels  the kernels of ``dim`` (:data:`CPIC_KERNELS_BY_DIM`), which the step's stages call
     fits : BodyFits             what the transfer kernels read of the per-body fit (``scene.cpic.fit``): the
                                 field's ``A``, ``T``, ``d_body``, the new tags ``tag_A`` and the per-body fits
                                 ``phi``, ``normal``, ``near`` (``per_body_fits`` of the field kernels; no rows
@@ -69,7 +69,7 @@ class Contact:
     dt: float
     ghost_force: bool
     dim: int = 2
-    kernels: DimensionKernels = KERNELS[2]
+    kernels: DimensionKernels = CPIC_KERNELS_BY_DIM[2]
     fits: BodyFits = None
 
     @property
@@ -90,7 +90,7 @@ def contact(backend, particles, blocks, rigid, dt):
     (the stage ``cpic_contact``; see :func:`mpmref.backends.numpy.cpic.contact`)."""
     scene, transfer = backend.scene, backend.transfer
     bodies, d = scene.rigid_bodies, particles.dim
-    k = KERNELS[d]
+    k = CPIC_KERNELS_BY_DIM[d]
     cdf = k.build_cdf(bodies, rigid, backend.node_shape, backend.origin, backend.dx)
     x = np.ascontiguousarray(particles.x, dtype=np.float64)
     n, nb = particles.n, len(bodies)
