@@ -270,7 +270,7 @@ class State:
     clamped : int           particles clamped back inside at the domain edge so far (a particle each time)
     stepper : dict          the stepper's own arrays (e.g. block levels), saved with checkpoints
     rigid : RigidState or None   the rigid bodies' pose, velocity and received impulse (CPIC scenes only;
-                            :class:`mpmref.physics.rigid_dynamics.RigidState`), saved with checkpoints
+                            :class:`mpmref.rigid.dynamics.RigidState`), saved with checkpoints
     """
 
     particles: Particles

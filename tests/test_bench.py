@@ -365,7 +365,7 @@ def test_numba_stages_and_scaling_records_are_consistent():
 
 def test_cpic_bench_steps_the_same_sand_outside_the_ring_with_and_without_the_bodies():
     from mpmref.bench.cpic import bed_particles, wheel_bed_scene
-    from mpmref.physics.rigid import SAND_WHEEL
+    from mpmref.rigid.polyline import SAND_WHEEL
 
     coupled, plain = wheel_bed_scene(32), wheel_bed_scene(32, bodies=False)
     assert len(coupled.rigid_bodies) == 3 and plain.rigid_bodies == [] and plain.cpic is None

@@ -6,8 +6,9 @@ import pytest
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.errors import SceneError
-from mpmref.physics import rigid_dynamics, rigid_dynamics3d
-from mpmref.physics.trimesh import box, rectangle
+from mpmref.rigid import dynamics as rigid_dynamics
+from mpmref.rigid import dynamics3d as rigid_dynamics3d
+from mpmref.rigid.trimesh import box, rectangle
 
 from test_cpic_coupling import assert_refused
 

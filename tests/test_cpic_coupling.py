@@ -6,10 +6,10 @@ import pytest
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.errors import SceneError
-from mpmref.physics.rigid_dynamics import (area_mass_properties, encode_friction, friction_projection,
+from mpmref.rigid.dynamics import (area_mass_properties, encode_friction, friction_projection,
                                            line_mass_properties)
-from mpmref.physics.rigid_dynamics2d import scripted_pose
-from mpmref.physics.rigid import validate_polyline
+from mpmref.rigid.dynamics2d import scripted_pose
+from mpmref.rigid.polyline import validate_polyline
 
 from helpers import full_and_resumed_runs
 

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from mpmref.errors import SceneError
 from mpmref.physics.cdf import build_cdf, compatible, reconstruct, update_tags
-from mpmref.physics.rigid import segment_frame, surface_samples, validate_polyline
+from mpmref.rigid.polyline import segment_frame, surface_samples, validate_polyline
 
 DX = 1.0 / 64
 SHAPE = (65, 65)  # nodes of a 64 x 64 grid on the unit square

@@ -8,7 +8,7 @@ import pytest
 from mpmref import SceneBuilder, Simulation
 from mpmref.backends import make_backend
 from mpmref.physics.cdf import build_cdf, reconstruct, reconstruct_per_body, update_tags
-from mpmref.physics.rigid import validate_polyline
+from mpmref.rigid.polyline import validate_polyline
 from mpmref.errors import SceneError
 
 DX = 1.0 / 64

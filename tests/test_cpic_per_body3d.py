@@ -8,7 +8,7 @@ import numpy as np
 
 from mpmref.conformance import CPIC_CONFORMANCE_STAGES, make_cases
 from mpmref.physics.cdf import build_cdf, reconstruct, reconstruct_per_body, update_tags
-from mpmref.physics.trimesh import rectangle
+from mpmref.rigid.trimesh import rectangle
 
 N = 32
 DX = 1.0 / N

@@ -7,7 +7,7 @@ import pytest
 
 from mpmref.errors import SceneError
 from mpmref.physics.cdf import build_cdf, compatible, reconstruct, update_tags
-from mpmref.physics.trimesh import (box, crossed_blades, mass_properties, read_trimesh, rectangle,
+from mpmref.rigid.trimesh import (box, crossed_blades, mass_properties, read_trimesh, rectangle,
                                     shell_mass_properties, signed_volume, solid_mass_properties, surface_samples,
                                     triangle_frame, validate_trimesh)
 

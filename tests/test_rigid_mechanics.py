@@ -1,4 +1,4 @@
-"""The declared rigid-body mechanics (mpmref.physics.rigid_dynamics.RigidMechanics): both dimensions have every
+"""The declared rigid-body mechanics (mpmref.rigid.dynamics.RigidMechanics): both dimensions have every
 function with the declared arguments, and each dimension's impulses and steps keep a free body's linear and angular
 momentum as an independent computation of them says."""
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mpmref.physics.rigid import Polyline
-from mpmref.physics.rigid_dynamics import MECHANICS, RigidBody, RigidMechanics, initial_state
-from mpmref.physics.trimesh import box
+from mpmref.rigid.polyline import Polyline
+from mpmref.rigid.dynamics import MECHANICS, RigidBody, RigidMechanics, initial_state
+from mpmref.rigid.trimesh import box
 
 DECLARED = {name: inspect.signature(f) for name, f in vars(RigidMechanics).items()
             if inspect.isfunction(f) and not name.startswith("_")}

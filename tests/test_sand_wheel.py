@@ -10,8 +10,8 @@ import pytest
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.run.emitters import emit, release_template
 from mpmref.errors import SceneError
-from mpmref.physics.rigid import distance_to_polyline, inside_closed, validate_polyline, wheel
-from mpmref.physics.rigid_dynamics import apply_impulses, end_step, initial_state
+from mpmref.rigid.polyline import distance_to_polyline, inside_closed, validate_polyline, wheel
+from mpmref.rigid.dynamics import apply_impulses, end_step, initial_state
 
 from helpers import full_and_resumed_runs
 

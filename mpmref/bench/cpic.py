@@ -1,6 +1,6 @@
 """What CPIC costs: a coupled step against a step without bodies on the same particles (the goal: at most 1.5x).
 
-The case is the sand wheel (:func:`mpmref.physics.rigid.wheel`: a ring of 60 segments and 18 blades welded to
+The case is the sand wheel (:func:`mpmref.rigid.polyline.wheel`: a ring of 60 segments and 18 blades welded to
 it, pinned, plus a floor segment) half buried in a bed of Drucker–Prager sand (no sand inside the ring). The
 same particles are stepped twice from the same state: with the three bodies coupled by CPIC, and in the same
 scene without them (no ``[[rigid_bodies]]``, ``coupling = "none"``). Both are whole steps of
@@ -16,8 +16,8 @@ import numpy as np
 from ..backends import make_backend
 from ..backends.base import BACKEND_STAGES
 from ..scene.sampling import sample_particles
-from ..physics.rigid import SAND_WHEEL, inside_closed, validate_polyline, wheel
-from ..physics.rigid_dynamics import initial_state
+from ..rigid.polyline import SAND_WHEEL, inside_closed, validate_polyline, wheel
+from ..rigid.dynamics import initial_state
 from ..scene import SceneBuilder
 from ..scene.factories import add_sand_wheel
 from ..steppers import substep

@@ -22,7 +22,7 @@ them is the backend's own, each conformance stage runs a backend from flat input
 
 The bodies' state is flat too: ``rigid_position`` (nb, 2), ``rigid_angle``, ``rigid_velocity``,
 ``rigid_angular_velocity``, ``rigid_impulse``, ``rigid_angular_impulse`` (the fields of
-:class:`~mpmref.physics.rigid_dynamics.RigidState`). Booleans are compared as 0/1.
+:class:`~mpmref.rigid.dynamics.RigidState`). Booleans are compared as 0/1.
 
 The scene is the conformance box (8 × 8 cells) with three bodies crossing it: a dynamic open polyline (a
 "V"), a scripted closed triangle that turns, and a fixed segment; each side has its own contact type
@@ -35,19 +35,19 @@ In 3D (:data:`BODIES_3D`, the conformance box of 8³ cells) the bodies are trian
 kinds: a dynamic open "V" sheet of four triangles, a scripted closed tetrahedron turning about an oblique axis,
 and a fixed, slightly warped vertical quadrilateral; vectors have 3 components, ``rigid_angle`` is the
 orientation quaternion (nb, 4) and ``rigid_angular_velocity``, ``rigid_angular_impulse``, ``impulse_L``,
-``penalty_L`` are (nb, 3) (:mod:`mpmref.physics.rigid_dynamics3d`).
+``penalty_L`` are (nb, 3) (:mod:`mpmref.rigid.dynamics3d`).
 """
 
 import numpy as np
 
 from dataclasses import fields
 
-from ..physics.rigid_dynamics import RigidState
-from ..physics.rigid_dynamics3d import quaternion_from_rotation_vector
+from ..rigid.dynamics import RigidState
+from ..rigid.dynamics3d import quaternion_from_rotation_vector
 from ..state import CPIC_FIELDS
 from .stages import particle_outputs, particles_from, with_running
 
-#: the fields of the bodies' state (:class:`~mpmref.physics.rigid_dynamics.RigidState`), flat as ``rigid_<field>``
+#: the fields of the bodies' state (:class:`~mpmref.rigid.dynamics.RigidState`), flat as ``rigid_<field>``
 RIGID_STATE_FIELDS = tuple(f.name for f in fields(RigidState) if f.init)
 
 #: the bodies of every CPIC case (unit box, 8 cells): a dynamic "V", a scripted turning triangle, a fixed segment

@@ -96,7 +96,7 @@ def resolved_scene(case):
 def _rigid_entry(body):
     """A rigid body as a flat table: its polyline (``segments``) or triangle mesh (``triangles``) at time 0,
     reference point, motion, mass properties (3D: the inertia tensor, or ``"inf"``), script and encoded friction
-    of side 0 and side 1 (see :func:`mpmref.physics.rigid_dynamics.encode_friction`)."""
+    of side 0 and side 1 (see :func:`mpmref.rigid.dynamics.encode_friction`)."""
     cells = {"triangles": body.shape.triangles.tolist()} if hasattr(body.shape, "triangles") else {
         "segments": body.shape.segments.tolist()}
     inertia = np.asarray(body.inertia)

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 
-from ..physics.rigid_dynamics import RigidState
+from ..rigid.dynamics import RigidState
 from ..state import Particles, State
 from .atomic import atomic_path
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from ..backends.numpy.transfers import wall_bands
 from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
-from ..physics import rigid_dynamics
+from ..rigid import dynamics as rigid_dynamics
 
 #: the ledger's terms, in step order: their sum is the change of total energy
 TERMS = ("p2g_transfer", "boundary", "g2p_transfer", "advection", "plastic", "rigid_bodies", "integration")

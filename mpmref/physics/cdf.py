@@ -2,7 +2,7 @@ r"""The colored distance field (CDF), particle tags, compatibility and the parti
 
 CPIC (compatible PIC) lets a particle exchange momentum only with grid nodes on its own side of every
 nearby thin rigid body. This module builds the pieces that decide *which side*, in 2D (polylines,
-:mod:`mpmref.physics.rigid`) and 3D (triangle meshes, :mod:`mpmref.physics.trimesh`), NumPy reference:
+:mod:`mpmref.rigid.polyline`) and 3D (triangle meshes, :mod:`mpmref.rigid.trimesh`), NumPy reference:
 
 * :func:`build_cdf` — per grid node :math:`i`: the unsigned distance :math:`d_i` to the nearest body, that
   body's id, and per body :math:`r` an affinity bit :math:`A_{ir}` (the node is near body :math:`r`) and a
@@ -31,9 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .kernels import compute_stencil, get_kernel
-from .rigid import segment_frame, surface_samples
-from .trimesh import TriMesh, triangle_frame
-from .trimesh import surface_samples as triangle_samples
+from ..rigid.polyline import segment_frame, surface_samples
+from ..rigid.trimesh import TriMesh, triangle_frame
+from ..rigid.trimesh import surface_samples as triangle_samples
 
 #: the penalty acts on near particles with -0.3 dx < phi < -0.05 dx (docs/cpic.md)
 PENALTY_WINDOW = (-0.3, -0.05)
@@ -117,12 +117,12 @@ def _project_on_element(body, element, x):
 def build_cdf(bodies, shape, origin, dx):
     r"""Rasterise the colored distance field of ``bodies`` onto the grid nodes.
 
-    For every surface sample :math:`s` of body :math:`r` (:func:`mpmref.physics.rigid.surface_samples` in
-    2D, :func:`mpmref.physics.trimesh.surface_samples` in 3D) and every node :math:`i` of its
+    For every surface sample :math:`s` of body :math:`r` (:func:`mpmref.rigid.polyline.surface_samples` in
+    2D, :func:`mpmref.rigid.trimesh.surface_samples` in 3D) and every node :math:`i` of its
     quadratic-B-spline stencil (:math:`3^d` nodes), with the node's signed normal offset :math:`h` in the
     frame of the sample's element, if the node's projection lies on the element — in 2D its edge parameter
-    :math:`-0.02 \le \sigma \le 1.02` (:func:`mpmref.physics.rigid.segment_frame`), in 3D all its
-    barycentric coordinates :math:`\lambda \ge 0` (:func:`mpmref.physics.trimesh.triangle_frame`):
+    :math:`-0.02 \le \sigma \le 1.02` (:func:`mpmref.rigid.polyline.segment_frame`), in 3D all its
+    barycentric coordinates :math:`\lambda \ge 0` (:func:`mpmref.rigid.trimesh.triangle_frame`):
 
     .. math::
 

@@ -15,8 +15,8 @@ from .emitters import emit, release_template, with_emitters
 from ..errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from ..io.run_output import RunOutput
 from ..physics.materials import material_groups
-from ..physics.rigid_dynamics import current_shapes
-from ..physics.trimesh import TriMesh
+from ..rigid.dynamics import current_shapes
+from ..rigid.trimesh import TriMesh
 from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 from ..steppers import make_stepper
 

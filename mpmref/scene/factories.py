@@ -5,7 +5,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import MpmrefError
-from ..physics.rigid import SAND_WHEEL, wheel
+from ..rigid.polyline import SAND_WHEEL, wheel
 from .builder import Scene
 
 #: the example scenes of a checkout (``examples/``)
@@ -37,7 +37,7 @@ def example_with_time(name, t_end, dt=None, cells=None, interface=None, levels=N
 
 def add_sand_wheel(builder):
     """Add the sand wheel's bodies to a :class:`~mpmref.scene.SceneBuilder`: the ring and the blades welded to it
-    (:data:`mpmref.physics.rigid.SAND_WHEEL`; pinned, shell density 100, angular damping 2.7/s, slip with
+    (:data:`mpmref.rigid.polyline.SAND_WHEEL`; pinned, shell density 100, angular damping 2.7/s, slip with
     friction 0.4), and a sticky floor segment at y = 0.1."""
     (ring, ring_segments), (blades, blade_segments) = wheel(**SAND_WHEEL)
     turning = {"motion": "dynamic", "density": 100.0, "pinned": True, "angular_damping": 2.7, "type": "slip",

@@ -11,10 +11,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..physics.rigid import validate_polyline
-from ..physics.rigid_dynamics import (CONTACT_TYPES, MOTIONS, RigidBody, area_mass_properties, encode_friction,
+from ..rigid.polyline import validate_polyline
+from ..rigid.dynamics import (CONTACT_TYPES, MOTIONS, RigidBody, area_mass_properties, encode_friction,
                                       line_mass_properties)
-from ..physics.trimesh import mass_properties, read_trimesh, validate_trimesh
+from ..rigid.trimesh import mass_properties, read_trimesh, validate_trimesh
 from .validation import choice, fail, flag, integer, number, section, vector
 
 RIGID_COMMON_KEYS = {"closed", "motion", "type", "friction"}

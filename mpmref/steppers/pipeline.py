@@ -20,7 +20,7 @@ import numpy as np
 from ..backends.base import FUSED_BACKEND_STAGES
 from ..physics.interface import momentum_share
 from ..physics.kernels import compute_stencil
-from ..physics.rigid_dynamics import apply_impulses, begin_step, end_step
+from ..rigid.dynamics import apply_impulses, begin_step, end_step
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
     :class:`LevelExchange`: P2G by classes, the body-force hook added class by class, and with conservative
     interfaces the kicks gathered in G2P, left in ``exchange.impulses``).
 
-    With rigid bodies (``rigid``, a :class:`~mpmref.physics.rigid_dynamics.RigidState`), the step couples
+    With rigid bodies (``rigid``, a :class:`~mpmref.rigid.dynamics.RigidState`), the step couples
     them by CPIC and returns ``(particles, rigid)``: the colored distance field of the bodies where they
     are and the particles' sticky tags (``cpic_contact``), P2G to compatible nodes only, the impulses of
     incompatible nodes on the bodies, G2P with ghost velocities and the penalty (``cpic_g2p``), then the

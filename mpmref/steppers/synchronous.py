@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..observe.ledger import accumulate, ledger_columns
-from ..physics import rigid_dynamics
+from ..rigid import dynamics as rigid_dynamics
 from ..state import State
 from .limits import cfl_time_step, signal_speeds
 from .pipeline import NO_HOOKS, substep

@@ -14,9 +14,9 @@ from scipy.spatial import cKDTree
 
 from mpmref import Simulation
 from mpmref.scene.sampling import sample_particles
-from mpmref.physics.rigid import distance_to_polyline, inside_closed, segment_frame, validate_polyline
-from mpmref.physics.rigid_dynamics import current_shapes
-from mpmref.physics.trimesh import TriMesh, triangle_frame
+from mpmref.rigid.polyline import distance_to_polyline, inside_closed, segment_frame, validate_polyline
+from mpmref.rigid.dynamics import current_shapes
+from mpmref.rigid.trimesh import TriMesh, triangle_frame
 
 from ..framework.executor import Executor
 from ..framework.report import snapshot

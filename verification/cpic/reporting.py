@@ -9,7 +9,7 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.vtk import write_polylines_vtp
 from mpmref.physics.cdf import PENALTY_WINDOW
-from mpmref.physics.trimesh import TriMesh
+from mpmref.rigid.trimesh import TriMesh
 
 from ..framework.common import Check, Finding, checks_table
 from ..framework.report import pyplot, save_figure, write_series

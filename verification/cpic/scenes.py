@@ -12,8 +12,8 @@ import numpy as np
 from mpmref import Scene, SceneBuilder
 from mpmref.scene.factories import add_sand_wheel
 from mpmref.scene.sampling import sample_particles
-from mpmref.physics.rigid import SAND_WHEEL
-from mpmref.physics.trimesh import validate_trimesh
+from mpmref.rigid.polyline import SAND_WHEEL
+from mpmref.rigid.trimesh import validate_trimesh
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from mpmref.backends import make_backend
 from mpmref.conformance.report import compare_outputs
 from mpmref.conformance.stages import ledger_step
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, energy_scale
-from mpmref.physics import rigid_dynamics
+from mpmref.rigid import dynamics as rigid_dynamics
 
 from .. import energy
 from ..momentum import VARIANT, VARIANTS

@@ -13,7 +13,7 @@ One CPIC step (composed in :func:`mpmref.steppers.pipeline.substep`):
 
 Notation: particle :math:`p`, node :math:`i`, weight :math:`w_{ip}`, body :math:`r` with velocity field
 :math:`\mathbf v_r(\mathbf x)`, the friction projection :math:`\Pi` of
-:func:`mpmref.physics.rigid_dynamics.friction_projection`. Source: Hu et al. 2018, SIGGRAPH, §4–5, as the
+:func:`mpmref.rigid.dynamics.friction_projection`. Source: Hu et al. 2018, SIGGRAPH, §4–5, as the
 authors' reference implementation does (docs/cpic.md).
 """
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...physics.cdf import PENALTY_WINDOW, build_cdf, compatible, reconstruct, reconstruct_per_body, update_tags
-from ...physics.rigid_dynamics import body_impulses, current_shapes, friction_projection, point_velocity
+from ...rigid.dynamics import body_impulses, current_shapes, friction_projection, point_velocity
 from .transfers import g2p as plain_g2p
 from .transfers import node_index
 

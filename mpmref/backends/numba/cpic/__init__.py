@@ -7,7 +7,7 @@ tags, the least-squares fits), :mod:`.transfer2d` and :mod:`.transfer3d` (ghost 
 G2P); :mod:`.common` holds the kernel helpers that are the same in both.
 
 The equations are those of the NumPy reference (:mod:`mpmref.backends.numpy.cpic`,
-:mod:`mpmref.physics.cdf`, :func:`mpmref.physics.rigid_dynamics.friction_projection`); Hu et al. 2018,
+:mod:`mpmref.physics.cdf`, :func:`mpmref.rigid.dynamics.friction_projection`); Hu et al. 2018,
 SIGGRAPH, §4–5, as the authors' reference implementation does (docs/cpic.md). What differs is only how
 the work is laid out:
 
@@ -26,8 +26,8 @@ the work is laid out:
   atomics.
 
 Only the posing of the bodies' polylines and their surface samples (a few points per body, not per node or
-particle) stay in NumPy (:func:`mpmref.physics.rigid_dynamics.current_shapes`,
-:func:`mpmref.physics.rigid.surface_samples`).
+particle) stay in NumPy (:func:`mpmref.rigid.dynamics.current_shapes`,
+:func:`mpmref.rigid.polyline.surface_samples`).
 """
 
 from .stages import Contact, contact, g2p, impulses, p2g, warm_up

@@ -9,8 +9,8 @@ import numpy as np
 from numba import njit, prange
 
 from ....physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
-from ....physics.rigid_dynamics import current_shapes
-from ....physics.trimesh import surface_samples
+from ....rigid.dynamics import current_shapes
+from ....rigid.trimesh import surface_samples
 from ..stencil import kernel_axis, quadratic_axis
 from ..source_digest import SOURCE_DIGEST
 from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
@@ -23,7 +23,7 @@ def body_samples(bodies, rigid, dx):
     Returns ``(x (k, 3), triangle (k,) global triangle index, start (nb + 1,) first sample of each body,
     corner_a (m, 3), e1 (m, 3), e2 (m, 3), normal (m, 3))``: each triangle's first corner, edge vectors
     :math:`\\mathbf b - \\mathbf a`, :math:`\\mathbf c - \\mathbf a` and unit normal, as
-    :func:`mpmref.physics.trimesh.triangle_frame` forms them.
+    :func:`mpmref.rigid.trimesh.triangle_frame` forms them.
     """
     xs, tris, starts, a, e1, e2, normal = [], [], [0], [], [], [], []
     offset = 0

@@ -8,7 +8,7 @@ import numpy as np
 from numba import njit
 
 from ....physics.cdf import ColoredDistanceField
-from ....physics.rigid_dynamics import initial_state
+from ....rigid.dynamics import initial_state
 from ....state import GridState
 from ..kernel_args import (Bodies, BodyFits, ContactArrays, DenseLayout, DistanceFit, G2POutput, Groups, NodeField,
                            SideTags)

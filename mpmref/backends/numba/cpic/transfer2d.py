@@ -22,7 +22,7 @@ def ghost_velocity(v0, v1, node_x0, node_x1, r, position, velocity, omega, n0, n
     :math:`\mathbf u_t = \mathbf u - u_n\mathbf n`; sticky (:math:`\mu = -1`): :math:`\mathbf v_r(\mathbf x_i)`;
     otherwise :math:`\mathbf v_r(\mathbf x_i) + \max(|\mathbf u_t| + \mu'\min(u_n, 0), 0)\,\mathbf u_t/|\mathbf u_t|`
     plus :math:`\max(u_n, 0)\mathbf n` if :math:`\mu \ge 0` (:math:`\mu' = \mu`; slip: :math:`\mu' = -\mu - 2`).
-    The talk's Eq. 25 (Hu et al. 2018 §5; docs/cpic.md); see :func:`mpmref.physics.rigid_dynamics.friction_projection`.
+    The talk's Eq. 25 (Hu et al. 2018 §5; docs/cpic.md); see :func:`mpmref.rigid.dynamics.friction_projection`.
     """
     rel0 = node_x0 - position[r, 0]
     rel1 = node_x1 - position[r, 1]

@@ -1,6 +1,6 @@
 r"""CPIC kernels of the Numba backend in 3D, the transfers: those of :mod:`.transfer2d` with the :math:`3^3`
 stencils and the bodies' angular velocity and angular impulse as vectors (:math:`\boldsymbol\omega\times\mathbf r`,
-:math:`\mathbf r\times\mathbf J`; :mod:`mpmref.physics.rigid_dynamics3d`). Hu et al. 2018, SIGGRAPH, §4–5;
+:math:`\mathbf r\times\mathbf J`; :mod:`mpmref.rigid.dynamics3d`). Hu et al. 2018, SIGGRAPH, §4–5;
 docs/cpic.md."""
 
 from functools import lru_cache

@@ -1,8 +1,8 @@
 r"""Rigid-body motion for CPIC in 2D: the pose, scripts, impulses and integration of polyline bodies.
 
-The 2D motion behind :mod:`mpmref.physics.rigid_dynamics` (chosen once, when a
-:class:`~mpmref.physics.rigid_dynamics.RigidState` is made, from its arrays' shapes). A body is a
-:class:`~mpmref.physics.rigid.Polyline` declared at time 0 with a reference point :math:`\mathbf c_0`; its pose
+The 2D motion behind :mod:`mpmref.rigid.dynamics` (chosen once, when a
+:class:`~mpmref.rigid.dynamics.RigidState` is made, from its arrays' shapes). A body is a
+:class:`~mpmref.rigid.polyline.Polyline` declared at time 0 with a reference point :math:`\mathbf c_0`; its pose
 at a later time is a translation of the reference point to :math:`\mathbf c` and a rotation by :math:`\theta`
 about it,
 
@@ -11,8 +11,8 @@ about it,
 
 The state arrays: ``position`` and ``velocity`` (nb, 2), ``angle`` and ``angular_velocity`` (nb,), ``impulse``
 (nb, 2), ``angular_impulse`` (nb,). The functions here are the 2D
-:class:`~mpmref.physics.rigid_dynamics.RigidMechanics` (the same names and arguments as those of
-:mod:`mpmref.physics.rigid_dynamics3d`).
+:class:`~mpmref.rigid.dynamics.RigidMechanics` (the same names and arguments as those of
+:mod:`mpmref.rigid.dynamics3d`).
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §5; the integration order is the authors' reference
@@ -21,11 +21,11 @@ implementation's (docs/cpic.md).
 
 import numpy as np
 
-from .rigid import Polyline
+from .polyline import Polyline
 
 
 def initial_arrays(bodies):
-    """The :class:`~mpmref.physics.rigid_dynamics.RigidState` arrays at time 0 of 2D ``bodies`` (a dict)."""
+    """The :class:`~mpmref.rigid.dynamics.RigidState` arrays at time 0 of 2D ``bodies`` (a dict)."""
     nb = len(bodies)
     return dict(position=np.array([b.center for b in bodies], dtype=np.float64).reshape(nb, 2),
                 angle=np.zeros(nb),

@@ -1,9 +1,9 @@
 r"""Rigid-body motion for CPIC in 3D: orientation, scripts, impulses and integration of triangle-mesh bodies.
 
-The 3D motion behind :mod:`mpmref.physics.rigid_dynamics` (chosen once, when a
-:class:`~mpmref.physics.rigid_dynamics.RigidState` of :class:`~mpmref.physics.trimesh.TriMesh` bodies is made);
-its functions are the 3D :class:`~mpmref.physics.rigid_dynamics.RigidMechanics` (the same names and arguments as
-those of :mod:`mpmref.physics.rigid_dynamics2d`). A body is declared at time 0 with a reference
+The 3D motion behind :mod:`mpmref.rigid.dynamics` (chosen once, when a
+:class:`~mpmref.rigid.dynamics.RigidState` of :class:`~mpmref.rigid.trimesh.TriMesh` bodies is made);
+its functions are the 3D :class:`~mpmref.rigid.dynamics.RigidMechanics` (the same names and arguments as
+those of :mod:`mpmref.rigid.dynamics2d`). A body is declared at time 0 with a reference
 point :math:`\mathbf c_0` (its centre of mass for a dynamic body, the declared ``center`` or the vertex
 centroid otherwise). Its pose at a later time is a translation of the reference point to :math:`\mathbf c`
 and a rotation :math:`R(\mathbf q)` about it, given by a unit quaternion :math:`\mathbf q = (w, x, y, z)`:
@@ -11,7 +11,7 @@ and a rotation :math:`R(\mathbf q)` about it, given by a unit quaternion :math:`
 .. math:: \mathbf x = \mathbf c + R(\mathbf q)(\mathbf x^0 - \mathbf c_0), \qquad
           \mathbf v_r(\mathbf x) = \mathbf v + \boldsymbol\omega \times (\mathbf x - \mathbf c).
 
-The state arrays are those of :class:`~mpmref.physics.rigid_dynamics.RigidState` with 3D shapes: ``position``
+The state arrays are those of :class:`~mpmref.rigid.dynamics.RigidState` with 3D shapes: ``position``
 and ``velocity`` (nb, 3), ``angle`` the orientation quaternion (nb, 4), ``angular_velocity`` and
 ``angular_impulse`` (nb, 3). A declared body keeps its inertia tensor :math:`\mathbf I_0` (3, 3) about
 :math:`\mathbf c_0` in the reference pose; at orientation :math:`R` it is :math:`R \mathbf I_0 R^T`.
@@ -105,7 +105,7 @@ IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 def initial_arrays(bodies):
-    """The :class:`~mpmref.physics.rigid_dynamics.RigidState` arrays at time 0 of 3D ``bodies`` (a dict)."""
+    """The :class:`~mpmref.rigid.dynamics.RigidState` arrays at time 0 of 3D ``bodies`` (a dict)."""
     nb = len(bodies)
 
     def moving(b, value):

@@ -1,6 +1,6 @@
 r"""Rigid-body motion for CPIC in 2D: the declared bodies, their state, scripts, impulses and integration.
 
-A body is a :class:`~mpmref.physics.rigid.Polyline` declared at time 0 with a reference point
+A body is a :class:`~mpmref.rigid.polyline.Polyline` declared at time 0 with a reference point
 :math:`\mathbf c_0` (its centre of mass for a dynamic body, the declared ``center`` or the vertex centroid
 otherwise). Its pose at a later time is a translation of the reference point to :math:`\mathbf c` and a
 rotation by :math:`\theta` about it:
@@ -29,13 +29,13 @@ from typing import Protocol
 
 import numpy as np
 
-from . import rigid_dynamics2d, rigid_dynamics3d
-from .rigid import Polyline
+from . import dynamics2d, dynamics3d
+from .polyline import Polyline
 
 
 class RigidMechanics(Protocol):
     r"""The rigid-body mechanics of one dimension: what :data:`MECHANICS` holds for 2D
-    (:mod:`.rigid_dynamics2d`) and 3D (:mod:`.rigid_dynamics3d`), each a module with these functions, the same
+    (:mod:`.dynamics2d`) and 3D (:mod:`.dynamics3d`), each a module with these functions, the same
     names and arguments (tests/test_rigid_mechanics.py checks both against this declaration).
 
     Per dimension ``d``, the state's arrays (:class:`RigidState`) are: ``position``, ``velocity`` and ``impulse``
@@ -48,7 +48,7 @@ class RigidMechanics(Protocol):
         """The :class:`RigidState` arrays at time 0 of ``bodies`` (a dict of the state's fields)."""
 
     def posed_shape(self, body, position, angle):
-        r"""The body's shape (:class:`~mpmref.physics.rigid.Polyline` or :class:`~mpmref.physics.trimesh.TriMesh`)
+        r"""The body's shape (:class:`~mpmref.rigid.polyline.Polyline` or :class:`~mpmref.rigid.trimesh.TriMesh`)
         at the pose ``position`` :math:`\mathbf c`, ``angle`` (a row of ``RigidState.angle``):
         :math:`\mathbf x = \mathbf c + R(\text{angle})(\mathbf x^0 - \mathbf c_0)`."""
 
@@ -82,7 +82,7 @@ class RigidMechanics(Protocol):
 
 #: The rigid-body mechanics of each dimension (:class:`RigidMechanics`), chosen once per :class:`RigidState` from
 #: its arrays' shapes.
-MECHANICS: dict[int, RigidMechanics] = {2: rigid_dynamics2d, 3: rigid_dynamics3d}
+MECHANICS: dict[int, RigidMechanics] = {2: dynamics2d, 3: dynamics3d}
 
 MOTIONS = ("fixed", "scripted", "dynamic")
 CONTACT_TYPES = ("sticky", "slip", "separate")
@@ -110,9 +110,9 @@ class RigidBody:
 
     Notes
     -----
-    A 3D body (shape a :class:`~mpmref.physics.trimesh.TriMesh`) has ``center``, ``velocity`` and
+    A 3D body (shape a :class:`~mpmref.rigid.trimesh.TriMesh`) has ``center``, ``velocity`` and
     ``angular_velocity`` of shape (3,), ``inertia`` the (3, 3) tensor about the centre in the declared pose,
-    and keyframes ``(time, offset (3,), rotation vector (3,))`` (:mod:`mpmref.physics.rigid_dynamics3d`).
+    and keyframes ``(time, offset (3,), rotation vector (3,))`` (:mod:`mpmref.rigid.dynamics3d`).
     """
 
     shape: Polyline
@@ -142,12 +142,12 @@ class RigidState:
     angular_velocity : (nb,)    :math:`\\omega`
     impulse : (nb, 2)           linear impulse received from the material since time 0
     angular_impulse : (nb,)     angular impulse about the reference point received since time 0
-    mechanics : RigidMechanics  the dimension's motion (:data:`MECHANICS`: :mod:`.rigid_dynamics2d` or
-                                :mod:`.rigid_dynamics3d`), chosen when the state is made; not an array
+    mechanics : RigidMechanics  the dimension's motion (:data:`MECHANICS`: :mod:`.dynamics2d` or
+                                :mod:`.dynamics3d`), chosen when the state is made; not an array
 
     Notes
     -----
-    For 3D bodies (:mod:`mpmref.physics.rigid_dynamics3d`) ``position``, ``velocity``, ``impulse``,
+    For 3D bodies (:mod:`mpmref.rigid.dynamics3d`) ``position``, ``velocity``, ``impulse``,
     ``angular_velocity`` and ``angular_impulse`` are (nb, 3) and ``angle`` is the orientation, a unit
     quaternion (w, x, y, z) of shape (nb, 4).
     """
@@ -262,7 +262,7 @@ def area_mass_properties(shape, density):
 def initial_state(bodies):
     """The :class:`RigidState` at time 0 of the declared ``bodies``: 3D if they are triangle meshes, 2D
     (polylines, or no body) otherwise; the state's ``mechanics`` are that dimension's from then on."""
-    mechanics = rigid_dynamics3d if bodies and not isinstance(bodies[0].shape, Polyline) else rigid_dynamics2d
+    mechanics = dynamics3d if bodies and not isinstance(bodies[0].shape, Polyline) else dynamics2d
     return RigidState(**mechanics.initial_arrays(bodies))
 
 
@@ -273,7 +273,7 @@ def current_shapes(bodies, state):
 
 def begin_step(bodies, state, time, dt):
     """The state with each scripted body's velocity over the step ``[time, time + dt]`` (finite difference of
-    its script; :func:`mpmref.physics.rigid_dynamics2d.begin_step`, :func:`~.rigid_dynamics3d.begin_step`)."""
+    its script; :func:`mpmref.rigid.dynamics2d.begin_step`, :func:`~.dynamics3d.begin_step`)."""
     return state.mechanics.begin_step(bodies, state, time, dt)
 
 
@@ -293,13 +293,13 @@ def body_impulses(state, body_ids, x, impulse):
 def apply_impulses(bodies, state, J, L):
     r"""Record impulses ``J`` and angular impulses ``L`` and change the dynamic bodies' velocities,
     :math:`\mathbf v_r \mathrel{+}= \mathbf J_r / M_r`, :math:`\boldsymbol\omega_r \mathrel{+}= I_r^{-1}\mathbf L_r`
-    (docs/cpic.md; :func:`mpmref.physics.rigid_dynamics2d.apply_impulses`, :func:`~.rigid_dynamics3d.apply_impulses`)."""
+    (docs/cpic.md; :func:`mpmref.rigid.dynamics2d.apply_impulses`, :func:`~.dynamics3d.apply_impulses`)."""
     return state.mechanics.apply_impulses(bodies, state, J, L)
 
 
 def end_step(bodies, state, time, dt, gravity):
     """Move every body to ``time + dt`` (docs/cpic.md, the rigid step after G2P;
-    :func:`mpmref.physics.rigid_dynamics2d.end_step`, :func:`~.rigid_dynamics3d.end_step`)."""
+    :func:`mpmref.rigid.dynamics2d.end_step`, :func:`~.dynamics3d.end_step`)."""
     return state.mechanics.end_step(bodies, state, time, dt, gravity)
 
 

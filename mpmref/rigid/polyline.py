@@ -11,7 +11,7 @@ is side 1 (the colored distance field's ``T`` bit), the side with :math:`h \ge 0
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §4 (rigid bodies as boundary elements sampled for the
 colored distance field); the sampling rule is the one of the authors' reference implementation (docs/cpic.md). 3D triangle
-meshes are in :mod:`mpmref.physics.trimesh`.
+meshes are in :mod:`mpmref.rigid.trimesh`.
 """
 
 from dataclasses import dataclass
