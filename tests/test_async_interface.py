@@ -67,16 +67,16 @@ def test_the_reference_interface_does_not(scheme):
 
 
 class _TwiceApplied(AsyncInterval):
-    def apply_registers(self, idx):
+    def close_registers(self, idx):
         """Broken on purpose: each register applied twice."""
         if self.s.conservative and idx.size:
             self.dP[idx] *= 2.0
             self.dL[idx] *= 2.0
-        super().apply_registers(idx)
+        super().close_registers(idx)
 
 
 class _Dropped(AsyncInterval):
-    def apply_registers(self, idx):
+    def close_registers(self, idx):
         """Broken on purpose: registers cleared without being applied."""
         if self.s.conservative and idx.size:
             self.dP[idx] = 0.0

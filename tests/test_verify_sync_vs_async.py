@@ -51,11 +51,11 @@ def test_a_broken_conservative_interface_fails_the_momentum_check(broken, monkey
     from mpmref.steppers import AsyncInterval
 
     class Broken(AsyncInterval):
-        def apply_registers(self, idx):
+        def close_registers(self, idx):
             if self.s.conservative and idx.size:
                 self.dP[idx] *= 2.0 if broken == "applied twice" else 0.0
                 self.dL[idx] *= 2.0 if broken == "applied twice" else 0.0
-            super().apply_registers(idx)
+            super().close_registers(idx)
 
     monkeypatch.setattr(case.AsynchronousStepper, "interval_type", Broken)
     params = case.Params.quick()

@@ -380,7 +380,7 @@ def add_rows(dst, idx, src, start):
 
 
 @njit(cache=True)
-def apply_registers(idx, x, v, C, mass, dP, dL, inertia):
+def apply_registers_at(idx, x, v, C, mass, dP, dL, inertia):
     r"""Apply and clear the impulse registers of the particles ``idx`` at their step end: the formula of
     :func:`mpmref.physics.interface.apply_registers`, one particle at a time,
 

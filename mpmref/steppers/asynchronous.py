@@ -55,7 +55,7 @@ from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import CONSTANT_FIELDS, EVOLVING_FIELDS, Particles, State, fields_with_role
-from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
+from .async_kernels import (add_rows, apply_registers_at, blocks_by_level, boundary_nodes, bucket_by_block,
                             bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
                             span, step_limits, zone)
 from .limits import particle_speeds, wave_speeds
@@ -292,7 +292,7 @@ class AsyncInterval:
         due = [c for c in self.cohorts if c.end == t]
         self.cohorts = [c for c in self.cohorts if c.end != t]  # mid-step: their shadows may be ghosts
         at = due[0].idx if len(due) == 1 else np.sort(np.concatenate([c.idx for c in due]))
-        self.apply_registers(at)
+        self.close_registers(at)
         boundary_nodes(P.x, at, *s.lattice, t, self.base, self.owner, self.shadow_base, self.shadow_t)
         limit = s.particle_limits(P, at)
         if (limit < 1).any():
@@ -337,7 +337,7 @@ class AsyncInterval:
         b = self.rows[dst] if isinstance(dst, str) else dst
         return tuple(zip(a, b))
 
-    def apply_registers(self, idx):
+    def close_registers(self, idx):
         """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end;
         :func:`mpmref.physics.interface.apply_registers`, compiled)."""
         if not self.s.conservative or idx.size == 0 or not self.kicked:
@@ -346,7 +346,7 @@ class AsyncInterval:
         C = P.C if P.C is not None else np.empty((0, P.dim, P.dim), dtype=P.x.dtype)
 
         def apply():
-            apply_registers(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
+            apply_registers_at(idx, P.x, P.v, C, P.mass, self.dP, self.dL, self.s.inertia)
 
         if self.s.ledger is None:
             apply()
@@ -452,7 +452,7 @@ class AsyncInterval:
         """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census (and, with
         conservative interfaces, every register applied: each particle is at its step end), and the interval's
         :class:`WorkRecord`."""
-        self.apply_registers(np.arange(self.P.n))
+        self.close_registers(np.arange(self.P.n))
         census(self.state.particles.id, self.P.id, self.t)
         n, ticks, old = self.P.n, self.t - self.t0, self.schedule
         schedule = AsyncSchedule(self.block_dt, old.updates + self.updates, old.own_updates + self.own_updates,
@@ -572,7 +572,7 @@ class AsynchronousStepper:
             add_rows(interval.dP, one, dP, 0)
             add_rows(interval.dL, one, dL, 0)
             interval.kicked = True
-            interval.apply_registers(one)
+            interval.close_registers(one)
 
     # ------------------------------------------------------------------ stepping
     def advance(self, state, dt=None, t_end=None):

@@ -24,8 +24,8 @@ from .results import Baseline, Collision, CpicResult, Cut, Sliding, Watched, Whe
 from .scenes import (BASELINES, BLADE, Params, ball_scene, baseline_particles, baseline_scene, cut3d_scene, cut_scene,
                      drop_scene, friction_scene, impact_scene, rotor_scene, sand_scene, wheel_omega_floor, wheel_scene)
 
-#: particle fields recorded in the VTK frames of the case's runs
-FRAME_FIELDS = ("velocity", "material")
+#: the outputs (names of ``[output] fields``) that the VTK frames of the CPIC case's runs record
+CPIC_FRAME_OUTPUTS = ("velocity", "material")
 
 
 def segment_offsets(sim, shapes=None):
@@ -72,7 +72,7 @@ def run_watching(scene, frames, every_step=None, particles=None, shapes=None, ba
     sim = Simulation(scene, backend=backend, particles=particles)
     crossed = set()
     state = first = segment_offsets(sim, shapes)
-    shots = [snapshot(sim, FRAME_FIELDS)]
+    shots = [snapshot(sim, CPIC_FRAME_OUTPUTS)]
     t_end, frame_dt = scene.time.t_end, scene.time.t_end / frames
     while sim.time < t_end * (1 - 1e-12):
         sim.step(t_end=t_end)
@@ -82,7 +82,7 @@ def run_watching(scene, frames, every_step=None, particles=None, shapes=None, ba
         if every_step is not None:
             every_step(sim)
         if sim.time >= len(shots) * frame_dt * (1 - 1e-9):
-            shots.append(snapshot(sim, FRAME_FIELDS))
+            shots.append(snapshot(sim, CPIC_FRAME_OUTPUTS))
     return sim, Watched(crossings=len(crossed), far_side=len(count_crossings(first, state)), frames=shots,
                         n_particles=sim.n_particles, steps=sim.step_count,
                         bodies=shapes or current_shapes(scene.rigid_bodies, sim.state.rigid))

@@ -27,14 +27,15 @@ from mpmref.io.vtk import write_particles_vtu, write_pvd
 from . import html_report, registry
 from .common import backend_sentence, failed
 
-#: particle fields recorded in the VTK frames of verification runs
-FRAME_FIELDS = ("velocity", "mass", "J", "material")
+#: the outputs (names of ``[output] fields``, :data:`mpmref.scene.parsers.OUTPUT_FIELDS`) that the VTK frames of
+#: verification runs record
+FRAME_OUTPUTS = ("velocity", "mass", "J", "material")
 #: seconds a file's modification time may lag the clock that timed the case's start
 MTIME_SLACK = 1.0
 
 
 # --------------------------------------------------------------------------------- helpers for cases
-def snapshot(sim, fields=FRAME_FIELDS):
+def snapshot(sim, fields=FRAME_OUTPUTS):
     """The current particles of ``sim`` as one VTK frame ``(time, x, point_data)`` (copies)."""
     return sim.time, sim.x.copy(), {k: v.copy() for k, v in sim.point_data(fields).items()}
 
