@@ -16,9 +16,9 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from .run import arguments
 from .backends import OPTION_HELP, reference_argument
 from .errors import ArgumentError, BackendError, MpmrefError, SceneError
+from .run import arguments
 
 #: modules of this package that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
 COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")

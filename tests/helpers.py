@@ -46,8 +46,8 @@ def random_particles(scene, n, rng, affine_scale=1.0):
 def valid_methods():
     """Every (scheme, force, kernel) that the scene rules accept, as keyword dicts."""
     from mpmref import SceneError
-    from mpmref.scene import FORCES, SCHEMES
     from mpmref.physics.kernels import KERNELS
+    from mpmref.scene import FORCES, SCHEMES
 
     out = []
     for scheme in SCHEMES:

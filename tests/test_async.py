@@ -8,16 +8,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import full_and_resumed_runs, valid_methods
+from test_scene_validation import check_refused
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
 from mpmref.errors import TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
 from verification.sync_vs_async import two_bodies
-
-from helpers import full_and_resumed_runs, valid_methods
-
-from test_scene_validation import check_refused
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -7,14 +7,22 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import valid_methods
+
 from mpmref.backends import BACKENDS
 from mpmref.backends.numpy import NumpyBackend
-from mpmref.conformance import (CONFORMANCE_STAGES, ConformanceCase, add_parser, check, export, load_vectors,
-                                make_cases, relative_error)
+from mpmref.conformance import (
+    CONFORMANCE_STAGES,
+    ConformanceCase,
+    add_parser,
+    check,
+    export,
+    load_vectors,
+    make_cases,
+    relative_error,
+)
+from mpmref.conformance.cases import CFL_RANGE, DEFAULT_RTOL, EDGE_CELLS, MIN_WEIGHT, cfl_number
 from mpmref.conformance.report import compare_outputs
-from mpmref.conformance.cases import CFL_RANGE, DEFAULT_RTOL, cfl_number, EDGE_CELLS, MIN_WEIGHT
 from mpmref.conformance.stages import STAGES_WITH_DT, particles_from
 from mpmref.physics.kernels import compute_stencil
 from mpmref.scene import COLLIDER_SHAPES, MATERIAL_TYPES, WALL_TYPES, Scene

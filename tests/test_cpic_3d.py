@@ -3,14 +3,13 @@ orientation that stays orthonormal, angular momentum), and the coupled step on t
 
 import numpy as np
 import pytest
+from test_cpic_coupling import assert_refused
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.errors import SceneError
 from mpmref.rigid import dynamics as rigid_dynamics
 from mpmref.rigid import dynamics3d as rigid_dynamics3d
 from mpmref.rigid.trimesh import box, rectangle
-
-from test_cpic_coupling import assert_refused
 
 PLATE = rectangle([0.5, 0.4, 0.5], [0.2, 0.0, 0.0], [0.0, 0.0, -0.2])  # normal +y
 PLATE_ENTRY = {"vertices": PLATE.vertices.tolist(), "triangles": PLATE.triangles.tolist()}

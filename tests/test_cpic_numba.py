@@ -244,8 +244,8 @@ def test_impulses_go_to_each_node_s_nearest_body(backend):
     from types import SimpleNamespace
 
     from mpmref.physics.cdf import build_cdf
-    from mpmref.rigid.polyline import validate_polyline
     from mpmref.rigid.dynamics import RigidState
+    from mpmref.rigid.polyline import validate_polyline
 
     dx = 1.0 / 32
     lower = validate_polyline([[0.2, 0.5 - 0.4 * dx], [0.8, 0.5 - 0.4 * dx]], [[0, 1]])

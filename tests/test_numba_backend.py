@@ -13,10 +13,10 @@ import pytest
 
 from mpmref import Scene
 from mpmref.backends import make_backend
-from mpmref.errors import BackendError
-from mpmref.steppers import substep
 from mpmref.backends.numba import threads as numba_threads
+from mpmref.errors import BackendError
 from mpmref.scene.sampling import sample_particles
+from mpmref.steppers import substep
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

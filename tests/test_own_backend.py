@@ -17,16 +17,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 import planted_backends as planted
+import pytest
+from my_mpm_backend.backend import MyBackend, factory
+
 from mpmref import Scene, Simulation
 from mpmref.backends import describe, make_backend, resolve
 from mpmref.backends.numpy import transfers
 from mpmref.conformance import check, export, make_cases
 from mpmref.conformance.stages import STAGES_WITH_DT
 from mpmref.errors import BackendError
-from my_mpm_backend.backend import MyBackend, factory
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "my_mpm_backend"

@@ -3,8 +3,8 @@
 import copy
 
 import pytest
-
 from helpers import box_scene
+
 from mpmref import Scene, SceneBuilder, SceneError
 from mpmref.scene.sampling import sample_particles
 

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import assert_every_figure_has_a_caption
+
 from mpmref import Scene, Simulation
 from mpmref.cli import main
-from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError, SceneError
+from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.scene.builder import read_scene_file
 from verification import convergence as case
 from verification.framework.executor import Executor

@@ -8,15 +8,15 @@ from dataclasses import replace
 import meshio
 import numpy as np
 import pytest
-
 from helpers import assert_every_figure_has_a_caption
+
 from mpmref.backends.numpy import backend as numpy_backend
 from mpmref.backends.numpy.transfers import wall_bands
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 from verification import energy_ledger as case
+from verification.energy_ledger import runs
 from verification.framework.cli import add_parser
 from verification.framework.common import failed
-from verification.energy_ledger import runs
 
 
 @pytest.fixture(scope="module")

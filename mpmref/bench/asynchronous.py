@@ -21,8 +21,8 @@ counts (:class:`mpmref.steppers.asynchronous.WorkRecord`, :data:`~mpmref.stepper
 
 import numpy as np
 
-from ..scene.factories import example_with_time
 from ..run.simulation import Simulation
+from ..scene.factories import example_with_time
 from .timing import measure, set_threads
 
 #: case -> (example, cells along the first axis, simulated time of a timed run: full, quick). The 2D stork

@@ -13,8 +13,8 @@ three times a step with the ledger on), float64.
 """
 
 from ..backends import make_backend
-from ..scene.sampling import sample_particles
 from ..observe.ledger import EnergyLedger
+from ..scene.sampling import sample_particles
 from ..steppers import substep
 from .scenes import mpm88_scene, table2_particles, table2_scene
 from .timing import measure, set_threads, thread_counts

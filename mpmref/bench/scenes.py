@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.sampling import sample_particles
 from ..scene import SceneBuilder
+from ..scene.sampling import sample_particles
 
 #: the two columns of Table 2: classic MPM (APIC transfer, kernel-gradient force) and MLS-MPM
 TABLE2_METHODS = {"mpm": {"scheme": "apic", "force": "classic"}, "mls": {"scheme": "mls"}}

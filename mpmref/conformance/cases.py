@@ -22,8 +22,18 @@ from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
 from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
-from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, STAGES_WITH_DT,
-                     STAGES_WITH_TIME, composed_step, ledger_step, particles_from, run_stage, unfused_then_force)
+from .stages import (
+    ALL_CONFORMANCE_STAGES,
+    CONFORMANCE_STAGES,
+    CPIC_CONFORMANCE_STAGES,
+    STAGES_WITH_DT,
+    STAGES_WITH_TIME,
+    composed_step,
+    ledger_step,
+    particles_from,
+    run_stage,
+    unfused_then_force,
+)
 
 #: cells per axis of a case's grid: each axis draws its own count in this range (:func:`case_grid`)
 CELL_RANGE = (8, 13)

@@ -15,8 +15,14 @@ from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
 from .cpic import RUNNERS, has_cpic
 from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
-from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, ledger_step,
-                     run_stage)
+from .stages import (
+    ALL_CONFORMANCE_STAGES,
+    CONFORMANCE_STAGES,
+    CPIC_CONFORMANCE_STAGES,
+    composed_step,
+    ledger_step,
+    run_stage,
+)
 
 
 def relative_error(candidate, reference, scale=None):

@@ -12,9 +12,9 @@ The affine kinetic energy :math:`\tfrac12 m_p \operatorname{tr}(C_p D_p C_p^T)` 
 
 import numpy as np
 
+from ..physics import polypic
 from ..physics.kernels import compute_stencil
 from ..physics.materials import material_groups, state_args
-from ..physics import polypic
 
 
 def cross(a, b):

@@ -45,8 +45,8 @@ of the last step (:attr:`EnergyLedger.shares`).
 import numpy as np
 
 from ..backends.numpy.transfers import wall_bands
-from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
 from ..rigid import dynamics as rigid_dynamics
+from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
 
 #: the ledger's terms, in step order: their sum is the change of total energy
 TERMS = ("p2g_transfer", "boundary", "g2p_transfer", "advection", "plastic", "rigid_bodies", "integration")

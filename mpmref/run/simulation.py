@@ -6,19 +6,19 @@ from functools import cached_property
 
 import numpy as np
 
-from . import arguments
 from ..backends import describe, make_backend
-from ..scene.sampling import sample_particles
-from ..observe.diagnostics import diagnostics, polypic_mode_norms
-from .domain import apply_domain_exit, outside
-from .emitters import emit, release_template, with_emitters
 from ..errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from ..io.run_output import RunOutput
+from ..observe.diagnostics import diagnostics, polypic_mode_norms
 from ..physics.materials import material_groups
 from ..rigid.dynamics import current_shapes
 from ..rigid.trimesh import TriMesh
-from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
+from ..scene.sampling import sample_particles
 from ..steppers import make_stepper
+from . import arguments
+from .domain import apply_domain_exit, outside
+from .emitters import emit, release_template, with_emitters
+from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 
 
 class Simulation:

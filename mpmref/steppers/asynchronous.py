@@ -55,9 +55,22 @@ from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import CONSTANT_FIELDS, EVOLVING_FIELDS, Particles, State, fields_with_role
-from .async_kernels import (add_rows, apply_registers, blocks_by_level, boundary_nodes, bucket_by_block,
-                            bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
-                            span, step_limits, zone)
+from .async_kernels import (
+    add_rows,
+    apply_registers,
+    blocks_by_level,
+    boundary_nodes,
+    bucket_by_block,
+    bucket_zone_members,
+    move_rows,
+    particle_steps,
+    relevel_due,
+    row_views,
+    shadow_nodes,
+    span,
+    step_limits,
+    zone,
+)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, LevelExchange, substep
 

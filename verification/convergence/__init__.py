@@ -36,12 +36,12 @@ from mpmref.backends import make_backend
 from mpmref.scene.sampling import sample_particles
 from mpmref.steppers.limits import cfl_time_step
 
-from .problems import PROBLEMS
-from .stepping import TREATMENTS, advance
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding, checks_table
 from ..framework.executor import Executor
 from ..framework.report import pyplot, save_figure
+from .problems import PROBLEMS
+from .stepping import TREATMENTS, advance
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "convergence_bar.png"

@@ -13,16 +13,31 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mpmref import Simulation
-from mpmref.scene.sampling import sample_particles
-from mpmref.rigid.polyline import distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.rigid.dynamics import current_shapes
+from mpmref.rigid.polyline import distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.rigid.trimesh import TriMesh, triangle_frame
+from mpmref.scene.sampling import sample_particles
 
 from ..framework.executor import Executor
 from ..framework.report import snapshot
 from .results import Baseline, Collision, CpicResult, Cut, Sliding, Watched, Wheel
-from .scenes import (BASELINES, BLADE, Params, ball_scene, baseline_particles, baseline_scene, cut3d_scene, cut_scene,
-                     drop_scene, friction_scene, impact_scene, rotor_scene, sand_scene, wheel_omega_floor, wheel_scene)
+from .scenes import (
+    BASELINES,
+    BLADE,
+    Params,
+    ball_scene,
+    baseline_particles,
+    baseline_scene,
+    cut3d_scene,
+    cut_scene,
+    drop_scene,
+    friction_scene,
+    impact_scene,
+    rotor_scene,
+    sand_scene,
+    wheel_omega_floor,
+    wheel_scene,
+)
 
 #: particle fields recorded in the VTK frames of the case's runs
 FRAME_FIELDS = ("velocity", "material")

@@ -25,8 +25,8 @@ from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, energy_scale
 from mpmref.rigid import dynamics as rigid_dynamics
 
 from .. import energy
-from ..momentum import VARIANT, VARIANTS
 from ..framework.report import snapshot
+from ..momentum import VARIANT, VARIANTS
 
 EXAMPLES = Path(__file__).resolve().parent.parent.parent / "examples"
 

@@ -40,10 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from mpmref import Scene, Simulation
-from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.run_output import clear_run
+from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.observe.ledger import ASYNC_TERMS
 
 from ..framework.report import json_number

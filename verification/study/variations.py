@@ -16,8 +16,8 @@ import tomllib
 from dataclasses import dataclass
 
 from mpmref import Scene
-from mpmref.scene.sampling import sample_particles
 from mpmref.errors import ArgumentError, SceneError
+from mpmref.scene.sampling import sample_particles
 
 #: keys of which a scene declares one: setting one removes the other
 ALTERNATIVES = {("grid", "dx"): "cells", ("grid", "cells"): "dx", ("time", "dt"): "cfl", ("time", "cfl"): "dt",

@@ -52,8 +52,7 @@ from mpmref.steppers import AsynchronousStepper
 
 from ..framework.case import VerificationCase
 from .conservation import isolated, ledger_split
-from .levels import (ONE_LEVEL_BLOCK, ONE_LEVEL_TICK, WORKED_EXAMPLE, FrozenShadows, free_fall, one_level,
-                     schedule)
+from .levels import ONE_LEVEL_BLOCK, ONE_LEVEL_TICK, WORKED_EXAMPLE, FrozenShadows, free_fall, one_level, schedule
 from .pairs import ball_pair, compare, stork_pair
 from .reporting import PAIRS, ROUND_OFF, backends_run, checks, findings, report
 from .scenes import Params, census_scene, pressed_disks, two_bodies

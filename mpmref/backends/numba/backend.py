@@ -17,8 +17,8 @@ from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
 from .kicks import class_totals, node_kicks
 from .sparse import BlockLayout
-from .threads import describe_threads, threads_for
 from .stencil import BASE_SHIFT
+from .threads import describe_threads, threads_for
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
 #: the empty row array that tells a transfer kernel it has no particle classes (or no kicks)

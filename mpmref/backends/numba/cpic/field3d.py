@@ -11,10 +11,19 @@ from numba import njit, prange
 from ....physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
 from ....rigid.dynamics import current_shapes
 from ....rigid.trimesh import surface_samples
-from ..stencil import kernel_axis, quadratic_axis
 from ..source_digest import SOURCE_DIGEST
-from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
-                     settle_body, sticky_tags, tagged_by_several)
+from ..stencil import kernel_axis, quadratic_axis
+from .common import (
+    add_pair,
+    add_side_sums,
+    body_target,
+    empty_field,
+    fit_target,
+    node_incompatible,
+    settle_body,
+    sticky_tags,
+    tagged_by_several,
+)
 
 
 def body_samples(bodies, rigid, dx):

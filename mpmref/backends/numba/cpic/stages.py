@@ -10,8 +10,17 @@ from numba import njit
 from ....physics.cdf import ColoredDistanceField
 from ....rigid.dynamics import initial_state
 from ....state import GridState
-from ..kernel_args import (Bodies, BodyFits, ContactArrays, DenseLayout, DistanceFit, G2POutput, Groups, NodeField,
-                           SideTags)
+from ..kernel_args import (
+    Bodies,
+    BodyFits,
+    ContactArrays,
+    DenseLayout,
+    DistanceFit,
+    G2POutput,
+    Groups,
+    NodeField,
+    SideTags,
+)
 from ..stencil import KERNEL_CODES
 from . import field2d, field3d, transfer2d, transfer3d
 
