@@ -1,8 +1,8 @@
 """Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite] [--backend B]``.
 
 Exit status: 0 success; 2 a bad scene, command-line option, argument or backend reference (one line on stderr naming
-the field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
-particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
+the field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain
+exit, every particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
 """
 
 import argparse

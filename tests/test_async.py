@@ -21,7 +21,8 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 # ----------------------------------------------------------------------------------------- level rules
 def test_quantisation_of_the_advection_limit():
-    """AsyncMPM acceptance test 2: dx = 1/256, |v| = 2, advection CFL 1, strength not binding: C = 1953 -> 1024 ticks."""
+    """AsyncMPM acceptance test 2: dx = 1/256, |v| = 2, advection CFL 1, strength not binding: C = 1953 -> 1024
+    ticks."""
     scene = (SceneBuilder(dim=2).grid(size=1.0, cells=256).material("m", "fixed_corotated", E=1e-6, rho=1.0)
              .box("m", lower=[0.5, 0.5], upper=[0.51, 0.51], velocity=[2.0, 0.0])
              .time(stepping="async", cfl=10.0, tick=1e-6, levels=13, advection_cfl=1.0, steps=1).build())
@@ -33,7 +34,8 @@ def test_quantisation_of_the_advection_limit():
 
 
 def test_doubling_waits_for_alignment_and_halving_is_immediate():
-    """AsyncMPM acceptance test 3: at dt = 4 with L = 16 the step is 4 at t = 4, 8 at t = 8 and 16 at t = 16; L = 3 halves to 2."""
+    """AsyncMPM acceptance test 3: at dt = 4 with L = 16 the step is 4 at t = 4, 8 at t = 8 and 16 at t = 16; L = 3
+    halves to 2."""
     dt = np.array([4])
     assert relevel(dt, np.array([16]), 4)[0] == 4
     assert relevel(dt, np.array([16]), 8)[0] == 8

@@ -1,4 +1,5 @@
-"""The cpic verification case: its quick preset passes, and forgetting the side tags makes the no-crossing check fail."""
+"""The cpic verification case: its quick preset passes, and forgetting the side tags makes the no-crossing check
+fail."""
 
 from dataclasses import replace
 

@@ -3,9 +3,9 @@
 Each case runs an example scene asynchronously (with its declared level interfaces, conservative by
 default), then synchronously at the finest step the asynchronous run took, on the same backend and thread
 count, to the same end time; then asynchronously once more with ``time.interface = "reference"``, for the
-cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported: particle updates (ghosts
-included, and the particles' own steps), median wall time of ``repeats`` runs of each (compilation
-excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
+cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported:
+particle updates (ghosts included, and the particles' own steps), median wall time of ``repeats`` runs of each
+(compilation excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
 relative to the initial energy, and the largest position difference (particles matched by id) in Δx.
 
 Two more runs make the comparison fair (docs/async.md, "Cost: where the time goes"): synchronous stepping at

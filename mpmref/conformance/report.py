@@ -46,7 +46,8 @@ def relative_error(candidate, reference, scale=None):
 def output_scale(name, expected):
     """The denominator of output ``name``'s error other than its own largest entry, or ``None``: the reference's
     ``energy_scale`` for a ledger term (``ledger_*``). A term is a difference of energies of that size, so its
-    round-off is relative to it, not to the term (which theory may put at zero: :func:`mpmref.observe.ledger.energy_scale`)."""
+    round-off is relative to it, not to the term (which theory may put at zero:
+    :func:`mpmref.observe.ledger.energy_scale`)."""
     return float(expected["energy_scale"]) if name.startswith("ledger_") and "energy_scale" in expected else None
 
 

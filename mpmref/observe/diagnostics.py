@@ -134,7 +134,8 @@ def mode_energies(particles, mode_norms):
 
 
 def gravitational_energy(particles, gravity):
-    r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64 (``gravity`` the (d,) vector :math:`g`)."""
+    r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64 (``gravity`` the (d,) vector
+    :math:`g`)."""
     return float(-np.sum(particles.mass.astype(np.float64)
                          * (particles.x.astype(np.float64) @ np.asarray(gravity, dtype=np.float64))))
 

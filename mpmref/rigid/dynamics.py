@@ -21,7 +21,8 @@ Motions:
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §5 (two-way coupling: the rigid body receives the momentum
-the material could not give to the grid); the integration order is the authors' reference implementation's (docs/cpic.md).
+the material could not give to the grid); the integration order is the authors' reference implementation's
+(docs/cpic.md).
 """
 
 from dataclasses import dataclass, field, fields, replace

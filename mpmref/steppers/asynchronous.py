@@ -230,8 +230,8 @@ class AsyncInterval:
 
     Three stores hold the particles: ``P`` (the authoritative particles, every field), ``shadow`` (each
     particle's shadow) and ``proposed`` (the shadows proposed by the updates of the current tick, committed
-    at its end); the shadow stores hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`), the others are
-    read from ``P``. Every update copies its group's rows out of them and its results back with the
+    at its end); the shadow stores hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`), the
+    others are read from ``P``. Every update copies its group's rows out of them and its results back with the
     compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
     the particle count.
 
@@ -484,10 +484,11 @@ class AsynchronousStepper:
 
     A :class:`~mpmref.steppers.Stepper`. ``advance`` moves a :class:`~mpmref.state.State` from one synchronised
     time (every particle at the same tick) to the next, which is one step of the run; its state is an
-    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger`` (:class:`~mpmref.observe.ledger.LevelLedger`),
-    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.observe.ledger.ASYNC_COLUMNS`). Each interval is an
-    ``interval_type`` (:class:`AsyncInterval`); what they did and cost adds up in :attr:`work` (a
-    :class:`WorkRecord`; set ``record_trace = True`` for its list of every level update).
+    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger``
+    (:class:`~mpmref.observe.ledger.LevelLedger`), ``energy_ledger``, the cumulative ledger over
+    :data:`~mpmref.observe.ledger.ASYNC_COLUMNS`). Each interval is an ``interval_type`` (:class:`AsyncInterval`); what
+    they did and cost adds up in :attr:`work` (a :class:`WorkRecord`; set ``record_trace = True`` for its list of every
+    level update).
     """
 
     name = "async"

@@ -70,8 +70,8 @@ class Series:
 
     ``gradient`` is the velocity gradient of the F update (``"mls"``: :math:`C_p`; ``"classic"``:
     :math:`\sum_i v_i \nabla w_{ip}^T`; ``None``: the force's, as in a scene); ``ppa`` overrides the study's
-    particles per cell per axis; ``amplitude`` overrides the problem's (the bar's :math:`v_0`, the MMS's :math:`A`); ``fixed_end``
-    is the boundary treatment (``"mirror"`` or ``"zero"``, see :mod:`.stepping`);
+    particles per cell per axis; ``amplitude`` overrides the problem's (the bar's :math:`v_0`, the MMS's :math:`A`);
+    ``fixed_end`` is the boundary treatment (``"mirror"`` or ``"zero"``, see :mod:`.stepping`);
     ``expected_rate`` ``None`` marks a finding; ``bound_constant`` is :math:`C` of the finest-grid bound;
     ``why`` says where the expected rate comes from, or what a finding shows.
     """

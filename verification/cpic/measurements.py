@@ -216,8 +216,9 @@ BASELINE_KEY = "baseline/"
 
 def parts(params):
     """``{key: (function, args)}``: the case's independent simulations, each a call ``function(params, *args)``
-    returning its record; the longest first (they run through an :class:`~verification.framework.executor.Executor`). The
-    keys are the fields of :class:`~verification.cpic.results.CpicResult`, the baselines' apart (its ``baselines``)."""
+    returning its record; the longest first (they run through an :class:`~verification.framework.executor.Executor`).
+    The keys are the fields of :class:`~verification.cpic.results.CpicResult`, the baselines' apart (its
+    ``baselines``)."""
     jobs = {"wheel": (sand_wheel, ()), "drop": (watch, (drop_scene,)), "cut": (cutting, ()),
             "exact": (momentum_run, (True,)), "default": (momentum_run, (False,)), "impact": (watch, (impact_scene,)),
             "friction": (friction, ()), "cut3d": (cutting3d, ()), "sand": (watch, (sand_scene,))}

@@ -12,9 +12,9 @@ from ..framework.common import Check, Finding, checks_table
 from ..framework.report import ledger_figure, pyplot, save_figure, write_series
 from .runs import run_scale, terms_of, total_energy
 
-#: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each energy is
-#: a float64 sum of N terms of one sign, in error by at most N u S (Higham 2002, §4.2; u = 1.1e-16), under 1e-12 for
-#: the N <= 9000 particles or nodes of these runs
+#: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each
+#: energy is a float64 sum of N terms of one sign, in error by at most N u S (Higham 2002, §4.2; u = 1.1e-16), under
+#: 1e-12 for the N <= 9000 particles or nodes of these runs
 ROUNDOFF = 1e-12
 #: the candidate's ledger against the reference's: the conformance bound (mpmref.conformance, the ledger stage)
 CANDIDATE_BOUND = 1e-12

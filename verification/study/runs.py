@@ -216,8 +216,8 @@ NON_FINITE = ("nan", "inf", "-inf")
 
 
 def jsonable(data):
-    """``data`` with every float as :func:`~verification.framework.report.json_number` writes it (NaN and infinities as the
-    strings ``"nan"``, ``"inf"``, ``"-inf"``, so the file stays standard JSON)."""
+    """``data`` with every float as :func:`~verification.framework.report.json_number` writes it (NaN and infinities as
+    the strings ``"nan"``, ``"inf"``, ``"-inf"``, so the file stays standard JSON)."""
     if isinstance(data, dict):
         return {k: jsonable(v) for k, v in data.items()}
     if isinstance(data, (list, tuple)):

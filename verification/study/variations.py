@@ -118,7 +118,8 @@ def key_path(key, text=None):
 
 
 def dotted(path):
-    """The dotted key of a path (the inverse of :func:`key_path`), as :class:`~mpmref.errors.SceneError` names fields."""
+    """The dotted key of a path (the inverse of :func:`key_path`), as :class:`~mpmref.errors.SceneError` names
+    fields."""
     return "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path).lstrip(".")
 
 

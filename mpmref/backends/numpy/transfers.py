@@ -81,7 +81,8 @@ def p2g(particles, tau, grid, kernel, transfer, prepared=None, contact=None, cla
 
     Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step,
     docs/mls_vs_classic.md#two-gradient-weights,
-    docs/mpm_cycle.md#p2g-particle-to-grid, docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#pic, docs/transfers.md#polypic
+    docs/mpm_cycle.md#p2g-particle-to-grid, docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#pic,
+    docs/transfers.md#polypic
 
     Parameters
     ----------
@@ -262,8 +263,8 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, transfer, dt, prepared=None, g
 
     With the MLS velocity gradient :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the
     classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``transfer.gradient`` chooses it, independently of
-    the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are the projections of
-    :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
+    the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are
+    the projections of :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
     ``(compatible (K, n), ghost velocities (K, n, d))``: at a node incompatible with the particle, its ghost
     velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; docs/cpic.md). Returns new

@@ -1,6 +1,7 @@
 r"""The CPIC stages of the Numba backend (``cpic_contact``, P2G with a contact, ``cpic_impulses``,
 ``cpic_g2p``), one code path for 2D and 3D over the dimension's kernels, chosen once per step when the
-contact is formed (:data:`CPIC_KERNELS_BY_DIM`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`, :mod:`.transfer3d`)."""
+contact is formed (:data:`CPIC_KERNELS_BY_DIM`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`,
+:mod:`.transfer3d`)."""
 
 from dataclasses import dataclass
 
