@@ -109,14 +109,17 @@ def _parser():
 def _format_summary(summary, out_dir, backend=None):
     final = summary["final"]
     lines = [
-        f"steps            {summary['steps']} (each to a synchronised time; now at step {final['step']}, t = {final['time']:.6g})",
+        f"steps            {summary['steps']} (each to a synchronised time; now at step {final['step']}, "
+        f"t = {final['time']:.6g})",
         f"wall time        {summary['wall_s']:.3f} s (kernel compilation excluded)",
         f"particle-steps/s {summary['particle_steps_per_s']:.4g} (each particle's own steps)",
         f"particles        {final['n_particles']} (at the domain edge: {final['deleted']} deleted, "
         f"{final['clamped']} clamped back inside)",
         f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
-        f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls change it)",
-        f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + gravitational)",
+        f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls "
+        "change it)",
+        f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + "
+        "gravitational)",
         f"outputs          {out_dir} (open particles.pvd in ParaView"
         f"{', with rigid_bodies.pvd for the rigid bodies' if 'rigid0_x' in final else ''})",
     ]

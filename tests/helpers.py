@@ -88,8 +88,8 @@ def random_deformations(rng, n, dim, scale=0.3, min_det=0.3):
     return np.array(out)
 
 
-__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations", "Scene",
-           "assert_every_figure_has_a_caption"]
+__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations",
+           "Scene", "assert_every_figure_has_a_caption"]
 
 
 def assert_every_figure_has_a_caption(folder):

@@ -148,7 +148,8 @@ def test_wave_speeds_of_every_material_agree_across_backends():
     from mpmref.backends import make_backend
 
     scene = (SceneBuilder(dim=2, name="waves").grid(size=1.0, cells=16).method("mls")
-             .material("fc", "fixed_corotated", E=1e3, nu=0.3, rho=1.0).material("nh", "neo_hookean", E=2e3, nu=0.2, rho=2.0)
+             .material("fc", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
+             .material("nh", "neo_hookean", E=2e3, nu=0.2, rho=2.0)
              .material("w", "fluid", K=400.0, gamma=7.0, rho=1.0).material("s", "snow", E=1.4e5, nu=0.2, rho=400.0)
              .material("d", "sand", E=3.5e5, nu=0.3, rho=2200.0)
              .box("fc", lower=[0.2, 0.2], upper=[0.3, 0.3]).box("nh", lower=[0.3, 0.2], upper=[0.4, 0.3])

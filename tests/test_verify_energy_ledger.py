@@ -192,7 +192,8 @@ def test_tables_carry_each_runs_split(result):
     rows = {row["run"]: row for row in tables["split"]}
     assert set(rows) == set(result["params"].runs)
     for row in rows.values():
-        assert sum(row[t] for t in ASYNC_TERMS) == pytest.approx(row["energy_change"], abs=1e-12 * abs(row["E0"]) + 1e-15)
+        assert sum(row[t] for t in ASYNC_TERMS) == pytest.approx(row["energy_change"],
+                                                                 abs=1e-12 * abs(row["E0"]) + 1e-15)
     json.dumps(tables, allow_nan=False)
     assert len(tables["candidate"]) == 2 * len(result["compared"])
 

@@ -66,7 +66,8 @@ def time_case(case, t_end, backend, threads, repeats):
     rec_c, c = timed(cfl_sync=True)
     rec_o, o = timed(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
     rec_r, r = measure(lambda: _run(example_with_time(name, t_end, cells=cells, interface="reference"), backend), 1,
-                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, interface="reference"), backend))
+                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, interface="reference"),
+                                          backend))
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
@@ -126,8 +127,8 @@ def render_async(section):
                      f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}"
                      f"{r['interface_cost_ratio']:>6.2f}x")
     lines += ["",
-              "Accounting: ideal x = sync updates / own steps, work x = with ghosts, wall x = sync at the finest step / "
-              "async; work/ideal (ghosts) and wall/work (implementation); 'cfl x': sync at its own CFL step / async; "
+              "Accounting: ideal x = sync updates / own steps, work x = with ghosts, wall x = sync at the finest step "
+              "/ async; work/ideal (ghosts) and wall/work (implementation); 'cfl x': sync at its own CFL step / async; "
               "'1-level': the async stepper on one level / sync at that step (its own cost); bookkeeping visits per "
               "level update (ghost candidates, ghost-zone nodes) and per tick (due blocks)",
               f"{'case':12}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"

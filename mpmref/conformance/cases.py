@@ -480,7 +480,8 @@ _STAGE_CASES = {
     "stress": lambda dim, dtype: _material_cases("stress", dim, dtype, MATERIAL_SETS),
     "return_map": lambda dim, dtype: _material_cases("return_map", dim, dtype, PLASTIC_SETS),
     "p2g": partial(_transfer_cases, "p2g"),
-    "p2g_fused": lambda dim, dtype: [c for c in _transfer_cases("p2g_fused", dim, dtype) if not c.scene().transfer.flip],
+    "p2g_fused": lambda dim, dtype: [c for c in _transfer_cases("p2g_fused", dim, dtype)
+                                     if not c.scene().transfer.flip],
     "grid_update": _grid_update_cases,
     "g2p": partial(_transfer_cases, "g2p"),
     "step": partial(_transfer_cases, "step"),
@@ -508,4 +509,5 @@ def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", material
     if unknown:
         raise ValueError(f"unknown material types {unknown}: the types are {list(MATERIALS)}")
     cases = [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]
-    return cases if materials is None else [c for c in cases if c.stage == "grid_update" or c.materials <= set(materials)]
+    return cases if materials is None else [c for c in cases
+                                            if c.stage == "grid_update" or c.materials <= set(materials)]

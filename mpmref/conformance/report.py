@@ -224,7 +224,8 @@ def _run_case(fn, case, rtol):
     worst = result.worst_output
     if result.passed or worst not in got:
         return result
-    return CaseResult(case, errors, rtol, note, where=worst_place(worst, got[worst], expected[worst], rows, scene, inputs),
+    return CaseResult(case, errors, rtol, note,
+                      where=worst_place(worst, got[worst], expected[worst], rows, scene, inputs),
                       ratio=uniform_ratio(worst, got[worst], expected[worst], rows))
 
 

@@ -434,5 +434,6 @@ class LevelLedger:
 
         if not modes:
             particles = particles.with_(modes=None)
-        norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None else None
+        norms = (polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None
+                 else None)
         return sum(kinetic_parts(particles, self.nodes.inertia, norms))

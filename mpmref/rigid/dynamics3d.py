@@ -250,7 +250,8 @@ def kinetic_energy(bodies, state):
         if body.motion == "dynamic":
             R = rotation_matrix(state.angle[r])
             omega = state.angular_velocity[r]
-            energy[r] = 0.5 * body.mass * state.velocity[r] @ state.velocity[r] + 0.5 * omega @ R @ body.inertia @ R.T @ omega
+            energy[r] = (0.5 * body.mass * state.velocity[r] @ state.velocity[r]
+                         + 0.5 * omega @ R @ body.inertia @ R.T @ omega)
     return energy
 
 

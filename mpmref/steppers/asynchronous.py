@@ -286,7 +286,8 @@ class AsyncInterval:
         self.finest = stepper.max_units
         arrays = self.P.arrays()
         self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
-                     "proposed": row_views(self.proposed.values()), "P_constant": row_views(arrays[k] for k in self.constant)}
+                     "proposed": row_views(self.proposed.values()),
+                     "P_constant": row_views(arrays[k] for k in self.constant)}
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))

@@ -283,7 +283,8 @@ def _items(params, backend):
         cells = params.cells(series.problem)
         vtk = min(cells, key=lambda c: abs(c - params.vtk_cells))
         first = first_of.setdefault(series.problem, series) == series
-        items += [LevelRun(series, c, params.cfl, series.ppa or params.ppa, backend, params.vtk_frames if first and c == vtk else 0)
+        items += [LevelRun(series, c, params.cfl, series.ppa or params.ppa, backend,
+                           params.vtk_frames if first and c == vtk else 0)
                   for c in cells]
     return items
 

@@ -101,7 +101,8 @@ def _check_portable(functions, executor):
                 pickle.dumps(fn)
             except (pickle.PicklingError, AttributeError, TypeError):
                 raise ArgumentError(option, _name(fn), "a function defined at the top level of an importable module "
-                                    "when the runs go to other processes (or run them here: Executor(workers=1))") from None
+                                    "when the runs go to other processes (or run them here: "
+                                    "Executor(workers=1))") from None
 
 
 def _execute(plan, executor, overwrite, progress):

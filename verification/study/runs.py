@@ -177,7 +177,8 @@ def drift_series(rows, momentum_scale_, angular_scale):
            "momentum_drift": ratio(np.linalg.norm(P - P[0], axis=1), momentum_scale_),
            "angular_momentum_drift": ratio(np.linalg.norm(L - L[0], axis=1), angular_scale),
            "mass_drift": ratio(mass - mass[0], mass[0])}
-    out.update({f"ledger_{t}": ratio(column(f"ledger_{t}"), energy[0]) for t in ASYNC_TERMS if f"ledger_{t}" in rows[0]})
+    out.update({f"ledger_{t}": ratio(column(f"ledger_{t}"), energy[0])
+                for t in ASYNC_TERMS if f"ledger_{t}" in rows[0]})
     return {k: [float(x) for x in v] for k, v in out.items()}
 
 

@@ -33,7 +33,8 @@ def n_chunks(n):
 def work_arrays(d, dtype):
     """Work arrays of one chunk: ``R``, ``U``, ``sigma``, ``Vt`` for :mod:`mpmref.backends.numba.svd`, and a second
     length-``d`` vector."""
-    return np.empty((d, d), dtype), np.empty((d, d), dtype), np.empty(d, dtype), np.empty((d, d), dtype), np.empty(d, dtype)
+    return (np.empty((d, d), dtype), np.empty((d, d), dtype), np.empty(d, dtype), np.empty((d, d), dtype),
+            np.empty(d, dtype))
 
 
 @njit(cache=True, inline="always")

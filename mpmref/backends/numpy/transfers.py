@@ -24,7 +24,8 @@ def scatter(index, values, n_nodes):
     """Sum ``values`` (n,) or (n, k) into ``n_nodes`` bins by ``index`` (``np.bincount`` per column)."""
     if values.ndim == 1:
         return np.bincount(index, weights=values, minlength=n_nodes)
-    return np.stack([np.bincount(index, weights=values[:, k], minlength=n_nodes) for k in range(values.shape[1])], axis=1)
+    return np.stack([np.bincount(index, weights=values[:, k], minlength=n_nodes) for k in range(values.shape[1])],
+                    axis=1)
 
 
 def mls_gradient_weight(stencil, w, dpos, offset):
