@@ -49,9 +49,16 @@ _default_numba_cache()
 _threads_that_wait_quietly()
 
 from .errors import (  # noqa: E402 - after the cache folder is set
-    AllParticlesLeftError, ArgumentError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError, SceneError)
-from .scene import Scene, SceneBuilder  # noqa: E402
+    AllParticlesLeftError,
+    ArgumentError,
+    DomainExitError,
+    InstabilityError,
+    MpmrefError,
+    NonFiniteError,
+    SceneError,
+)
 from .run.simulation import Simulation  # noqa: E402
+from .scene import Scene, SceneBuilder  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = ["Scene", "SceneBuilder", "Simulation", "SceneError", "ArgumentError", "InstabilityError", "NonFiniteError",

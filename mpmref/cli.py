@@ -1,8 +1,8 @@
 """Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite] [--backend B]``.
 
 Exit status: 0 success; 2 a bad scene, command-line option, argument or backend reference (one line on stderr naming
-the field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain exit, every
-particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
+the field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain
+exit, every particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint and prints the resume command).
 """
 
 import argparse
@@ -16,9 +16,9 @@ import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from .run import arguments
 from .backends import OPTION_HELP, reference_argument
 from .errors import ArgumentError, BackendError, MpmrefError, SceneError
+from .run import arguments
 
 #: modules of this package that each add one subcommand through ``add_parser(subparsers)`` (it sets ``func``)
 COMMAND_MODULES = ("mpmref.conformance", "mpmref.bench")
@@ -109,14 +109,17 @@ def _parser():
 def _format_summary(summary, out_dir, backend=None):
     final = summary["final"]
     lines = [
-        f"steps            {summary['steps']} (each to a synchronised time; now at step {final['step']}, t = {final['time']:.6g})",
+        f"steps            {summary['steps']} (each to a synchronised time; now at step {final['step']}, "
+        f"t = {final['time']:.6g})",
         f"wall time        {summary['wall_s']:.3f} s (kernel compilation excluded)",
         f"particle-steps/s {summary['particle_steps_per_s']:.4g} (each particle's own steps)",
         f"particles        {final['n_particles']} (at the domain edge: {final['deleted']} deleted, "
         f"{final['clamped']} clamped back inside)",
         f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
-        f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls change it)",
-        f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + gravitational)",
+        f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls "
+        "change it)",
+        f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + "
+        "gravitational)",
         f"outputs          {out_dir} (open particles.pvd in ParaView"
         f"{', with rigid_bodies.pvd for the rigid bodies' if 'rigid0_x' in final else ''})",
     ]

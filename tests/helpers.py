@@ -46,8 +46,8 @@ def random_particles(scene, n, rng, affine_scale=1.0):
 def valid_methods():
     """Every (scheme, force, kernel) that the scene rules accept, as keyword dicts."""
     from mpmref import SceneError
-    from mpmref.scene import FORCES, SCHEMES
     from mpmref.physics.kernels import KERNELS
+    from mpmref.scene import FORCES, SCHEMES
 
     out = []
     for scheme in SCHEMES:
@@ -88,8 +88,8 @@ def random_deformations(rng, n, dim, scale=0.3, min_det=0.3):
     return np.array(out)
 
 
-__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations", "Scene",
-           "assert_every_figure_has_a_caption"]
+__all__ = ["box_scene", "random_particles", "valid_methods", "fd_gradient", "independent_lame", "random_deformations",
+           "Scene", "assert_every_figure_has_a_caption"]
 
 
 def assert_every_figure_has_a_caption(folder):

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import valid_methods
+
 from mpmref import InstabilityError, Scene, SceneBuilder, Simulation
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import full_and_resumed_runs, valid_methods
+from test_scene_validation import check_refused
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
@@ -15,15 +17,12 @@ from mpmref.errors import TickTooLongError
 from mpmref.steppers.asynchronous import alignment, relevel
 from verification.sync_vs_async import two_bodies
 
-from helpers import full_and_resumed_runs, valid_methods
-
-from test_scene_validation import check_refused
-
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 # ----------------------------------------------------------------------------------------- level rules
 def test_quantisation_of_the_advection_limit():
-    """AsyncMPM acceptance test 2: dx = 1/256, |v| = 2, advection CFL 1, strength not binding: C = 1953 -> 1024 ticks."""
+    """AsyncMPM acceptance test 2: dx = 1/256, |v| = 2, advection CFL 1, strength not binding: C = 1953 -> 1024
+    ticks."""
     scene = (SceneBuilder(dim=2).grid(size=1.0, cells=256).material("m", "fixed_corotated", E=1e-6, rho=1.0)
              .box("m", lower=[0.5, 0.5], upper=[0.51, 0.51], velocity=[2.0, 0.0])
              .time(stepping="async", cfl=10.0, tick=1e-6, levels=13, advection_cfl=1.0, steps=1).build())
@@ -35,7 +34,8 @@ def test_quantisation_of_the_advection_limit():
 
 
 def test_doubling_waits_for_alignment_and_halving_is_immediate():
-    """AsyncMPM acceptance test 3: at dt = 4 with L = 16 the step is 4 at t = 4, 8 at t = 8 and 16 at t = 16; L = 3 halves to 2."""
+    """AsyncMPM acceptance test 3: at dt = 4 with L = 16 the step is 4 at t = 4, 8 at t = 8 and 16 at t = 16; L = 3
+    halves to 2."""
     dt = np.array([4])
     assert relevel(dt, np.array([16]), 4)[0] == 4
     assert relevel(dt, np.array([16]), 8)[0] == 8
@@ -148,7 +148,8 @@ def test_wave_speeds_of_every_material_agree_across_backends():
     from mpmref.backends import make_backend
 
     scene = (SceneBuilder(dim=2, name="waves").grid(size=1.0, cells=16).method("mls")
-             .material("fc", "fixed_corotated", E=1e3, nu=0.3, rho=1.0).material("nh", "neo_hookean", E=2e3, nu=0.2, rho=2.0)
+             .material("fc", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
+             .material("nh", "neo_hookean", E=2e3, nu=0.2, rho=2.0)
              .material("w", "fluid", K=400.0, gamma=7.0, rho=1.0).material("s", "snow", E=1.4e5, nu=0.2, rho=400.0)
              .material("d", "sand", E=3.5e5, nu=0.3, rho=2200.0)
              .box("fc", lower=[0.2, 0.2], upper=[0.3, 0.3]).box("nh", lower=[0.3, 0.2], upper=[0.4, 0.3])

@@ -8,12 +8,11 @@ sums, as the synchronous ledger's tests allow).
 
 import numpy as np
 import pytest
+from helpers import full_and_resumed_runs
 
 from mpmref import Scene, Simulation
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, TERMS
 from verification import sync_vs_async as case
-
-from helpers import full_and_resumed_runs
 
 ROUND_OFF = 1e-12
 

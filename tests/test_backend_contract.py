@@ -10,9 +10,16 @@ import pytest
 
 from mpmref import Scene
 from mpmref.backends import BACKENDS, checked, make_backend
+from mpmref.backends.base import (
+    ASYNC_BACKEND_STAGES,
+    BACKEND_STAGES,
+    CPIC_BACKEND_STAGES,
+    FUSED_BACKEND_STAGES,
+    Backend,
+    CoupledBackend,
+    FusedBackend,
+)
 from mpmref.errors import BackendError
-from mpmref.backends.base import (ASYNC_BACKEND_STAGES, BACKEND_STAGES, CPIC_BACKEND_STAGES, FUSED_BACKEND_STAGES,
-                                  Backend, CoupledBackend, FusedBackend)
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "mpmref"

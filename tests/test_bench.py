@@ -15,17 +15,23 @@ import pytest
 import mpmref.peers
 from mpmref import MpmrefError, Scene, SceneBuilder
 from mpmref.backends import make_backend
-from mpmref.errors import BackendError
-from mpmref.steppers import substep
 from mpmref.bench import SCHEMA, SECTIONS, BenchOptions, add_parser, options_from_args, run_bench
+from mpmref.bench.opcount import predicted_ratio
 from mpmref.bench.peer import clear_of_walls, frobenius_max, mean_position_bound, run_peer
 from mpmref.bench.report import render_peer
-from mpmref.bench.opcount import predicted_ratio
-from mpmref.conformance import relative_error
+from mpmref.bench.scenes import (
+    ThroughputCase,
+    mpm88_scene,
+    table2_cells,
+    table2_particles,
+    table2_scene,
+    throughput_cases,
+)
 from mpmref.bench.table2 import table2_ratios
-from mpmref.bench.scenes import (ThroughputCase, mpm88_scene, table2_cells, table2_particles, table2_scene,
-                                 throughput_cases)
+from mpmref.conformance import relative_error
+from mpmref.errors import BackendError
 from mpmref.scene.sampling import sample_particles
+from mpmref.steppers import substep
 
 ROOT = Path(__file__).resolve().parent.parent
 TIMING_KEYS = {"first_call_s", "times_s", "median_s"}

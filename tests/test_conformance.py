@@ -7,14 +7,22 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import valid_methods
+
 from mpmref.backends import BACKENDS
 from mpmref.backends.numpy import NumpyBackend
-from mpmref.conformance import (CONFORMANCE_STAGES, ConformanceCase, add_parser, check, export, load_vectors,
-                                make_cases, relative_error)
+from mpmref.conformance import (
+    CONFORMANCE_STAGES,
+    ConformanceCase,
+    add_parser,
+    check,
+    export,
+    load_vectors,
+    make_cases,
+    relative_error,
+)
+from mpmref.conformance.cases import CFL_RANGE, DEFAULT_RTOL, EDGE_CELLS, MIN_WEIGHT, cfl_number
 from mpmref.conformance.report import compare_outputs
-from mpmref.conformance.cases import CFL_RANGE, DEFAULT_RTOL, cfl_number, EDGE_CELLS, MIN_WEIGHT
 from mpmref.conformance.stages import STAGES_WITH_DT, particles_from
 from mpmref.physics.kernels import compute_stencil
 from mpmref.scene import COLLIDER_SHAPES, MATERIAL_TYPES, WALL_TYPES, Scene
@@ -48,7 +56,8 @@ def test_cases_cover_every_valid_combination():
         assert {w.type for s in scenes for w in s.boundary.walls.values()} == set(WALL_TYPES)
         shapes = {type(k.shape).__name__ for s in scenes for k in s.colliders}
         assert len(shapes) == len(COLLIDER_SHAPES) - 1 - (dim == 2)  # disk and sphere are one class
-        ledger_shapes = {type(k.shape).__name__ for c in cases_of("ledger") if c.dim == dim for k in c.scene().colliders}
+        ledger_shapes = {type(k.shape).__name__ for c in cases_of("ledger") if c.dim == dim
+                         for k in c.scene().colliders}
         assert ledger_shapes == shapes
     assert {c.stage for c in ALL_CASES} == set(CONFORMANCE_STAGES)
     # 12 stress + 6 return map + 56 P2G + 46 fused P2G + 12 grid update + 56 G2P + 56 steps + 58 ledgers (the
@@ -213,7 +222,8 @@ def test_dropping_the_affine_p2g_term_fails_only_affine_p2g_steps_and_ledgers():
         failed = {r.case.name for r in report.failures() if r.case.stage == stage}
         assert failed == {c.name for c in cases_of(stage, PLANE_CASES) if c.scene().transfer.affine}
     assert all(r.errors["ledger_p2g_transfer"] > 1e-6 for r in report.failures() if r.case.stage == "ledger")
-    assert report.worst().worst_output in ("grid_momentum", "grid_momentum_after_force", "x", "v", "C", "F", "J", "modes")
+    assert report.worst().worst_output in ("grid_momentum", "grid_momentum_after_force", "x", "v", "C", "F", "J",
+                                           "modes")
 
 
 def test_mapping_candidate_skips_missing_stages_and_reports_exceptions():

@@ -3,14 +3,13 @@ orientation that stays orthonormal, angular momentum), and the coupled step on t
 
 import numpy as np
 import pytest
+from test_cpic_coupling import assert_refused
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.errors import SceneError
 from mpmref.rigid import dynamics as rigid_dynamics
 from mpmref.rigid import dynamics3d as rigid_dynamics3d
 from mpmref.rigid.trimesh import box, rectangle
-
-from test_cpic_coupling import assert_refused
 
 PLATE = rectangle([0.5, 0.4, 0.5], [0.2, 0.0, 0.0], [0.0, 0.0, -0.2])  # normal +y
 PLATE_ENTRY = {"vertices": PLATE.vertices.tolist(), "triangles": PLATE.triangles.tolist()}
@@ -37,7 +36,8 @@ def builder(method=None, steps=4, **body):
     ({"motion": "scripted", "keyframes": [{"time": 0.0}, {"time": 1.0, "angle": 0.5}]},
      "rigid_bodies[0].keyframes[1].angle", "known keys"),
     ({"motion": "dynamic"}, "rigid_bodies[0].density", "required"),
-    ({"motion": "scripted", "angular_velocity": 1.0, "center": [0.5, 0.5]}, "rigid_bodies[0].center", "3 finite numbers"),
+    ({"motion": "scripted", "angular_velocity": 1.0, "center": [0.5, 0.5]}, "rigid_bodies[0].center",
+     "3 finite numbers"),
     ({"vertices": (PLATE.vertices + [0.0, 0.0, 0.35]).tolist()}, "rigid_bodies[0].vertices", "inside the domain"),
     ({"segments": [[0, 1]]}, "rigid_bodies[0].segments", "known keys"),
     ({"mesh": "blade.stl"}, "rigid_bodies[0].triangles", "absent when mesh"),

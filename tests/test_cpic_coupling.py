@@ -3,15 +3,13 @@ momentum exchange with a body, restart bit-identity with bodies, and the rigid-b
 
 import numpy as np
 import pytest
+from helpers import full_and_resumed_runs
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.errors import SceneError
-from mpmref.rigid.dynamics import (area_mass_properties, encode_friction, friction_projection,
-                                           line_mass_properties)
+from mpmref.rigid.dynamics import area_mass_properties, encode_friction, friction_projection, line_mass_properties
 from mpmref.rigid.dynamics2d import scripted_pose
 from mpmref.rigid.polyline import validate_polyline
-
-from helpers import full_and_resumed_runs
 
 PLATE = {"vertices": [[0.3, 0.4], [0.7, 0.4]], "segments": [[0, 1]]}
 

@@ -244,8 +244,8 @@ def test_impulses_go_to_each_node_s_nearest_body(backend):
     from types import SimpleNamespace
 
     from mpmref.physics.cdf import build_cdf
-    from mpmref.rigid.polyline import validate_polyline
     from mpmref.rigid.dynamics import RigidState
+    from mpmref.rigid.polyline import validate_polyline
 
     dx = 1.0 / 32
     lower = validate_polyline([[0.2, 0.5 - 0.4 * dx], [0.8, 0.5 - 0.4 * dx]], [[0, 1]])
@@ -260,7 +260,8 @@ def test_impulses_go_to_each_node_s_nearest_body(backend):
     from mpmref.backends.numba.cpic.stages import CPIC_KERNELS_BY_DIM
 
     impulses = importlib.import_module(f"mpmref.backends.{backend}.cpic").impulses
-    contact = SimpleNamespace(cdf=cdf, kernels=CPIC_KERNELS_BY_DIM[2])  # the Numba stages call the kernels the contact chose
+    # the Numba stages call the kernels the contact chose
+    contact = SimpleNamespace(cdf=cdf, kernels=CPIC_KERNELS_BY_DIM[2])
     J, L = impulses(grid_state, contact, rigid, dt=1e-3)
     assert np.array_equal(J, [[1.0, -2.0], [0.0, 0.0]])
     assert L[0] == pytest.approx(-0.01 * 1.0) and L[1] == 0.0  # (x - c) = (0, 0.01): L = -0.01 * J_x

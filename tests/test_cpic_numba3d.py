@@ -5,12 +5,11 @@ reference at 1e-12, a coupled trajectory and bitwise thread-count independence."
 import numba
 import numpy as np
 import pytest
+from test_cpic_numba import AllCompatible, ForgetfulTags, assert_state_follows
 
 from mpmref import Scene, Simulation
 from mpmref.backends.numba import threads as numba_threads
 from mpmref.conformance import CPIC_CONFORMANCE_STAGES, check, make_cases
-
-from test_cpic_numba import AllCompatible, ForgetfulTags, assert_state_follows
 
 CASES_3D = make_cases(dims=(3,), stages=CPIC_CONFORMANCE_STAGES)
 QUICK_3D = [c for c in CASES_3D if c.variant in ("bodies", "pic-mls-quadratic")]

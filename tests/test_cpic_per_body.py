@@ -7,9 +7,9 @@ import pytest
 
 from mpmref import SceneBuilder, Simulation
 from mpmref.backends import make_backend
+from mpmref.errors import SceneError
 from mpmref.physics.cdf import build_cdf, reconstruct, reconstruct_per_body, update_tags
 from mpmref.rigid.polyline import validate_polyline
-from mpmref.errors import SceneError
 
 DX = 1.0 / 64
 WALL = [[0.3, 0.5], [0.7, 0.5]]        # the "ring": a horizontal wall, side 0 above

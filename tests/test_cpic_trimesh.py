@@ -7,9 +7,19 @@ import pytest
 
 from mpmref.errors import SceneError
 from mpmref.physics.cdf import build_cdf, compatible, reconstruct, update_tags
-from mpmref.rigid.trimesh import (box, crossed_blades, mass_properties, read_trimesh, rectangle,
-                                    shell_mass_properties, signed_volume, solid_mass_properties, surface_samples,
-                                    triangle_frame, validate_trimesh)
+from mpmref.rigid.trimesh import (
+    box,
+    crossed_blades,
+    mass_properties,
+    read_trimesh,
+    rectangle,
+    shell_mass_properties,
+    signed_volume,
+    solid_mass_properties,
+    surface_samples,
+    triangle_frame,
+    validate_trimesh,
+)
 
 DX = 1.0 / 32
 SHAPE = (33, 33, 33)  # nodes of a 32^3 grid on the unit cube

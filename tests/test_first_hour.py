@@ -11,11 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mpmref import (AllParticlesLeftError, DomainExitError, InstabilityError, NonFiniteError, Scene, SceneBuilder,
-                    Simulation)
+from mpmref import (
+    AllParticlesLeftError,
+    DomainExitError,
+    InstabilityError,
+    NonFiniteError,
+    Scene,
+    SceneBuilder,
+    Simulation,
+)
 from mpmref.cli import main
-from mpmref.run.domain import apply_domain_exit
 from mpmref.io.checkpoint import load_checkpoint
+from mpmref.run.domain import apply_domain_exit
 from mpmref.run.stability import MEASURED_LIMITS, StabilityWarning, first_unbounded, stable_cfl
 from mpmref.state import Particles
 from mpmref.steppers.pipeline import substep

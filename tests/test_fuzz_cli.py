@@ -163,7 +163,8 @@ def test_bad_bytes_exit_2_naming_the_scene_file(content):
 
 
 @given(st.one_of(
-    st.tuples(st.just("--steps"), st.one_of(st.integers(max_value=-1).map(str), st.sampled_from(["x", "1.5", "1e3", ""]))),
+    st.tuples(st.just("--steps"), st.one_of(st.integers(max_value=-1).map(str),
+                                            st.sampled_from(["x", "1.5", "1e3", ""]))),
     st.tuples(st.just("--t-end"), st.one_of(st.floats(max_value=-1e-300).map(repr),
                                             st.sampled_from(["nan", "inf", "NaN", "Infinity", "-inf", "abc", ""])))))
 def test_bad_flags_exit_2_naming_the_option(flag):

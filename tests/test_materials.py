@@ -9,10 +9,10 @@ import math
 
 import numpy as np
 import pytest
+from helpers import fd_gradient, independent_lame, random_deformations
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from helpers import fd_gradient, independent_lame, random_deformations
 from mpmref.physics.materials import (
     FixedCorotated,
     NeoHookean,

@@ -13,10 +13,10 @@ import pytest
 
 from mpmref import Scene
 from mpmref.backends import make_backend
-from mpmref.errors import BackendError
-from mpmref.steppers import substep
 from mpmref.backends.numba import threads as numba_threads
+from mpmref.errors import BackendError
 from mpmref.scene.sampling import sample_particles
+from mpmref.steppers import substep
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -44,7 +44,8 @@ def with_threads(threads, fn):
 
 def block_3d(method, material):
     """A jittered 3D block on a 16^3 grid, moving, for the thread-count test."""
-    return Scene.from_dict({"dim": 3, "grid": {"size": 1.0, "cells": 16}, "method": method, "materials": {"m": material},
+    return Scene.from_dict({"dim": 3, "grid": {"size": 1.0, "cells": 16}, "method": method,
+                            "materials": {"m": material},
                             "bodies": [{"shape": "box", "material": "m", "lower": [0.3] * 3, "upper": [0.7] * 3,
                                         "ppc": 8, "sampling": "jittered", "seed": 3, "velocity": [0.5, -0.2, 0.1]}],
                             "gravity": [0.0, -9.8, 0.0], "time": {"dt": 1e-4, "steps": 10}})

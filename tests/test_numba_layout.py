@@ -37,7 +37,8 @@ def parameter_count(function):
 
 def test_the_walk_finds_the_compiled_kernels():
     found = {f.name for path in SOURCES for f in compiled_functions(path)}
-    assert {"p2g", "g2p", "gather", "tags", "move_particle", "deform_particle", "grid_velocity", "project_at_wall"} <= found
+    assert {"p2g", "g2p", "gather", "tags", "move_particle", "deform_particle", "grid_velocity",
+            "project_at_wall"} <= found
 
 
 def test_no_file_of_the_backend_is_longer_than_400_lines():

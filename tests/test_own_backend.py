@@ -17,16 +17,16 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
-
 import planted_backends as planted
+import pytest
+from my_mpm_backend.backend import MyBackend, factory
+
 from mpmref import Scene, Simulation
 from mpmref.backends import describe, make_backend, resolve
 from mpmref.backends.numpy import transfers
 from mpmref.conformance import check, export, make_cases
 from mpmref.conformance.stages import STAGES_WITH_DT
 from mpmref.errors import BackendError
-from my_mpm_backend.backend import MyBackend, factory
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "my_mpm_backend"
@@ -119,7 +119,8 @@ def test_a_grid_update_without_gravity_fails_the_grid_update_and_the_step():
     report = check(planted.DropsGravity, PLANE_CASES)
     failed = failures_by_stage(report)
     assert set(failed) == {"grid_update", "step", "ledger"}
-    assert len(failed["grid_update"]) == len(cases_of("grid_update")) and len(failed["ledger"]) == len(cases_of("ledger"))
+    assert (len(failed["grid_update"]) == len(cases_of("grid_update"))
+            and len(failed["ledger"]) == len(cases_of("ledger")))
     assert all(r.worst_output == "grid_v" and r.where.startswith("node ") for r in failed["grid_update"])
 
 
@@ -178,7 +179,8 @@ def test_a_p2g_that_takes_the_stress_is_given_the_reference_stress():
             return transfers.p2g(particles, stress, scene.grid, scene.kernel, scene.transfer)
 
     report = check(TransferOnly, PLANE_CASES)
-    assert report.passed and {c.stage for c in report.skipped} == {"stress", "step", "ledger"}  # no step without a stress
+    # no step without a stress
+    assert report.passed and {c.stage for c in report.skipped} == {"stress", "step", "ledger"}
     assert all(seen) and len(seen) == len(cases_of("p2g"))
 
 

@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import fd_gradient, independent_lame, random_deformations
+
 from mpmref.physics.plasticity import DruckerPragerSand, SnowPlasticity
 
 E, NU, RHO = 1.0e3, 0.3, 2.0

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mpmref.rigid.polyline import Polyline
 from mpmref.rigid.dynamics import MECHANICS, RigidBody, RigidMechanics, initial_state
+from mpmref.rigid.polyline import Polyline
 from mpmref.rigid.trimesh import box
 
 DECLARED = {name: inspect.signature(f) for name, f in vars(RigidMechanics).items()

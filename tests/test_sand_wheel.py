@@ -6,14 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import full_and_resumed_runs
 
 from mpmref import Scene, SceneBuilder, Simulation
-from mpmref.run.emitters import emit, release_template
 from mpmref.errors import SceneError
-from mpmref.rigid.polyline import distance_to_polyline, inside_closed, validate_polyline, wheel
 from mpmref.rigid.dynamics import apply_impulses, end_step, initial_state
-
-from helpers import full_and_resumed_runs
+from mpmref.rigid.polyline import distance_to_polyline, inside_closed, validate_polyline, wheel
+from mpmref.run.emitters import emit, release_template
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "sand_wheel2d.toml"
 EMITTER = {"material": "s", "center": [0.5, 0.7], "radius": 0.05, "velocity": [0.0, -1.0], "until": 0.35}

@@ -3,8 +3,8 @@
 import copy
 
 import pytest
-
 from helpers import box_scene
+
 from mpmref import Scene, SceneBuilder, SceneError
 from mpmref.scene.sampling import sample_particles
 
@@ -166,7 +166,8 @@ def test_toml_key_after_bodies_table_is_reported_as_body_key(tmp_path):
 
 def test_python_builder_and_dict_agree():
     a = box_scene(2, "apic")
-    b = Scene.from_dict(SceneBuilder(dim=2, name="t").grid(size=1.0, cells=16).method("apic", kernel="quadratic", force="mls")
+    b = Scene.from_dict(SceneBuilder(dim=2, name="t").grid(size=1.0, cells=16)
+                        .method("apic", kernel="quadratic", force="mls")
                         .material("m", "fixed_corotated", E=1e3, nu=0.3, rho=1.0)
                         .box("m", lower=[0.3] * 2, upper=[0.7] * 2, ppc=4).walls("open")
                         .time(dt=1e-4, steps=10).as_dict())

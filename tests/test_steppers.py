@@ -5,12 +5,11 @@ import inspect
 
 import numpy as np
 import pytest
+from test_async import EXAMPLES
 
 from mpmref import Scene, Simulation
 from mpmref.state import State
 from mpmref.steppers import AsynchronousStepper, AsyncSchedule, Stepper, SynchronousStepper
-
-from test_async import EXAMPLES
 
 
 @pytest.mark.parametrize("example", ["stork2d", "jelly"])

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import assert_every_figure_has_a_caption
+
 from mpmref import Scene, Simulation
 from mpmref.cli import main
-from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError, SceneError
+from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.scene.builder import read_scene_file
 from verification import convergence as case
 from verification.framework.executor import Executor
@@ -87,12 +87,13 @@ def direct_metrics(data):
         delta = math.sqrt(sum((last[k] - first[k]) ** 2 for k in first if k.startswith(key)))
         return 0.0 if delta == 0 else delta / scale
 
-    return {"energy_change": (last["total_energy"] - e0) / e0, "mass_drift": (last["mass"] - first["mass"]) / first["mass"],
+    return {"energy_change": (last["total_energy"] - e0) / e0,
+            "mass_drift": (last["mass"] - first["mass"]) / first["mass"],
             "momentum_drift": change("momentum_", s_p), "angular_momentum_drift": change("angular_momentum", s_l),
             "energy_excursion": max(abs((r["total_energy"] - e0) / e0) for r in summary["series"]),
             "final_time": sim.time, "steps": summary["steps"], "particles": n,
-            **{k: last[k] / e0 for k in last if k.startswith("ledger_") and k[7:] not in ("internal_work", "gravity_work",
-                                                                                         "energy_change", "closure")}}
+            **{k: last[k] / e0 for k in last if k.startswith("ledger_")
+               and k[7:] not in ("internal_work", "gravity_work", "energy_change", "closure")}}
 
 
 @pytest.mark.parametrize("index", [0, 3])
@@ -295,7 +296,8 @@ def test_the_drift_scales_bound_the_momenta_and_are_them_for_a_rigid_spin():
                          .material("m", "fixed_corotated", E=1e3).walls("open").time(dt=1e-3)
                          .ball("m", center=center, radius=0.2, angular_velocity=2.0).build())
         d = sim.diagnostics()
-        assert angular_momentum_scale(sim.particles, sim.inertia) == pytest.approx(abs(d["angular_momentum"]), rel=1e-12)
+        assert (angular_momentum_scale(sim.particles, sim.inertia)
+                == pytest.approx(abs(d["angular_momentum"]), rel=1e-12))
         speed = np.linalg.norm(sim.v, axis=1)
         assert momentum_scale(sim.particles) == pytest.approx(float(sim.mass @ speed), rel=1e-14)
         assert momentum_scale(sim.particles) >= math.hypot(d["momentum_x"], d["momentum_y"])

@@ -3,8 +3,8 @@
 from dataclasses import replace
 
 import pytest
-
 from helpers import assert_every_figure_has_a_caption
+
 from verification import transfer_energy as case
 from verification.framework.common import failed
 

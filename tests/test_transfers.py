@@ -5,10 +5,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import box_scene, random_particles, valid_methods
 from hypothesis import given
 from hypothesis import strategies as st
 
-from helpers import box_scene, random_particles, valid_methods
 from mpmref.backends.numpy import NumpyBackend
 from mpmref.observe.diagnostics import angular_momentum
 

@@ -7,12 +7,12 @@ import sys
 from dataclasses import replace
 
 import pytest
+from helpers import assert_every_figure_has_a_caption
 
 from mpmref.backends import BACKENDS
-from helpers import assert_every_figure_has_a_caption
 from verification import backends as case
-from verification.framework.common import failed
 from verification import momentum
+from verification.framework.common import failed
 
 pytestmark = pytest.mark.skipif("numba" not in BACKENDS, reason="no Numba backend")
 

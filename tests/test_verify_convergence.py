@@ -5,16 +5,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers import assert_every_figure_has_a_caption
 
 from mpmref import SceneBuilder, Simulation
 from mpmref.backends import make_backend
-from mpmref.scene.sampling import sample_particles
 from mpmref.physics.materials import NeoHookean
-from helpers import assert_every_figure_has_a_caption
+from mpmref.scene.sampling import sample_particles
 from verification import convergence as case
-from verification.framework.common import failed
 from verification.convergence.problems import AxisAlignedMMS, VibratingBar
 from verification.convergence.stepping import advance
+from verification.framework.common import failed
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,5 @@
-"""The cpic verification case: its quick preset passes, and forgetting the side tags makes the no-crossing check fail."""
+"""The cpic verification case: its quick preset passes, and forgetting the side tags makes the no-crossing check
+fail."""
 
 from dataclasses import replace
 
@@ -8,11 +9,11 @@ import pytest
 from mpmref.backends.numpy import cpic as cpic_stages
 from mpmref.physics.cdf import update_tags
 from verification import cpic as case
-from verification.framework.common import failed
 from verification.cpic.measurements import baseline, run_watching, sand_wheel
 from verification.cpic.reporting import wheel_checks
 from verification.cpic.results import CpicResult
 from verification.cpic.scenes import impact_scene
+from verification.framework.common import failed
 
 
 @pytest.fixture(scope="module")

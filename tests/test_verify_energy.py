@@ -3,9 +3,9 @@
 from dataclasses import replace
 
 import pytest
+from helpers import assert_every_figure_has_a_caption
 
 from mpmref.backends.numpy import backend as numpy_backend
-from helpers import assert_every_figure_has_a_caption
 from verification import energy as case
 from verification.framework.common import failed
 

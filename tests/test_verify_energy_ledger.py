@@ -8,15 +8,15 @@ from dataclasses import replace
 import meshio
 import numpy as np
 import pytest
-
 from helpers import assert_every_figure_has_a_caption
+
 from mpmref.backends.numpy import backend as numpy_backend
 from mpmref.backends.numpy.transfers import wall_bands
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 from verification import energy_ledger as case
+from verification.energy_ledger import runs
 from verification.framework.cli import add_parser
 from verification.framework.common import failed
-from verification.energy_ledger import runs
 
 
 @pytest.fixture(scope="module")
@@ -192,7 +192,8 @@ def test_tables_carry_each_runs_split(result):
     rows = {row["run"]: row for row in tables["split"]}
     assert set(rows) == set(result["params"].runs)
     for row in rows.values():
-        assert sum(row[t] for t in ASYNC_TERMS) == pytest.approx(row["energy_change"], abs=1e-12 * abs(row["E0"]) + 1e-15)
+        assert sum(row[t] for t in ASYNC_TERMS) == pytest.approx(row["energy_change"],
+                                                                 abs=1e-12 * abs(row["E0"]) + 1e-15)
     json.dumps(tables, allow_nan=False)
     assert len(tables["candidate"]) == 2 * len(result["compared"])
 

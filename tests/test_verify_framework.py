@@ -117,8 +117,8 @@ def test_a_case_with_only_the_required_members_gets_the_defaults(monkeypatch, tm
     outcome = registry.run_case("bare", "quick", "numba", out_dir=tmp_path)
     assert outcome.passed and outcome.title == "A bare case." and outcome.params == BareParams(0.5)
     record = case_record(outcome, tmp_path)
-    assert record.backends == ("numba",) and record.findings == () and record.tables == {} and record.main_figure[:2] == (
-        Path("first.png"), "first.png")
+    assert (record.backends == ("numba",) and record.findings == () and record.tables == {}
+            and record.main_figure[:2] == (Path("first.png"), "first.png"))
     assert not warmup.compiles("bare", "quick", "numpy") and not warmup.runs_alone("bare")
 
 

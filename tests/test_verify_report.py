@@ -8,8 +8,8 @@ import re
 from dataclasses import replace
 
 import pytest
-
 import verify_toy_case as toy
+
 from verification.framework import registry
 from verification.framework.cli import add_parser
 from verification.framework.report import NO_CAPTION

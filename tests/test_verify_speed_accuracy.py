@@ -1,9 +1,9 @@
 """The speed-vs-accuracy case (verification/speed_accuracy.py): its quick preset and its Pareto front."""
 
 import pytest
+from helpers import assert_every_figure_has_a_caption
 
 from mpmref.backends import BACKENDS
-from helpers import assert_every_figure_has_a_caption
 from verification import speed_accuracy as case
 from verification.framework.common import failed
 from verification.framework.executor import Executor

@@ -37,15 +37,15 @@ import numpy as np
 from mpmref import SceneBuilder, Simulation
 from mpmref.conformance import relative_error
 from mpmref.conformance.cases import MATERIALS
-from mpmref.observe.diagnostics import polypic_mode_norms
 from mpmref.io.atomic import write_text_atomic
+from mpmref.observe.diagnostics import polypic_mode_norms
 from mpmref.state import EVOLVING_FIELDS
 
 from .framework.case import VerificationCase
 from .framework.common import Check, checks_table
 from .framework.executor import Executor
-from .momentum import VARIANT, VARIANTS
 from .framework.report import pyplot, save_figure, snapshot, write_series
+from .momentum import VARIANT, VARIANTS
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "difference_growth.png"

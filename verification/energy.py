@@ -50,8 +50,8 @@ from mpmref.observe.ledger import TERMS
 from .framework.case import VerificationCase
 from .framework.common import Check, checks_table
 from .framework.executor import Executor
-from .momentum import VARIANT, VARIANTS
 from .framework.report import ledger_figure, pyplot, save_figure, snapshot, write_series
+from .momentum import VARIANT, VARIANTS
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "energy_total_disks.png"

@@ -31,8 +31,8 @@ from time import perf_counter
 import numpy as np
 
 from mpmref import SceneBuilder, Simulation
-from mpmref.observe.diagnostics import angular_momentum
 from mpmref.io.atomic import write_text_atomic
+from mpmref.observe.diagnostics import angular_momentum
 from mpmref.physics.materials import FixedCorotated
 from mpmref.physics.scheme import resolve
 from mpmref.scene import MethodSpec
@@ -41,7 +41,6 @@ from .framework.case import VerificationCase
 from .framework.common import Check, checks_table
 from .framework.executor import Executor
 from .framework.report import pyplot, save_figure, snapshot, write_series
-
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "momentum_drift.png"

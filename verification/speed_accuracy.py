@@ -36,9 +36,9 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 
 from .backends import trajectory_bound
+from .convergence import LevelRun, Series, run_level
 from .framework.case import VerificationCase
 from .framework.common import Check, Finding, checks_table
-from .convergence import LevelRun, Series, run_level
 from .framework.executor import Executor
 from .framework.report import pyplot, save_figure, write_series
 

@@ -55,7 +55,8 @@ def bar_scene(scheme="apic"):
 def levels():
     """``(grid cells, Δt)`` per level: the doubled grid's cells and the convergence case's step on that level."""
     width = bar_scene()["grid"]["size"][0]
-    return [(round(width * cells / BAR.length), case.time_step(BAR, BAR.scene(cells, {"scheme": "apic"}, 2), case.CFL)[0])
+    return [(round(width * cells / BAR.length),
+             case.time_step(BAR, BAR.scene(cells, {"scheme": "apic"}, 2), case.CFL)[0])
             for cells in BAR_CELLS]
 
 

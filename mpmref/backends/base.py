@@ -30,8 +30,9 @@ Asynchronous stepping (:mod:`mpmref.steppers.asynchronous`) adds two stages, :da
 A backend that couples rigid bodies by CPIC (:class:`CoupledBackend`, docs/cpic.md) has three more,
 :data:`CPIC_BACKEND_STAGES`: ``cpic_contact`` (the colored distance field, the particles' tags and the
 step's contact, the backend's own object: :class:`mpmref.backends.numpy.cpic.NumpyContact` in the reference),
-``cpic_impulses`` (what incompatible nodes did not receive, as impulses on the bodies) and ``cpic_g2p`` (G2P with ghost velocities and the penalty). Every backend of
-:data:`mpmref.backends.BACKENDS` is both; :func:`mpmref.backends.make_backend` checks it.
+``cpic_impulses`` (what incompatible nodes did not receive, as impulses on the bodies) and ``cpic_g2p`` (G2P with ghost
+velocities and the penalty). Every backend of :data:`mpmref.backends.BACKENDS` is both;
+:func:`mpmref.backends.make_backend` checks it.
 
 A backend may also have ``p2g_fused(particles, dt, prepared=None)`` (:class:`FusedBackend`): P2G with the step's
 internal force folded into the momentum, (mv)_i + Δt f_i, in one scatter, returned as a
@@ -172,7 +173,8 @@ class MaterialTable:
         self.kernels = [kernels[type(m)] for m in self.materials]
 
     def groups(self, particles):
-        """``(material, kernels, idx)`` for each material that has particles (:func:`~mpmref.physics.materials.material_groups`)."""
+        """``(material, kernels, idx)`` for each material that has particles
+        (:func:`~mpmref.physics.materials.material_groups`)."""
         kernels = {id(m): k for m, k in zip(self.materials, self.kernels)}
         return [(m, kernels[id(m)], idx) for m, idx in material_groups(self.materials, particles)]
 

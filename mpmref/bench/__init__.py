@@ -50,16 +50,19 @@ import os
 import platform
 import sys
 import time
-from pathlib import Path
 from dataclasses import asdict, dataclass
 from importlib import metadata
+from pathlib import Path
 
 from ..backends import BACKENDS, reference_argument
 from ..io.atomic import write_text_atomic
 from .goals import goals_section, render_goals
 from .scenes import table2_cells
+
 # the names of the sections (:data:`mpmref.bench.sections.SECTIONS`), and of those a run without --only runs
-from .sections import BY_NAME, DEFAULT_NAMES as DEFAULT_SECTIONS, NAMES as SECTIONS
+from .sections import BY_NAME
+from .sections import DEFAULT_NAMES as DEFAULT_SECTIONS
+from .sections import NAMES as SECTIONS
 from .timing import check_threads
 
 SCHEMA = "mpmref-bench/1"

@@ -3,9 +3,9 @@
 Each case runs an example scene asynchronously (with its declared level interfaces, conservative by
 default), then synchronously at the finest step the asynchronous run took, on the same backend and thread
 count, to the same end time; then asynchronously once more with ``time.interface = "reference"``, for the
-cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported: particle updates (ghosts
-included, and the particles' own steps), median wall time of ``repeats`` runs of each (compilation
-excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
+cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported:
+particle updates (ghosts included, and the particles' own steps), median wall time of ``repeats`` runs of each
+(compilation excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
 relative to the initial energy, and the largest position difference (particles matched by id) in Δx.
 
 Two more runs make the comparison fair (docs/async.md, "Cost: where the time goes"): synchronous stepping at
@@ -21,8 +21,8 @@ counts (:class:`mpmref.steppers.asynchronous.WorkRecord`, :data:`~mpmref.stepper
 
 import numpy as np
 
-from ..scene.factories import example_with_time
 from ..run.simulation import Simulation
+from ..scene.factories import example_with_time
 from .timing import measure, set_threads
 
 #: case -> (example, cells along the first axis, simulated time of a timed run: full, quick). The 2D stork
@@ -66,7 +66,8 @@ def time_case(case, t_end, backend, threads, repeats):
     rec_c, c = timed(cfl_sync=True)
     rec_o, o = timed(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
     rec_r, r = measure(lambda: _run(example_with_time(name, t_end, cells=cells, interface="reference"), backend), 1,
-                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, interface="reference"), backend))
+                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, interface="reference"),
+                                          backend))
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
@@ -126,8 +127,8 @@ def render_async(section):
                      f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}"
                      f"{r['interface_cost_ratio']:>6.2f}x")
     lines += ["",
-              "Accounting: ideal x = sync updates / own steps, work x = with ghosts, wall x = sync at the finest step / "
-              "async; work/ideal (ghosts) and wall/work (implementation); 'cfl x': sync at its own CFL step / async; "
+              "Accounting: ideal x = sync updates / own steps, work x = with ghosts, wall x = sync at the finest step "
+              "/ async; work/ideal (ghosts) and wall/work (implementation); 'cfl x': sync at its own CFL step / async; "
               "'1-level': the async stepper on one level / sync at that step (its own cost); bookkeeping visits per "
               "level update (ghost candidates, ghost-zone nodes) and per tick (due blocks)",
               f"{'case':12}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"

@@ -15,11 +15,11 @@ import numpy as np
 
 from ..backends import make_backend
 from ..backends.base import BACKEND_STAGES
-from ..scene.sampling import sample_particles
-from ..rigid.polyline import SAND_WHEEL, inside_closed, validate_polyline, wheel
 from ..rigid.dynamics import initial_state
+from ..rigid.polyline import SAND_WHEEL, inside_closed, validate_polyline, wheel
 from ..scene import SceneBuilder
 from ..scene.factories import add_sand_wheel
+from ..scene.sampling import sample_particles
 from ..steppers import substep
 from ..steppers.synchronous import with_cpic_tags
 from .stage_times import TimedStages

@@ -17,8 +17,8 @@ design, so the section times the compiled backends only.
 """
 
 from ..backends import make_backend
-from ..scene.sampling import sample_particles
 from ..scene import SceneBuilder
+from ..scene.sampling import sample_particles
 from ..steppers import substep
 from .memory import STATUS, _reset_peak, _status_bytes, in_fresh_process
 from .throughput import time_steps

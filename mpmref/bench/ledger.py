@@ -4,8 +4,8 @@ The step (:func:`mpmref.steppers.substep`) calls the ledger only where it is giv
 gives the synchronous stepper one), so a run with the ledger off is the plain step that every other section times:
 no test, no copy, no energy is computed for it. This section shows it: for each case, backend and thread count it
 times ``steps`` whole steps from a copy of the same particles twice, with no ledger (``off``) and observed by a
-fresh :class:`~mpmref.observe.ledger.EnergyLedger` (``on``, which computes the energies in NumPy and float64 whatever the
-backend), the median of ``repeats`` (the first call, with compilation, apart), and reports both and their ratio.
+fresh :class:`~mpmref.observe.ledger.EnergyLedger` (``on``, which computes the energies in NumPy and float64 whatever
+the backend), the median of ``repeats`` (the first call, with compilation, apart), and reports both and their ratio.
 
 Cases: the ``mpm88`` fluid of the throughput section (:func:`.scenes.mpm88_scene`; the fluid's energy is cheap) and
 the 2D Table-2 block (:func:`.scenes.table2_scene`, fixed-corotated: one SVD per particle for its stored energy,
@@ -13,8 +13,8 @@ three times a step with the ledger on), float64.
 """
 
 from ..backends import make_backend
-from ..scene.sampling import sample_particles
 from ..observe.ledger import EnergyLedger
+from ..scene.sampling import sample_particles
 from ..steppers import substep
 from .scenes import mpm88_scene, table2_particles, table2_scene
 from .timing import measure, set_threads, thread_counts

@@ -13,8 +13,8 @@ peak (the state, the state the step makes, the grid, the sort, any buffers a bac
 multiple of one particle state. A step that writes a new state while the old one is kept for a rollback
 needs at least the evolving arrays twice, so this is at least about 1.9 for the Table-2 solid.
 ``peak_over_state = (particle bytes + step peak growth) / (particle bytes + grid bytes)`` relates the same
-peak to the particle and grid state together. A fresh process keeps earlier phases of the benchmark out of the figure, and a
-fixed glibc mmap threshold keeps memory that the allocator would retain from sampling from being
+peak to the particle and grid state together. A fresh process keeps earlier phases of the benchmark out of the figure,
+and a fixed glibc mmap threshold keeps memory that the allocator would retain from sampling from being
 silently reused by the step. ``tracemalloc_peak_bytes`` is the peak of the allocations Python's
 ``tracemalloc`` sees during the step (NumPy arrays; not memory allocated inside compiled Numba code).
 Without Linux's ``/proc`` the RSS figures are ``None``.
@@ -38,7 +38,8 @@ from .timing import set_threads
 
 CLEAR_REFS = Path("/proc/self/clear_refs")
 STATUS = Path("/proc/self/status")
-#: how many steps the probe runs; the first allocates what a step keeps (a backend's reused buffers), the others reuse it
+#: how many steps the probe runs; the first allocates what a step keeps (a backend's reused buffers), the others reuse
+#: it
 PROBE_STEPS = 3
 #: glibc serves every allocation above 128 KiB by mmap and returns it on free (a fixed threshold turns off
 #: glibc's adaptive one), so memory freed before the step cannot hide the step's own allocations

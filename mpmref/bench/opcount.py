@@ -17,11 +17,12 @@ operations it performs). Per particle:
   the :math:`S` nodes of a line), the mass (2), and per component the momentum :math:`m v_a + \sum_b A_{ab} d_b`
   (:math:`2d`) and its weighted sum into the node (2); classic adds the gradient weight (3D 5 products, 2D 2) and
   per component the force :math:`\sum_b Q_{ab} \nabla w_b` (:math:`2d - 1`) and its sum (1);
-* **G2P, per node**: the weight as in P2G, :math:`v^{PIC} \mathrel{+}= w v_i` (:math:`2d`), :math:`B \mathrel{+}= (w v_i)
-  d^T` (:math:`d + 2d^2`); classic adds the gradient weight and :math:`\sum_i v_i \nabla w^T` (:math:`2d^2`);
-  **per particle**: :math:`C_p = B_p / D_p` (:math:`d^2`), :math:`x \mathrel{+}= \Delta t v` (:math:`2d`) and
-  :math:`F \leftarrow F + \Delta t\,\nabla v\,F` (:math:`d^2 (3d + 1)`: per term a product by :math:`\Delta t` and
-  a multiply-add, with MLS's :math:`\nabla v = B/D` divided once more per term, :math:`d^3`).
+* **G2P, per node**: the weight as in P2G, :math:`v^{PIC} \mathrel{+}= w v_i` (:math:`2d`),
+  :math:`B \mathrel{+}= (w v_i) d^T` (:math:`d + 2d^2`); classic adds the gradient weight and
+  :math:`\sum_i v_i \nabla w^T` (:math:`2d^2`); **per particle**: :math:`C_p = B_p / D_p` (:math:`d^2`),
+  :math:`x \mathrel{+}= \Delta t v` (:math:`2d`) and :math:`F \leftarrow F + \Delta t\,\nabla v\,F`
+  (:math:`d^2 (3d + 1)`: per term a product by :math:`\Delta t` and a multiply-add, with MLS's :math:`\nabla v = B/D`
+  divided once more per term, :math:`d^3`).
 
 **Bytes per particle** are the particle arrays a kernel reads and writes (the grid rows a particle scatters into or
 gathers from are shared by its neighbours and stay in cache at 8 particles per cell): the same for both methods, so

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..scene.sampling import sample_particles
 from ..scene import SceneBuilder
+from ..scene.sampling import sample_particles
 
 #: the two columns of Table 2: classic MPM (APIC transfer, kernel-gradient force) and MLS-MPM
 TABLE2_METHODS = {"mpm": {"scheme": "apic", "force": "classic"}, "mls": {"scheme": "mls"}}
@@ -21,8 +21,8 @@ TABLE2_METHODS = {"mpm": {"scheme": "apic", "force": "classic"}, "mls": {"scheme
 TABLE2_MATERIAL = "fixed_corotated"
 #: empty cells around the Table-2 block (the quadratic stencil reaches 1.5 cells)
 TABLE2_PAD = 2
-#: builder arguments of the throughput cases (the performance goals' scenes): ``(count, cells)`` in 2D, ``(cells,)`` for the
-#: 3D fluid; tiny ones for ``--quick``
+#: builder arguments of the throughput cases (the performance goals' scenes): ``(count, cells)`` in 2D, ``(cells,)`` for
+#: the 3D fluid; tiny ones for ``--quick``
 THROUGHPUT_SIZES = {"mpm88": (32768, 128), "fluid3d": (64,), "large2d": (262144, 512)}
 QUICK_SIZES = {"mpm88": (512, 128), "fluid3d": (16,), "large2d": (2048, 64)}
 
@@ -101,8 +101,8 @@ class ThroughputCase:
 
 
 def throughput_cases(quick=False):
-    """The three throughput cases of the performance goals: ``mpm88`` (32 768 particles, 128² grid), ``fluid3d`` (64³ grid,
-    65 536 particles) and ``large2d`` (262 144 particles, 512² grid); tiny versions if ``quick``."""
+    """The three throughput cases of the performance goals: ``mpm88`` (32 768 particles, 128² grid), ``fluid3d`` (64³
+    grid, 65 536 particles) and ``large2d`` (262 144 particles, 512² grid); tiny versions if ``quick``."""
     sizes = QUICK_SIZES if quick else THROUGHPUT_SIZES
     builders = {"mpm88": mpm88_scene, "fluid3d": fluid3d_scene, "large2d": mpm88_scene}
     return [ThroughputCase(name, builders[name], sizes[name]) for name in ("mpm88", "fluid3d", "large2d")]

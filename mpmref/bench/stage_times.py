@@ -154,7 +154,8 @@ def plot_scaling(section, path):
     fig, ax = plt.subplots(figsize=(6, 4))
     keys = sorted({(r["dim"], r["backend"], r["dtype"], r["threads"]) for r in section["sizes"]})
     for dim, backend, dtype, k in keys:
-        rows = [r for r in section["sizes"] if (r["dim"], r["backend"], r["dtype"], r["threads"]) == (dim, backend, dtype, k)]
+        rows = [r for r in section["sizes"]
+                if (r["dim"], r["backend"], r["dtype"], r["threads"]) == (dim, backend, dtype, k)]
         ax.loglog([r["particles"] for r in rows], [r["ns_per_particle_step"] for r in rows], "o-",
                   label=f"{dim}D {backend} {dtype}, {k} thread(s)")
     ax.set_xlabel("particles")

@@ -6,8 +6,8 @@ thread and is the denominator of ``vs_numpy``.
 """
 
 from ..backends import make_backend
-from ..steppers import substep
 from ..scene.sampling import sample_particles
+from ..steppers import substep
 from .timing import measure, set_threads, thread_counts
 
 REFERENCE = ("numpy", "float64")

@@ -82,7 +82,7 @@ error is one factor everywhere, that factor (:mod:`.diagnosis`).
 from .cases import ConformanceCase, make_cases, valid_methods
 from .cli import add_parser
 from .report import CaseResult, Report, check, relative_error, stage_functions
-from .stages import ALL_CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, CONFORMANCE_STAGES
+from .stages import ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES
 from .vectors import export, load_vectors
 
 __all__ = ["ALL_CONFORMANCE_STAGES", "CPIC_CONFORMANCE_STAGES", "CONFORMANCE_STAGES", "CaseResult", "ConformanceCase",

@@ -22,8 +22,18 @@ from ..physics.kernels import KERNELS, compute_stencil
 from ..physics.polypic import higher_modes
 from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
 from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
-from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, STAGES_WITH_DT,
-                     STAGES_WITH_TIME, composed_step, ledger_step, particles_from, run_stage, unfused_then_force)
+from .stages import (
+    ALL_CONFORMANCE_STAGES,
+    CONFORMANCE_STAGES,
+    CPIC_CONFORMANCE_STAGES,
+    STAGES_WITH_DT,
+    STAGES_WITH_TIME,
+    composed_step,
+    ledger_step,
+    particles_from,
+    run_stage,
+    unfused_then_force,
+)
 
 #: cells per axis of a case's grid: each axis draws its own count in this range (:func:`case_grid`)
 CELL_RANGE = (8, 13)
@@ -470,7 +480,8 @@ _STAGE_CASES = {
     "stress": lambda dim, dtype: _material_cases("stress", dim, dtype, MATERIAL_SETS),
     "return_map": lambda dim, dtype: _material_cases("return_map", dim, dtype, PLASTIC_SETS),
     "p2g": partial(_transfer_cases, "p2g"),
-    "p2g_fused": lambda dim, dtype: [c for c in _transfer_cases("p2g_fused", dim, dtype) if not c.scene().transfer.flip],
+    "p2g_fused": lambda dim, dtype: [c for c in _transfer_cases("p2g_fused", dim, dtype)
+                                     if not c.scene().transfer.flip],
     "grid_update": _grid_update_cases,
     "g2p": partial(_transfer_cases, "g2p"),
     "step": partial(_transfer_cases, "step"),
@@ -498,4 +509,5 @@ def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", material
     if unknown:
         raise ValueError(f"unknown material types {unknown}: the types are {list(MATERIALS)}")
     cases = [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]
-    return cases if materials is None else [c for c in cases if c.stage == "grid_update" or c.materials <= set(materials)]
+    return cases if materials is None else [c for c in cases
+                                            if c.stage == "grid_update" or c.materials <= set(materials)]

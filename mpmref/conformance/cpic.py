@@ -38,9 +38,9 @@ orientation quaternion (nb, 4) and ``rigid_angular_velocity``, ``rigid_angular_i
 ``penalty_L`` are (nb, 3) (:mod:`mpmref.rigid.dynamics3d`).
 """
 
-import numpy as np
-
 from dataclasses import fields
+
+import numpy as np
 
 from ..rigid.dynamics import RigidState
 from ..rigid.dynamics3d import quaternion_from_rotation_vector

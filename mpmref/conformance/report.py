@@ -15,8 +15,14 @@ from ..backends.base import BACKEND_STAGES
 from .cases import make_cases
 from .cpic import RUNNERS, has_cpic
 from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
-from .stages import (ALL_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES, composed_step, ledger_step,
-                     run_stage)
+from .stages import (
+    ALL_CONFORMANCE_STAGES,
+    CONFORMANCE_STAGES,
+    CPIC_CONFORMANCE_STAGES,
+    composed_step,
+    ledger_step,
+    run_stage,
+)
 
 
 def relative_error(candidate, reference, scale=None):
@@ -40,7 +46,8 @@ def relative_error(candidate, reference, scale=None):
 def output_scale(name, expected):
     """The denominator of output ``name``'s error other than its own largest entry, or ``None``: the reference's
     ``energy_scale`` for a ledger term (``ledger_*``). A term is a difference of energies of that size, so its
-    round-off is relative to it, not to the term (which theory may put at zero: :func:`mpmref.observe.ledger.energy_scale`)."""
+    round-off is relative to it, not to the term (which theory may put at zero:
+    :func:`mpmref.observe.ledger.energy_scale`)."""
     return float(expected["energy_scale"]) if name.startswith("ledger_") and "energy_scale" in expected else None
 
 
@@ -217,7 +224,8 @@ def _run_case(fn, case, rtol):
     worst = result.worst_output
     if result.passed or worst not in got:
         return result
-    return CaseResult(case, errors, rtol, note, where=worst_place(worst, got[worst], expected[worst], rows, scene, inputs),
+    return CaseResult(case, errors, rtol, note,
+                      where=worst_place(worst, got[worst], expected[worst], rows, scene, inputs),
                       ratio=uniform_ratio(worst, got[worst], expected[worst], rows))
 
 

@@ -12,9 +12,10 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
   ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
   P2G cases (for a P2G that takes the stress, :func:`takes_stress`);
-* the ledger stage's outputs (0-d, float64): ``ledger_<column>`` for each column of :data:`mpmref.observe.ledger.COLUMNS`
-  (the terms, flows, energy change and closure of one step, docs/energy_ledger.md) and ``energy_scale``
-  (:func:`mpmref.observe.ledger.energy_scale` of the input state, the denominator of the terms' errors).
+* the ledger stage's outputs (0-d, float64): ``ledger_<column>`` for each column of
+  :data:`mpmref.observe.ledger.COLUMNS` (the terms, flows, energy change and closure of one step, docs/energy_ledger.md)
+  and ``energy_scale`` (:func:`mpmref.observe.ledger.energy_scale` of the input state, the denominator of the terms'
+  errors).
 """
 
 import inspect
@@ -167,7 +168,7 @@ def run_stage(stage, fn, flat):
     """Call the stage function ``fn`` on copies of the inputs ``flat``; return its outputs as a flat dict.
 
     ``fn`` has the backend signature of ``stage`` (see :mod:`mpmref.conformance`), or for a CPIC stage takes
-    the flat inputs (:mod:`mpmref.conformance.cpic`); the inputs are copied, so a stage that writes into its arguments cannot
-    change the case.
+    the flat inputs (:mod:`mpmref.conformance.cpic`); the inputs are copied, so a stage that writes into its arguments
+    cannot change the case.
     """
     return _CALLERS[stage](fn, flat)

@@ -26,9 +26,9 @@ CONVENTIONS = {
              "is row sum_a i_a * stride_a with stride_a = prod_{b > a} (cells_b + 1); it sits at origin + i * dx",
     "particles": "particle arrays have one row per particle, in the same order in inputs and outputs",
     "material": "in_material is an index into resolved.materials",
-    "evolves": "resolved.materials[k].evolves lists the deformation fields (F, J, Jp) that material k's particles carry; "
-               "out_F, out_J and out_Jp are compared only on the rows of particles whose material evolves them (a "
-               "fluid's F, a solid's J mean nothing); x, v, C and modes on every row",
+    "evolves": "resolved.materials[k].evolves lists the deformation fields (F, J, Jp) that material k's particles "
+               "carry; out_F, out_J and out_Jp are compared only on the rows of particles whose material evolves them "
+               "(a fluid's F, a solid's J mean nothing); x, v, C and modes on every row",
     "dt": "dt and time of a case are also in the manifest entry (dt: the scene's time.dt); they vary from case to case "
           "(dt over nearly four decades of CFL number), so a stage that ignores its dt argument fails",
     "tau": "in_tau of a p2g case is the reference's Kirchhoff stress of the input particles: a P2G that takes the "
@@ -104,7 +104,8 @@ def _rigid_entry(body):
             "closed": body.shape.closed, "motion": body.motion, "center": np.asarray(body.center).tolist(),
             "mass": _jsonable_number(body.mass),
             "inertia": inertia.tolist() if inertia.ndim else _jsonable_number(body.inertia),
-            "velocity": np.asarray(body.velocity).tolist(), "angular_velocity": np.asarray(body.angular_velocity).tolist(),
+            "velocity": np.asarray(body.velocity).tolist(),
+            "angular_velocity": np.asarray(body.angular_velocity).tolist(),
             "keyframes": [[t, np.asarray(o).tolist(), np.asarray(a).tolist()] for t, o, a in body.keyframes],
             "gravity": body.gravity, "friction": np.asarray(body.friction).tolist()}
 

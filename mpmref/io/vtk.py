@@ -73,13 +73,15 @@ def write_polylines_vtp(path, polylines):
     text = f"""<?xml version="1.0"?>
 <VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">
   <PolyData>
-    <Piece NumberOfPoints="{len(points)}" NumberOfVerts="0" NumberOfLines="{counts[0]}" NumberOfStrips="0" NumberOfPolys="{counts[1]}">
+    <Piece NumberOfPoints="{len(points)}" NumberOfVerts="0" NumberOfLines="{counts[0]}" NumberOfStrips="0" \
+NumberOfPolys="{counts[1]}">
       <Points>
         <DataArray type="Float64" NumberOfComponents="3" format="ascii">{ascii(points, "%.17g")}</DataArray>
       </Points>
       <{section}>
         <DataArray type="Int64" Name="connectivity" format="ascii">{ascii(lines, "%d")}</DataArray>
-        <DataArray type="Int64" Name="offsets" format="ascii">{ascii(corners * np.arange(1, len(lines) + 1), "%d")}</DataArray>
+        <DataArray type="Int64" Name="offsets" format="ascii">\
+{ascii(corners * np.arange(1, len(lines) + 1), "%d")}</DataArray>
       </{section}>
       <CellData Scalars="body">
         <DataArray type="Int64" Name="body" format="ascii">{ascii(body, "%d")}</DataArray>

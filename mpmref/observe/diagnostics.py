@@ -12,9 +12,9 @@ The affine kinetic energy :math:`\tfrac12 m_p \operatorname{tr}(C_p D_p C_p^T)` 
 
 import numpy as np
 
+from ..physics import polypic
 from ..physics.kernels import compute_stencil
 from ..physics.materials import material_groups, state_args
-from ..physics import polypic
 
 
 def cross(a, b):
@@ -134,7 +134,8 @@ def mode_energies(particles, mode_norms):
 
 
 def gravitational_energy(particles, gravity):
-    r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64 (``gravity`` the (d,) vector :math:`g`)."""
+    r"""Gravitational potential :math:`U = -\sum_p m_p\, g \cdot x_p`, float64 (``gravity`` the (d,) vector
+    :math:`g`)."""
     return float(-np.sum(particles.mass.astype(np.float64)
                          * (particles.x.astype(np.float64) @ np.asarray(gravity, dtype=np.float64))))
 

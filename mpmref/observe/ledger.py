@@ -17,15 +17,16 @@ dtype (docs/energy_ledger.md derives each term):
     + \underbrace{\Delta E_{bodies}}_{\texttt{rigid\_bodies}}
     + \texttt{integration},
 
-    \texttt{integration} = (\Psi^{tr} - \Psi^n + W_{int}) + (U^{n+1} - U^n + W_g) + \textstyle\sum_{i \notin \partial} B_i,
+    \texttt{integration} = (\Psi^{tr} - \Psi^n + W_{int}) + (U^{n+1} - U^n + W_g)
+    + \textstyle\sum_{i \notin \partial} B_i,
 
 with the grid's kinetic energy :math:`K_g^0 = \tfrac12 \sum_i |(mv)_i|^2 / m_i` after P2G and
 :math:`K_g^1 = \tfrac12 \sum_i m_i |v_i|^2` after the grid update; :math:`K_p^{n+1}(x^n)` the particles'
 kinetic energy after G2P with their PolyPIC modes' norms taken where G2P projected the grid's velocity
-(``advection`` is the change of those norms as the particles move: zero for every other scheme); the force work at the velocity the
-nodes then move with, :math:`W_{int} = \Delta t \sum_i f_i \cdot v_i` and :math:`W_g = \Delta t \sum_i m_i\, g \cdot
-v_i` (flows from the stored energies into kinetic energy: reported, and cancelling in :math:`\Delta E`); and per
-node what the velocity change does that this work does not,
+(``advection`` is the change of those norms as the particles move: zero for every other scheme); the force work at the
+velocity the nodes then move with, :math:`W_{int} = \Delta t \sum_i f_i \cdot v_i` and
+:math:`W_g = \Delta t \sum_i m_i\, g \cdot v_i` (flows from the stored energies into kinetic energy: reported, and
+cancelling in :math:`\Delta E`); and per node what the velocity change does that this work does not,
 
 .. math::
 
@@ -45,8 +46,8 @@ of the last step (:attr:`EnergyLedger.shares`).
 import numpy as np
 
 from ..backends.numpy.transfers import wall_bands
-from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
 from ..rigid import dynamics as rigid_dynamics
+from .diagnostics import elastic_energies, gravitational_energy, kinetic_parts, mode_energies, polypic_mode_norms
 
 #: the ledger's terms, in step order: their sum is the change of total energy
 TERMS = ("p2g_transfer", "boundary", "g2p_transfer", "advection", "plastic", "rigid_bodies", "integration")
@@ -271,8 +272,8 @@ class LevelLedger:
     r"""The energy ledger of asynchronous stepping: books the energy change of each level update's **active**
     particles, the only ones whose results count, and of the impulse registers of conservative interfaces.
 
-    A level update (:func:`mpmref.steppers.pipeline.substep` with a level exchange) runs one substep over its active particles
-    :math:`A` and their ghosts, with P2G summing each class apart (:mod:`mpmref.physics.interface`: node mass
+    A level update (:func:`mpmref.steppers.pipeline.substep` with a level exchange) runs one substep over its active
+    particles :math:`A` and their ghosts, with P2G summing each class apart (:mod:`mpmref.physics.interface`: node mass
     :math:`m^A_i`, momentum :math:`(mv)^A_i`, force :math:`f^A_i`, and the totals :math:`m_i, (mv)_i, f_i`). Each
     particle's state changes only in its own updates and when its register is applied, and its energy is its own,
     so the run's energy change between synchronised times is the sum of the active sets' changes and the
@@ -433,5 +434,6 @@ class LevelLedger:
 
         if not modes:
             particles = particles.with_(modes=None)
-        norms = polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None else None
+        norms = (polypic_mode_norms(particles, self.scene.kernel, self.scene.grid) if particles.modes is not None
+                 else None)
         return sum(kinetic_parts(particles, self.nodes.inertia, norms))

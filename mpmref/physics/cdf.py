@@ -30,10 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels import compute_stencil, get_kernel
 from ..rigid.polyline import segment_frame, surface_samples
 from ..rigid.trimesh import TriMesh, triangle_frame
 from ..rigid.trimesh import surface_samples as triangle_samples
+from .kernels import compute_stencil, get_kernel
 
 #: the penalty acts on near particles with -0.3 dx < phi < -0.05 dx (docs/cpic.md)
 PENALTY_WINDOW = (-0.3, -0.05)

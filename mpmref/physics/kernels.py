@@ -22,8 +22,8 @@ class QuadraticBSpline:
                \tfrac12 (\tfrac32 - |x|)^2 & \tfrac12 \le |x| < \tfrac32 \\ 0 & \text{otherwise}\end{cases}
 
     Source: Steffen, Kirby & Berzins 2008 §3 (quadratic B-spline MPM); used by Hu et al. 2018 §5 and the
-    88-line programs. With this kernel the APIC inertia tensor is constant, :math:`D_p = \tfrac14 \Delta x^2 I` (Jiang et al. 2015 §5.3), which
-    is ``inertia_factor``.
+    88-line programs. With this kernel the APIC inertia tensor is constant, :math:`D_p = \tfrac14 \Delta x^2 I` (Jiang
+    et al. 2015 §5.3), which is ``inertia_factor``.
     """
 
     name: str = "quadratic"
@@ -157,7 +157,8 @@ class Stencil:
     def node_weight(self, offset):
         r"""Weight :math:`w_{ip} = \prod_a N_a` of every particle to the node ``base + offset``.
 
-        Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step, docs/mpm_cycle.md#interpolation-kernels
+        Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step,
+        docs/mpm_cycle.md#interpolation-kernels
         """
         d = len(offset)
         out = self.w[:, 0, offset[0]].copy()

@@ -206,7 +206,8 @@ class WeaklyCompressibleFluid(Material):
         return (-self.pressure(J) * J)[:, None, None] * eye
 
     def wave_speed(self):
-        r"""Sound speed at rest, :math:`c = \sqrt{\gamma K / \rho}` (bulk modulus :math:`-J\,dp/dJ = \gamma K` at J = 1)."""
+        r"""Sound speed at rest, :math:`c = \sqrt{\gamma K / \rho}` (bulk modulus
+        :math:`-J\,dp/dJ = \gamma K` at J = 1)."""
         return float(np.sqrt(self.gamma * self.K / self.rho))
 
     def wave_speeds(self, J):

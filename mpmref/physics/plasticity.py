@@ -193,7 +193,8 @@ class DruckerPragerSand(LameParameters):
         return self.mu * np.sum(eps**2, axis=1) + 0.5 * self.lam * np.sum(eps, axis=1) ** 2
 
     def kirchhoff_stress(self, F, Jp):
-        r"""Hencky-strain St. Venant–Kirchhoff stress :math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\,I)U^T`.
+        r"""Hencky-strain St. Venant–Kirchhoff stress
+        :math:`\tau = U(2\mu\epsilon + \lambda\,\mathrm{tr}\,\epsilon\,I)U^T`.
 
         Docs: docs/materials.md#sand, docs/mpm_cycle.md#elastoplastic-materials
         """

@@ -47,10 +47,10 @@ import numpy as np
 #: matrices 4–6.
 MAX_SWEEPS = 12
 
-#: A column pair is orthogonal enough when :math:`|b_p\cdot b_q| \le` ``TOL_ULPS`` :math:`\varepsilon
-#: \|b_p\|\|b_q\|` (compared squared): the rounding error of a 3-term dot product is up to :math:`3\varepsilon|b_p||b_q|`,
-#: so a smaller threshold would chase round-off; the entry dropped from :math:`R` is then at most
-#: ``TOL_ULPS`` :math:`\varepsilon\,\sigma_q`.
+#: A column pair is orthogonal enough when :math:`|b_p\cdot b_q| \le` ``TOL_ULPS``
+#: :math:`\varepsilon \|b_p\|\|b_q\|` (compared squared): the rounding error of a 3-term dot product is up to
+#: :math:`3\varepsilon|b_p||b_q|`, so a smaller threshold would chase round-off; the entry dropped from :math:`R` is
+#: then at most ``TOL_ULPS`` :math:`\varepsilon\,\sigma_q`.
 TOL_ULPS = 4.0
 
 PAIRS_3D = ((0, 1), (0, 2), (1, 2))

@@ -21,7 +21,8 @@ Motions:
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §5 (two-way coupling: the rigid body receives the momentum
-the material could not give to the grid); the integration order is the authors' reference implementation's (docs/cpic.md).
+the material could not give to the grid); the integration order is the authors' reference implementation's
+(docs/cpic.md).
 """
 
 from dataclasses import dataclass, field, fields, replace
@@ -318,7 +319,8 @@ def mechanical_energy(bodies, state, gravity):
     (:math:`\mathbf c_r` its centre of mass, :math:`\mathbf g` gravity); zero for fixed and scripted bodies."""
     falls = np.array([b.motion == "dynamic" and b.gravity and not b.pinned for b in bodies])
     mass = np.array([b.mass if f else 0.0 for b, f in zip(bodies, falls)])
-    return state.mechanics.kinetic_energy(bodies, state) - mass * (state.position @ np.asarray(gravity, dtype=np.float64))
+    return (state.mechanics.kinetic_energy(bodies, state)
+            - mass * (state.position @ np.asarray(gravity, dtype=np.float64)))
 
 
 def momentum(bodies, state):

@@ -43,7 +43,8 @@ def rotation(theta):
 
 
 def posed_shape(body, position, angle):
-    r"""The body's polyline at pose (``position``, ``angle``): :math:`\mathbf x = \mathbf c + R(\theta)(\mathbf x^0 - \mathbf c_0)`."""
+    r"""The body's polyline at pose (``position``, ``angle``):
+    :math:`\mathbf x = \mathbf c + R(\theta)(\mathbf x^0 - \mathbf c_0)`."""
     vertices = position + (body.shape.vertices - body.center) @ rotation(angle).T
     return Polyline(vertices=vertices, segments=body.shape.segments, closed=body.shape.closed)
 
@@ -74,7 +75,8 @@ def begin_step(bodies, state, time, dt):
 
 
 def point_velocity(state, body_ids, x):
-    r"""Velocity :math:`\mathbf v_r + \omega_r \hat{\mathbf z}\times(\mathbf x - \mathbf c_r)` of body ``body_ids`` at ``x`` (..., 2)."""
+    r"""Velocity :math:`\mathbf v_r + \omega_r \hat{\mathbf z}\times(\mathbf x - \mathbf c_r)` of body ``body_ids`` at
+    ``x`` (..., 2)."""
     r = state.position[body_ids]
     w = state.angular_velocity[body_ids][..., None]
     rel = x - r
@@ -84,8 +86,9 @@ def point_velocity(state, body_ids, x):
 def body_impulses(n_bodies, body_ids, x, impulse, position):
     r"""Sum impulses :math:`\mathbf J` applied at points ``x`` to bodies ``body_ids``: linear and angular.
 
-    Returns ``(J, L)``: :math:`\mathbf J_r = \sum \mathbf J` and :math:`L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J`
-    about each body's reference point (docs/cpic.md, "after all particles").
+    Returns ``(J, L)``: :math:`\mathbf J_r = \sum \mathbf J` and
+    :math:`L_r = \sum (\mathbf x - \mathbf c_r)\times\mathbf J` about each body's reference point (docs/cpic.md, "after
+    all particles").
     """
     rel = x - position[body_ids]
     torque = rel[:, 0] * impulse[:, 1] - rel[:, 1] * impulse[:, 0]

@@ -38,7 +38,8 @@ from .trimesh import TriMesh
 def quaternion_multiply(p, q):
     r"""Hamilton product :math:`\mathbf p \otimes \mathbf q` of quaternions :math:`(w, x, y, z)`, (..., 4).
 
-    .. math:: (p_w q_w - \mathbf p_v\cdot\mathbf q_v,\ p_w \mathbf q_v + q_w \mathbf p_v + \mathbf p_v \times \mathbf q_v)
+    .. math:: (p_w q_w - \mathbf p_v\cdot\mathbf q_v,\ p_w \mathbf q_v + q_w \mathbf p_v
+              + \mathbf p_v \times \mathbf q_v)
     """
     pw, pv = p[..., :1], p[..., 1:]
     qw, qv = q[..., :1], q[..., 1:]
@@ -47,7 +48,8 @@ def quaternion_multiply(p, q):
 
 
 def quaternion_from_rotation_vector(phi):
-    r"""The unit quaternion of the rotation by :math:`|\boldsymbol\phi|` about :math:`\boldsymbol\phi/|\boldsymbol\phi|`.
+    r"""The unit quaternion of the rotation by :math:`|\boldsymbol\phi|` about
+    :math:`\boldsymbol\phi/|\boldsymbol\phi|`.
 
     .. math:: \mathbf q = \exp(\boldsymbol\phi/2) = \big(\cos\tfrac{|\boldsymbol\phi|}{2},\
               \tfrac{\sin(|\boldsymbol\phi|/2)}{|\boldsymbol\phi|}\,\boldsymbol\phi\big)
@@ -61,7 +63,8 @@ def quaternion_from_rotation_vector(phi):
 
 
 def rotation_vector_from_quaternion(q):
-    r"""The rotation vector :math:`\boldsymbol\phi` with :math:`\exp(\boldsymbol\phi/2) = \pm\mathbf q`, :math:`|\boldsymbol\phi| \le \pi`.
+    r"""The rotation vector :math:`\boldsymbol\phi` with :math:`\exp(\boldsymbol\phi/2) = \pm\mathbf q`,
+    :math:`|\boldsymbol\phi| \le \pi`.
 
     .. math:: \boldsymbol\phi = 2 \operatorname{atan2}(|\mathbf q_v|, q_w)\, \mathbf q_v / |\mathbf q_v|,
 
@@ -91,7 +94,8 @@ def rotation_matrix(q):
 
 
 def rotate(q, dt_omega):
-    r"""The orientation after turning by the rotation vector ``dt_omega`` (world frame): :math:`\exp(\Delta t\boldsymbol\omega/2)\otimes\mathbf q`.
+    r"""The orientation after turning by the rotation vector ``dt_omega`` (world frame):
+    :math:`\exp(\Delta t\boldsymbol\omega/2)\otimes\mathbf q`.
 
     Exact for a constant angular velocity over the step; the result is renormalised so that it stays a
     unit quaternion (and :math:`R(\mathbf q)` orthonormal) to round-off over any number of steps.
@@ -160,7 +164,8 @@ def begin_step(bodies, state, time, dt):
 
 
 def point_velocity(state, body_ids, x):
-    r"""Velocity :math:`\mathbf v_r + \boldsymbol\omega_r \times (\mathbf x - \mathbf c_r)` of body ``body_ids`` at ``x`` (..., 3)."""
+    r"""Velocity :math:`\mathbf v_r + \boldsymbol\omega_r \times (\mathbf x - \mathbf c_r)` of body ``body_ids`` at
+    ``x`` (..., 3)."""
     return state.velocity[body_ids] + np.cross(state.angular_velocity[body_ids], x - state.position[body_ids])
 
 
@@ -179,7 +184,8 @@ def body_impulses(n_bodies, body_ids, x, impulse, position):
 
 
 def world_inverse_inertia(body, q):
-    r""":math:`(R \mathbf I_0 R^T)^{-1} = R \mathbf I_0^{-1} R^T` of a dynamic body at orientation ``q`` (zero otherwise)."""
+    r""":math:`(R \mathbf I_0 R^T)^{-1} = R \mathbf I_0^{-1} R^T` of a dynamic body at orientation ``q`` (zero
+    otherwise)."""
     if body.motion != "dynamic":
         return np.zeros((3, 3))
     R = rotation_matrix(q)
@@ -232,8 +238,8 @@ def end_step(bodies, state, time, dt, gravity):
 
 def kinetic_energy(bodies, state):
     r"""Kinetic energy of each dynamic body,
-    :math:`\tfrac12 M_r |\mathbf v_r|^2 + \tfrac12 \boldsymbol\omega_r \cdot R \mathbf I_0 R^T \boldsymbol\omega_r` (nb,);
-    zero for fixed and scripted bodies (infinite mass: they are the scene's drive, not part of its energy).
+    :math:`\tfrac12 M_r |\mathbf v_r|^2 + \tfrac12 \boldsymbol\omega_r \cdot R \mathbf I_0 R^T \boldsymbol\omega_r`
+    (nb,); zero for fixed and scripted bodies (infinite mass: they are the scene's drive, not part of its energy).
 
     :math:`M_r` mass, :math:`\mathbf I_0` inertia tensor about the centre of mass in the declared pose,
     :math:`R` the rotation of the orientation quaternion, :math:`\mathbf v_r`, :math:`\boldsymbol\omega_r` the
@@ -244,12 +250,14 @@ def kinetic_energy(bodies, state):
         if body.motion == "dynamic":
             R = rotation_matrix(state.angle[r])
             omega = state.angular_velocity[r]
-            energy[r] = 0.5 * body.mass * state.velocity[r] @ state.velocity[r] + 0.5 * omega @ R @ body.inertia @ R.T @ omega
+            energy[r] = (0.5 * body.mass * state.velocity[r] @ state.velocity[r]
+                         + 0.5 * omega @ R @ body.inertia @ R.T @ omega)
     return energy
 
 
 def diagnostics(bodies, state):
-    """Per body ``r``: ``rigid{r}_`` position, orientation quaternion, velocity, angular velocity and impulses (dict)."""
+    """Per body ``r``: ``rigid{r}_`` position, orientation quaternion, velocity, angular velocity and impulses
+    (dict)."""
     out = {}
     for r in range(len(bodies)):
         for name, values, axes in (("", state.position[r], "xyz"), ("q", state.angle[r], "wxyz"),

@@ -10,8 +10,8 @@ is side 1 (the colored distance field's ``T`` bit), the side with :math:`h \ge 0
 
 Source: Hu et al. 2018, SIGGRAPH, "A Moving Least Squares Material Point Method with Displacement
 Discontinuity and Two-Way Rigid Body Coupling", §4 (rigid bodies as boundary elements sampled for the
-colored distance field); the sampling rule is the one of the authors' reference implementation (docs/cpic.md). 3D triangle
-meshes are in :mod:`mpmref.rigid.trimesh`.
+colored distance field); the sampling rule is the one of the authors' reference implementation (docs/cpic.md). 3D
+triangle meshes are in :mod:`mpmref.rigid.trimesh`.
 """
 
 from dataclasses import dataclass
@@ -146,7 +146,8 @@ def segment_frame(body, segment, x):
     with :math:`\mathbf t_k` the unit tangent. :math:`s \in [0, 1]` means the projection of
     :math:`\mathbf x` lies on the segment; :math:`|h|` is then the distance to it.
 
-    Source: Hu et al. 2018 §4 (distance and side of a node with respect to a boundary element), as the authors' reference implementation does (docs/cpic.md).
+    Source: Hu et al. 2018 §4 (distance and side of a node with respect to a boundary element), as the authors'
+    reference implementation does (docs/cpic.md).
 
     Parameters
     ----------

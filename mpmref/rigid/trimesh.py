@@ -296,8 +296,8 @@ def shell_mass_properties(mesh, density):
     their sum, :math:`\bar{\mathbf x}_k = \mathbf s_k/3` its centroid); the tensor is then taken about
     :math:`\mathbf x_c` (see :class:`MassProperties`).
 
-    Source: Hu et al. 2018 and the authors' reference implementation (thin shells: mass :math:`\rho \cdot` area, inertia from the same measure); the triangle
-    moments are the exact integrals of the linear (barycentric) parametrisation.
+    Source: Hu et al. 2018 and the authors' reference implementation (thin shells: mass :math:`\rho \cdot` area, inertia
+    from the same measure); the triangle moments are the exact integrals of the linear (barycentric) parametrisation.
 
     Parameters
     ----------
@@ -327,10 +327,10 @@ def solid_mass_properties(mesh, density):
     \mathbf s_k \mathbf s_k^T\big)`, with :math:`\mathbf v_{kj}` the four corners of :math:`T_k` (relative to
     :math:`\mathbf o`, so one is 0) and :math:`\mathbf s_k` their sum.
 
-    Source: Hu et al. 2018 and the authors' reference implementation (solid bodies take mass from the enclosed volume); the divergence-theorem decomposition is
-    that of Eberly, "Polyhedral Mass Properties (Revisited)", Geometric Tools (2002); the tetrahedron moments
-    are those of Tonon, "Explicit exact formulas for the 3-D tetrahedron inertia tensor in terms of its vertex
-    coordinates", J. Math. Stat. 1 (2004).
+    Source: Hu et al. 2018 and the authors' reference implementation (solid bodies take mass from the enclosed volume);
+    the divergence-theorem decomposition is that of Eberly, "Polyhedral Mass Properties (Revisited)", Geometric Tools
+    (2002); the tetrahedron moments are those of Tonon, "Explicit exact formulas for the 3-D tetrahedron inertia tensor
+    in terms of its vertex coordinates", J. Math. Stat. 1 (2004).
 
     Parameters
     ----------
@@ -374,8 +374,9 @@ def surface_samples(mesh, dx):
     so neighbouring samples are at most :math:`\Delta x` apart along each edge direction and every point of the
     triangle lies within :math:`L_k / (\sqrt 3\, n_k) \le \Delta x/\sqrt 3` of a sample.
 
-    Source: Hu et al. 2018 and the authors' reference implementation (3D: a lattice with spacing :math:`\Delta x` in the triangle's edge frame; the paper,
-    Hu et al. 2018 §4, samples the rigid elements to rasterise the colored distance field but gives no rule).
+    Source: Hu et al. 2018 and the authors' reference implementation (3D: a lattice with spacing :math:`\Delta x` in the
+    triangle's edge frame; the paper, Hu et al. 2018 §4, samples the rigid elements to rasterise the colored distance
+    field but gives no rule).
 
     Parameters
     ----------
@@ -415,7 +416,8 @@ def triangle_frame(mesh, triangle, x):
     All three :math:`\lambda \ge 0` means the projection of :math:`\mathbf x` lies on the triangle;
     :math:`|h|` is then the distance to it.
 
-    Source: Hu et al. 2018 §4 (distance and side of a node with respect to a boundary element), as the authors' reference implementation does (docs/cpic.md: barycentric coordinates and the signed normal offset).
+    Source: Hu et al. 2018 §4 (distance and side of a node with respect to a boundary element), as the authors'
+    reference implementation does (docs/cpic.md: barycentric coordinates and the signed normal offset).
 
     Parameters
     ----------

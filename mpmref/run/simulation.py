@@ -6,19 +6,19 @@ from functools import cached_property
 
 import numpy as np
 
-from . import arguments
 from ..backends import describe, make_backend
-from ..scene.sampling import sample_particles
-from ..observe.diagnostics import diagnostics, polypic_mode_norms
-from .domain import apply_domain_exit, outside
-from .emitters import emit, release_template, with_emitters
 from ..errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from ..io.run_output import RunOutput
+from ..observe.diagnostics import diagnostics, polypic_mode_norms
 from ..physics.materials import material_groups
 from ..rigid.dynamics import current_shapes
 from ..rigid.trimesh import TriMesh
-from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
+from ..scene.sampling import sample_particles
 from ..steppers import make_stepper
+from . import arguments
+from .domain import apply_domain_exit, outside
+from .emitters import emit, release_template, with_emitters
+from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
 
 
 class Simulation:
@@ -129,8 +129,8 @@ class Simulation:
 
     @property
     def inertia(self):
-        r"""The affine inertia :math:`D_p = D` of the scene's kernel (:math:`\Delta x^2/4` quadratic, :math:`\Delta x^2/3`
-        cubic), or ``None`` where it is not constant (the linear hat)."""
+        r"""The affine inertia :math:`D_p = D` of the scene's kernel (:math:`\Delta x^2/4` quadratic,
+        :math:`\Delta x^2/3` cubic), or ``None`` where it is not constant (the linear hat)."""
         factor = self.scene.kernel.inertia_factor
         return None if factor is None else factor * self.scene.grid.dx**2
 
@@ -148,9 +148,10 @@ class Simulation:
 
         Synchronous: one step of ``dt`` (default: the scene's fixed or CFL step, shortened so as not to pass
         ``t_end``). Asynchronous: one synchronised interval (every block steps until all particles meet
-        again, ending at the first tick at or after ``t_end`` at the latest); ``dt`` must be ``None``. Releases of ``[[emitters]]`` due at the current time join first
-        (:func:`mpmref.run.emitters.emit`). A ``dt`` that is not a finite number > 0, or a ``t_end`` that is not after the
-        current time, raises :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
+        again, ending at the first tick at or after ``t_end`` at the latest); ``dt`` must be ``None``. Releases of
+        ``[[emitters]]`` due at the current time join first (:func:`mpmref.run.emitters.emit`). A ``dt`` that is not a
+        finite number > 0, or a ``t_end`` that is not after the current time, raises
+        :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
         """
         dt = None if dt is None else arguments.time_step(dt)
         t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
@@ -347,7 +348,8 @@ class Simulation:
         return J
 
     def elastic_volume_ratio(self):
-        r""":math:`J_E`, relating Kirchhoff and Cauchy stress (:math:`\sigma = \tau / J_E`): ``det F`` or the fluid's ``J``."""
+        r""":math:`J_E`, relating Kirchhoff and Cauchy stress (:math:`\sigma = \tau / J_E`): ``det F`` or the fluid's
+        ``J``."""
         p = self.particles
         J = np.ones(p.n, dtype=p.x.dtype)
         for material, idx in material_groups(self.scene.material_list, p):

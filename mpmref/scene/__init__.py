@@ -14,8 +14,20 @@ bodies, emitters and colliders; :mod:`~mpmref.scene.rigid_bodies` for the CPIC r
 from .bodies import COLLIDER_SHAPES, SAMPLINGS, SHAPES
 from .builder import DTYPES, TOP_KEYS, Scene, SceneBuilder
 from .materials import MATERIAL_TYPES
-from .parsers import (AXES, COUPLINGS, CPIC_FITS, CPIC_SCHEMES, DOMAIN_EXIT_POLICIES, FORCES, GRID_REGIONS,
-                      INTERFACES, OUTPUT_FIELDS, SCHEMES, STEPPINGS, WALL_TYPES)
+from .parsers import (
+                      AXES,
+                      COUPLINGS,
+                      CPIC_FITS,
+                      CPIC_SCHEMES,
+                      DOMAIN_EXIT_POLICIES,
+                      FORCES,
+                      GRID_REGIONS,
+                      INTERFACES,
+                      OUTPUT_FIELDS,
+                      SCHEMES,
+                      STEPPINGS,
+                      WALL_TYPES,
+)
 from .specs import BodySpec, BoundarySpec, CpicSpec, EmitterSpec, MethodSpec, OutputSpec, TimeSpec, WallSpec
 
 __all__ = [

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import memory_limits
 from ..errors import SceneError
 from ..physics.kernels import get_kernel
 from ..physics.scheme import resolve
 from ..state import Grid
+from . import memory_limits
 from .bodies import parse_bodies, parse_colliders, parse_emitters
 from .materials import parse_materials
 from .parsers import cell_size_field, parse_boundary, parse_grid, parse_method, parse_output, parse_time

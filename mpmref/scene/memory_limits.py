@@ -149,8 +149,8 @@ def check_scene_memory(scene_parts):
     Parameters
     ----------
     scene_parts : dict
-        ``dim``, ``dtype`` (numpy dtype), ``grid`` (Grid), ``transfer`` (TransferSpec), ``bodies`` (list of BodySpec), ``colliders`` (list), ``grid_field``
-        and ``grid_value`` (the grid field that set the cell size, and its value).
+        ``dim``, ``dtype`` (numpy dtype), ``grid`` (Grid), ``transfer`` (TransferSpec), ``bodies`` (list of BodySpec),
+        ``colliders`` (list), ``grid_field`` and ``grid_value`` (the grid field that set the cell size, and its value).
     """
     s = scene_parts
     limit, how = memory_limit()

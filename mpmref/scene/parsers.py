@@ -5,10 +5,10 @@ their own modules: :mod:`mpmref.scene.materials`, :mod:`mpmref.scene.bodies`, :m
 
 import numpy as np
 
-from . import memory_limits
 from ..physics.boundary import BOUNDARY_TYPES
 from ..physics.kernels import KERNELS
 from ..state import Grid
+from . import memory_limits
 from .specs import BoundarySpec, CpicSpec, MethodSpec, OutputSpec, TimeSpec, WallSpec
 from .validation import choice, fail, flag, integer, number, section, vector
 

@@ -11,9 +11,15 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..rigid.dynamics import (
+    CONTACT_TYPES,
+    MOTIONS,
+    RigidBody,
+    area_mass_properties,
+    encode_friction,
+    line_mass_properties,
+)
 from ..rigid.polyline import validate_polyline
-from ..rigid.dynamics import (CONTACT_TYPES, MOTIONS, RigidBody, area_mass_properties, encode_friction,
-                                      line_mass_properties)
 from ..rigid.trimesh import mass_properties, read_trimesh, validate_trimesh
 from .validation import choice, fail, flag, integer, number, section, vector
 

@@ -55,9 +55,22 @@ from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import CONSTANT_FIELDS, EVOLVING_FIELDS, Particles, State, fields_with_role
-from .async_kernels import (add_rows, apply_registers_at, blocks_by_level, boundary_nodes, bucket_by_block,
-                            bucket_zone_members, move_rows, particle_steps, relevel_due, row_views, shadow_nodes,
-                            span, step_limits, zone)
+from .async_kernels import (
+    add_rows,
+    apply_registers_at,
+    blocks_by_level,
+    boundary_nodes,
+    bucket_by_block,
+    bucket_zone_members,
+    move_rows,
+    particle_steps,
+    relevel_due,
+    row_views,
+    shadow_nodes,
+    span,
+    step_limits,
+    zone,
+)
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, LevelExchange, substep
 
@@ -217,8 +230,8 @@ class AsyncInterval:
 
     Three stores hold the particles: ``P`` (the authoritative particles, every field), ``shadow`` (each
     particle's shadow) and ``proposed`` (the shadows proposed by the updates of the current tick, committed
-    at its end); the shadow stores hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`), the others are
-    read from ``P``. Every update copies its group's rows out of them and its results back with the
+    at its end); the shadow stores hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`), the
+    others are read from ``P``. Every update copies its group's rows out of them and its results back with the
     compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
     the particle count.
 
@@ -273,7 +286,8 @@ class AsyncInterval:
         self.finest = stepper.max_units
         arrays = self.P.arrays()
         self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
-                     "proposed": row_views(self.proposed.values()), "P_constant": row_views(arrays[k] for k in self.constant)}
+                     "proposed": row_views(self.proposed.values()),
+                     "P_constant": row_views(arrays[k] for k in self.constant)}
         if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
             self.dP = np.zeros((n, self.P.dim))
             self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
@@ -471,10 +485,11 @@ class AsynchronousStepper:
 
     A :class:`~mpmref.steppers.Stepper`. ``advance`` moves a :class:`~mpmref.state.State` from one synchronised
     time (every particle at the same tick) to the next, which is one step of the run; its state is an
-    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger`` (:class:`~mpmref.observe.ledger.LevelLedger`),
-    ``energy_ledger``, the cumulative ledger over :data:`~mpmref.observe.ledger.ASYNC_COLUMNS`). Each interval is an
-    ``interval_type`` (:class:`AsyncInterval`); what they did and cost adds up in :attr:`work` (a
-    :class:`WorkRecord`; set ``record_trace = True`` for its list of every level update).
+    :class:`AsyncSchedule` (in ``state.stepper``, with, given a ``ledger``
+    (:class:`~mpmref.observe.ledger.LevelLedger`), ``energy_ledger``, the cumulative ledger over
+    :data:`~mpmref.observe.ledger.ASYNC_COLUMNS`). Each interval is an ``interval_type`` (:class:`AsyncInterval`); what
+    they did and cost adds up in :attr:`work` (a :class:`WorkRecord`; set ``record_trace = True`` for its list of every
+    level update).
     """
 
     name = "async"

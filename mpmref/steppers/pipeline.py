@@ -92,9 +92,9 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
     incompatible nodes on the bodies, G2P with ghost velocities and the penalty (``cpic_g2p``), then the
     rigid step (docs/cpic.md of the reference code, written up in docs/cpic.md).
 
-    A ``ledger`` (:class:`~mpmref.observe.ledger.EnergyLedger`, or :class:`~mpmref.observe.ledger.LevelLedger` for a level update)
-    observes the stages' outputs and books the step's energy change by stage (docs/energy_ledger.md); it changes
-    nothing the stages compute.
+    A ``ledger`` (:class:`~mpmref.observe.ledger.EnergyLedger`, or :class:`~mpmref.observe.ledger.LevelLedger` for a
+    level update) observes the stages' outputs and books the step's energy change by stage (docs/energy_ledger.md); it
+    changes nothing the stages compute.
     """
     scene = backend.scene
     with backend.running(particles.n):

@@ -12,7 +12,8 @@ from .pipeline import NO_HOOKS, substep
 
 
 class SynchronousStepper:
-    """A :class:`~mpmref.steppers.Stepper` that chooses one Δt for the whole domain and applies :func:`~.pipeline.substep` to every particle.
+    """A :class:`~mpmref.steppers.Stepper` that chooses one Δt for the whole domain and applies
+    :func:`~.pipeline.substep` to every particle.
 
     The clock counts one tick per step; ``tick_length`` is the fixed Δt (``None`` with a CFL step). With a
     ``ledger`` (:class:`~mpmref.observe.ledger.EnergyLedger`) every step is booked by it, and the cumulative ledger is

@@ -36,12 +36,12 @@ from mpmref.backends import make_backend
 from mpmref.scene.sampling import sample_particles
 from mpmref.steppers.limits import cfl_time_step
 
-from .problems import PROBLEMS
-from .stepping import TREATMENTS, advance
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding, checks_table
 from ..framework.executor import Executor
 from ..framework.report import pyplot, save_figure
+from .problems import PROBLEMS
+from .stepping import TREATMENTS, advance
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "convergence_bar.png"
@@ -70,8 +70,8 @@ class Series:
 
     ``gradient`` is the velocity gradient of the F update (``"mls"``: :math:`C_p`; ``"classic"``:
     :math:`\sum_i v_i \nabla w_{ip}^T`; ``None``: the force's, as in a scene); ``ppa`` overrides the study's
-    particles per cell per axis; ``amplitude`` overrides the problem's (the bar's :math:`v_0`, the MMS's :math:`A`); ``fixed_end``
-    is the boundary treatment (``"mirror"`` or ``"zero"``, see :mod:`.stepping`);
+    particles per cell per axis; ``amplitude`` overrides the problem's (the bar's :math:`v_0`, the MMS's :math:`A`);
+    ``fixed_end`` is the boundary treatment (``"mirror"`` or ``"zero"``, see :mod:`.stepping`);
     ``expected_rate`` ``None`` marks a finding; ``bound_constant`` is :math:`C` of the finest-grid bound;
     ``why`` says where the expected rate comes from, or what a finding shows.
     """
@@ -283,7 +283,8 @@ def _items(params, backend):
         cells = params.cells(series.problem)
         vtk = min(cells, key=lambda c: abs(c - params.vtk_cells))
         first = first_of.setdefault(series.problem, series) == series
-        items += [LevelRun(series, c, params.cfl, series.ppa or params.ppa, backend, params.vtk_frames if first and c == vtk else 0)
+        items += [LevelRun(series, c, params.cfl, series.ppa or params.ppa, backend,
+                           params.vtk_frames if first and c == vtk else 0)
                   for c in cells]
     return items
 

@@ -91,7 +91,8 @@ class VibratingBar:
         return self.v0
 
     def scene(self, cells, method, ppa):
-        """A strip ``[0, L] x [0, Δx]`` of ``ppa`` × ``ppa`` particles per cell; ghost cells below x = 0, room beyond L."""
+        """A strip ``[0, L] x [0, Δx]`` of ``ppa`` × ``ppa`` particles per cell; ghost cells below x = 0, room beyond
+        L."""
         dx = self.length / cells
         room = GHOSTS + math.ceil(2.0 * self.displacement_scale() / dx)  # the free end moves by v0/ω
         return (SceneBuilder(dim=2, name=f"bar_{cells}")

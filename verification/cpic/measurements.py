@@ -13,16 +13,31 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mpmref import Simulation
-from mpmref.scene.sampling import sample_particles
-from mpmref.rigid.polyline import distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.rigid.dynamics import current_shapes
+from mpmref.rigid.polyline import distance_to_polyline, inside_closed, segment_frame, validate_polyline
 from mpmref.rigid.trimesh import TriMesh, triangle_frame
+from mpmref.scene.sampling import sample_particles
 
 from ..framework.executor import Executor
 from ..framework.report import snapshot
 from .results import Baseline, Collision, CpicResult, Cut, Sliding, Watched, Wheel
-from .scenes import (BASELINES, BLADE, Params, ball_scene, baseline_particles, baseline_scene, cut3d_scene, cut_scene,
-                     drop_scene, friction_scene, impact_scene, rotor_scene, sand_scene, wheel_omega_floor, wheel_scene)
+from .scenes import (
+    BASELINES,
+    BLADE,
+    Params,
+    ball_scene,
+    baseline_particles,
+    baseline_scene,
+    cut3d_scene,
+    cut_scene,
+    drop_scene,
+    friction_scene,
+    impact_scene,
+    rotor_scene,
+    sand_scene,
+    wheel_omega_floor,
+    wheel_scene,
+)
 
 #: the outputs (names of ``[output] fields``) that the VTK frames of the CPIC case's runs record
 CPIC_FRAME_OUTPUTS = ("velocity", "material")
@@ -201,8 +216,9 @@ BASELINE_KEY = "baseline/"
 
 def parts(params):
     """``{key: (function, args)}``: the case's independent simulations, each a call ``function(params, *args)``
-    returning its record; the longest first (they run through an :class:`~verification.framework.executor.Executor`). The
-    keys are the fields of :class:`~verification.cpic.results.CpicResult`, the baselines' apart (its ``baselines``)."""
+    returning its record; the longest first (they run through an :class:`~verification.framework.executor.Executor`).
+    The keys are the fields of :class:`~verification.cpic.results.CpicResult`, the baselines' apart (its
+    ``baselines``)."""
     jobs = {"wheel": (sand_wheel, ()), "drop": (watch, (drop_scene,)), "cut": (cutting, ()),
             "exact": (momentum_run, (True,)), "default": (momentum_run, (False,)), "impact": (watch, (impact_scene,)),
             "friction": (friction, ()), "cut3d": (cutting3d, ()), "sand": (watch, (sand_scene,))}

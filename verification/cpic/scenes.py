@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpmref import Scene, SceneBuilder
-from mpmref.scene.factories import add_sand_wheel
-from mpmref.scene.sampling import sample_particles
 from mpmref.rigid.polyline import SAND_WHEEL
 from mpmref.rigid.trimesh import validate_trimesh
+from mpmref.scene.factories import add_sand_wheel
+from mpmref.scene.sampling import sample_particles
 
 
 @dataclass(frozen=True)

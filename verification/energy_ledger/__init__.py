@@ -3,11 +3,11 @@ r"""Energy ledger: where each example's energy goes, stage by stage, and the sig
 Runs (NumPy reference unless another backend is asked for; the ledger on, ``[output] energy_ledger``):
 
 * **the examples** ``jelly`` (under each of the six schemes of the energy case), ``snow88``, ``sand``,
-  ``colliding_disks``, ``cut2d`` (CPIC) and the asynchronous ``stork2d``, each under its own method. The quick and default presets skip the free
-  flight before the first contact (each body moved along its free-fall path and given its velocity there, which
-  every transfer reproduces exactly; :func:`~.runs.free_flight`) and run each example through its contact for a
-  short span (:data:`~.runs.RUNS`); the quick preset also halves every grid. The full preset runs each example from
-  rest to its own end time. The stork's ledger is read at its synchronised times and has one more term,
+  ``colliding_disks``, ``cut2d`` (CPIC) and the asynchronous ``stork2d``, each under its own method. The quick and
+  default presets skip the free flight before the first contact (each body moved along its free-fall path and given its
+  velocity there, which every transfer reproduces exactly; :func:`~.runs.free_flight`) and run each example through its
+  contact for a short span (:data:`~.runs.RUNS`); the quick preset also halves every grid. The full preset runs each
+  example from rest to its own end time. The stork's ledger is read at its synchronised times and has one more term,
   ``interface`` (the exchanges across its level interfaces; zero in the synchronous runs); it is not compared
   with the candidate, whose comparison books one synchronous step.
 * **the friction block**: an elastic block slides at 1 m/s on a ``separate`` floor with Coulomb friction
@@ -88,8 +88,8 @@ def backends_run(result, backend):
 
 
 def compiled_scenes(params, backend="numpy"):
-    """``[(backend, scene)]`` run on a backend other than the reference (:mod:`verification.framework.warmup`): on the reference,
-    the compared runs' scenes on the candidate; on another backend, every run's (the friction block and the
+    """``[(backend, scene)]`` run on a backend other than the reference (:mod:`verification.framework.warmup`): on the
+    reference, the compared runs' scenes on the candidate; on another backend, every run's (the friction block and the
     integration study run the kernels of the jelly under MLS-MPM)."""
     keys = compared_runs(params) if backend == "numpy" else params.runs
     return [(candidate_of(params, backend), example_scene(RUN[key], params)) for key in keys]

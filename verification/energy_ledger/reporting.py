@@ -12,9 +12,9 @@ from ..framework.common import Check, Finding, checks_table
 from ..framework.report import ledger_figure, pyplot, save_figure, write_series
 from .runs import run_scale, terms_of, total_energy
 
-#: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each energy is
-#: a float64 sum of N terms of one sign, in error by at most N u S (Higham 2002, §4.2; u = 1.1e-16), under 1e-12 for
-#: the N <= 9000 particles or nodes of these runs
+#: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each
+#: energy is a float64 sum of N terms of one sign, in error by at most N u S (Higham 2002, §4.2; u = 1.1e-16), under
+#: 1e-12 for the N <= 9000 particles or nodes of these runs
 ROUNDOFF = 1e-12
 #: the candidate's ledger against the reference's: the conformance bound (mpmref.conformance, the ledger stage)
 CANDIDATE_BOUND = 1e-12
@@ -81,8 +81,8 @@ def run_checks(r):
     if r["plastic"]:
         out.append(Check(f"{name}: plastic in one step, max / S", largest(r, "plastic"), "<=", ROUNDOFF,
                          "the return maps lower the stored energy: sand's projects along the energy's gradient "
-                         "(Klar et al. 2016); snow's clamp outweighs its hardening while xi J_P theta_c < (1-theta_c)^2 "
-                         "(first order, uniform compression; docs/energy_ledger.md)"))
+                         "(Klar et al. 2016); snow's clamp outweighs its hardening while xi J_P theta_c < "
+                         "(1-theta_c)^2 (first order, uniform compression; docs/energy_ledger.md)"))
     return out
 
 
@@ -90,7 +90,8 @@ def checks(result):
     """Every run's checks (:func:`run_checks`), the friction block, the integration error's order, and the
     candidate's ledger against the reference's."""
     out = [c for r in result["runs"] for c in run_checks(r)]
-    out.append(Check("friction block: boundary / (mu m g d) - 1, magnitude", abs(friction_ratio(result["friction"]) - 1.0),
+    out.append(Check("friction block: boundary / (mu m g d) - 1, magnitude",
+                     abs(friction_ratio(result["friction"]) - 1.0),
                      "<=", FRICTION_TOLERANCE, "the floor's Coulomb friction mu m g does the work mu m g d over the "
                      "distance d the block slides: boundary books it"))
     out.append(Check("integration: fitted slope of sum |integration| against dt, distance from 1",
@@ -132,9 +133,10 @@ def split_rows(result):
     rows = []
     for r in result["runs"]:
         energy, last = total_energy(r), r["ledger"][-1]
-        rows.append({"run": r["key"], "method": r["method"], "particles": int(r["n_particles"]), "steps": int(r["steps"]),
-                     "t_end": float(r["t"][-1]), "wall_s": float(r["wall_s"]), "E0": float(energy[0]),
-                     "measured_change": float(energy[-1] - energy[0]), **{c: float(last[ASYNC_COLUMNS.index(c)]) for c in ASYNC_COLUMNS}})
+        rows.append({"run": r["key"], "method": r["method"], "particles": int(r["n_particles"]),
+                     "steps": int(r["steps"]), "t_end": float(r["t"][-1]), "wall_s": float(r["wall_s"]),
+                     "E0": float(energy[0]), "measured_change": float(energy[-1] - energy[0]),
+                     **{c: float(last[ASYNC_COLUMNS.index(c)]) for c in ASYNC_COLUMNS}})
     return rows
 
 
@@ -152,7 +154,8 @@ def tables(result):
 
 def split_md(result):
     """The split table in Markdown: joules, and each term's share of the measured change."""
-    head = ("| run | method | particles | steps | t_end [s] | E0 [J] | ΔE [J] | " + " | ".join(ASYNC_TERMS) + " | closure [J] |")
+    head = ("| run | method | particles | steps | t_end [s] | E0 [J] | ΔE [J] | " + " | ".join(ASYNC_TERMS)
+            + " | closure [J] |")
     lines = [head, "|" + "---|" * (8 + len(ASYNC_TERMS))]
     for row in split_rows(result):
         change = row["measured_change"]
@@ -173,8 +176,8 @@ def plot_terms(result, path):
         "the diagnostics' own measurement of it as dots on the line. Look for the transfers (P2G blue, G2P orange) "
         "below zero in every run but CPIC's cut2d, whose ghost velocities and penalty make its G2P add energy, FLIP's "
         "G2P above zero, PolyPIC's G2P absent, the walls (brown) taking energy at contact, and plasticity (red) "
-        "dissipating in snow88 and sand, and in the asynchronous stork the exchange across its level interfaces (olive); "
-        "the checks hold the signs."))
+        "dissipating in snow88 and sand, and in the asynchronous stork the exchange across its level interfaces "
+        "(olive); the checks hold the signs."))
 
 
 def plot_friction(result, path):

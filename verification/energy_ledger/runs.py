@@ -25,8 +25,8 @@ from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, energy_scale
 from mpmref.rigid import dynamics as rigid_dynamics
 
 from .. import energy
-from ..momentum import VARIANT, VARIANTS
 from ..framework.report import snapshot
+from ..momentum import VARIANT, VARIANTS
 
 EXAMPLES = Path(__file__).resolve().parent.parent.parent / "examples"
 
@@ -175,9 +175,9 @@ def bodies_energy(sim):
 
 
 def ledger_row(sim):
-    """``[time, ledger columns...]``: the cumulative ledger (:data:`mpmref.observe.ledger.ASYNC_COLUMNS`: the synchronous
-    columns and the ``interface`` term of asynchronous stepping, zero for a synchronous run) that the stepper keeps
-    in the run's state, read as its diagnostics columns."""
+    """``[time, ledger columns...]``: the cumulative ledger (:data:`mpmref.observe.ledger.ASYNC_COLUMNS`: the
+    synchronous columns and the ``interface`` term of asynchronous stepping, zero for a synchronous run) that the
+    stepper keeps in the run's state, read as its diagnostics columns."""
     d = sim.stepper.diagnostics(sim.state)
     return [sim.time, *(d.get(f"ledger_{c}", 0.0) if c == "interface" else d[f"ledger_{c}"] for c in ASYNC_COLUMNS)]
 
@@ -338,8 +338,8 @@ def run_integration(params, backend):
 
 # ------------------------------------------------------------------------------------ the candidate
 def compare(scene, state, candidate):
-    """One step from ``state``, ``(particles, rigid, time, dt)``, booked on the NumPy reference and on ``candidate``: the
-    largest error of the candidate's ledger terms, each :math:`|a - r| / S` with the reference's energy scale
+    """One step from ``state``, ``(particles, rigid, time, dt)``, booked on the NumPy reference and on ``candidate``:
+    the largest error of the candidate's ledger terms, each :math:`|a - r| / S` with the reference's energy scale
     :math:`S` (the conformance harness's rule, :func:`mpmref.conformance.report.output_scale`), and which."""
     particles, rigid, time, dt = state
     books = {name: ledger_step(make_backend(name, scene), particles.copy(), dt, time, rigid)

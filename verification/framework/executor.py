@@ -2,8 +2,8 @@
 
 Sweeps (convergence levels, stability bisections, speed-vs-accuracy grids, the runs of ``mpmref study``) are
 lists of independent runs. ``Executor.map(fn, items)`` runs ``fn(item)`` for each item and returns the results in
-the order of ``items`` (and can report each result as it arrives). ``fn`` must be a module-level function and ``items`` picklable, so the same sweep runs
-unchanged in a local process pool or on a ``dask.distributed`` cluster.
+the order of ``items`` (and can report each result as it arrives). ``fn`` must be a module-level function and ``items``
+picklable, so the same sweep runs unchanged in a local process pool or on a ``dask.distributed`` cluster.
 """
 
 import multiprocessing

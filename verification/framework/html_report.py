@@ -143,7 +143,8 @@ def index_html(records, meta, summary, backends):
     body = (f"<h1>mpmref verification report</h1>{_verdict_box(summary)}"
             f"<p class='meta'>Preset <code>{e(meta['preset'])}</code>; backends run: {e(', '.join(backends))}; "
             f"sweeps in {e(meta['executor'])}; total wall time {meta['wall_s']:.1f} s. "
-            f"{e(backend_sentence(meta).replace('`', ''))} Also as <a href='report.md'>report.md</a> and <a href='results.json'>results.json</a>.</p>"
+            f"{e(backend_sentence(meta).replace('`', ''))} Also as <a href='report.md'>report.md</a> and "
+            "<a href='results.json'>results.json</a>.</p>"
             f"<details class='meta'><summary>Machine</summary><ul>{machine}</ul></details>"
             f"<nav class='toc'>{toc}</nav>{_failures(records)}"
             f"<h2 id='cases'>Cases: the figure that carries each claim</h2>"
@@ -162,7 +163,8 @@ def case_html(record, series, tables):
     parts = ["<p class='meta'><a href='../index.html'>← the whole report</a></p>",
              f"<h1>{e(o.name)} <span class='chip {_status(o.passed)}'>{e(o.verdict)}</span></h1>",
              f"<p>{e(o.title)}</p><p class='meta'>Preset <code>{e(o.preset)}</code>, backends run: "
-             f"{e(', '.join(record.backends))}, wall time {o.wall_s:.1f} s. Also as <a href='report.md'>report.md</a>.</p>"]
+             f"{e(', '.join(record.backends))}, wall time {o.wall_s:.1f} s. Also as "
+             "<a href='report.md'>report.md</a>.</p>"]
     if o.error is not None:
         parts.append(f"<h2>Error</h2><pre>{e(o.error.rstrip())}</pre>")
     failing = failed(o.checks)

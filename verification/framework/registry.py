@@ -34,8 +34,8 @@ def available():
 
 
 def load(name):
-    """The :class:`~verification.framework.case.VerificationCase` of case ``name`` (its module's ``CASE``); ``KeyError`` names the
-    available cases."""
+    """The :class:`~verification.framework.case.VerificationCase` of case ``name`` (its module's ``CASE``); ``KeyError``
+    names the available cases."""
     if name not in CASES:
         raise KeyError(f"unknown verification case {name!r}; available: {', '.join(available())}")
     return importlib.import_module(CASES[name]).CASE

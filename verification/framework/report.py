@@ -1,12 +1,13 @@
 """Report writing shared by every case and by ``mpmref verify``.
 
 Cases use :func:`snapshot`, :func:`write_series` and :func:`save_figure` to write the VTK series of their
-representative runs and their PNG plots (the energy ledger's stacked areas with :func:`plot_ledger_areas`) (each PNG carries its caption, the sentence that says what to
-look for, in its ``Description`` text chunk: :func:`figure_caption`). ``mpmref verify`` turns each
-case's :class:`~verification.framework.registry.Outcome` into a :class:`CaseRecord` (:func:`case_record`: the
-backends it ran, its findings, its figures, the one that carries its main claim) and writes the
-per-case ``report.md`` and ``index.html`` (:func:`write_case_report`) and the top-level ``report.md``, ``index.html`` and ``results.json``
-(:func:`write_index`). Every file is written atomically (:mod:`mpmref.io.atomic`).
+representative runs and their PNG plots (the energy ledger's stacked areas with :func:`plot_ledger_areas`) (each PNG
+carries its caption, the sentence that says what to look for, in its ``Description`` text chunk:
+:func:`figure_caption`). ``mpmref verify`` turns each case's :class:`~verification.framework.registry.Outcome` into a
+:class:`CaseRecord` (:func:`case_record`: the backends it ran, its findings, its figures, the one that carries its main
+claim) and writes the per-case ``report.md`` and ``index.html`` (:func:`write_case_report`) and the top-level
+``report.md``, ``index.html`` and ``results.json`` (:func:`write_index`). Every file is written atomically
+(:mod:`mpmref.io.atomic`).
 """
 
 import datetime

@@ -13,8 +13,8 @@ would compile them a second time, on the other core (measured: the ``backends`` 
 CPU that way against 64 s alone). So a case that declares compiled scenes starts only once every scene it
 needs is compiled (:func:`can_start`: then, between two NumPy cases, while the warm-up goes on with the
 others) or after :func:`wait` for the whole warm-up; every kernel compiles once. A case that times its
-runs (``runs_alone=True`` in its :class:`~verification.framework.case.VerificationCase`) always waits for the whole warm-up:
-compilation on the other core would slow what it measures.
+runs (``runs_alone=True`` in its :class:`~verification.framework.case.VerificationCase`) always waits for the whole
+warm-up: compilation on the other core would slow what it measures.
 
 The queue (:func:`plan`) holds one scene per set of kernels not yet compiled by the scenes before it
 (``compiled_kernels()`` of the backend), the scenes of cases that may start early first, fewest first,

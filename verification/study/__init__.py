@@ -5,8 +5,8 @@ the same end time, and measures every run (:mod:`.runs`): the drifts of energy, 
 mass at the end and as time series, the energy ledger, steps, wall time, and the user's own measures. For every
 resolution it varies (cells, Δt or CFL number, particles per cell) it measures the observed order of each
 measure, fitted and by Richardson's estimate (:mod:`.orders`), and writes ``results.json``, ``results.csv``, the
-plots and ``index.html`` (:mod:`.report`). The runs go through :class:`~verification.framework.executor.Executor`, like the
-sweeps of ``mpmref verify``; each writes its result when it finishes, so a study stopped half-way keeps what is
+plots and ``index.html`` (:mod:`.report`). The runs go through :class:`~verification.framework.executor.Executor`, like
+the sweeps of ``mpmref verify``; each writes its result when it finishes, so a study stopped half-way keeps what is
 done, and running it again runs only the rest. ``docs/studying_your_scene.md`` is the chapter.
 
 >>> from verification.study import run_study                                # doctest: +SKIP
@@ -101,7 +101,8 @@ def _check_portable(functions, executor):
                 pickle.dumps(fn)
             except (pickle.PicklingError, AttributeError, TypeError):
                 raise ArgumentError(option, _name(fn), "a function defined at the top level of an importable module "
-                                    "when the runs go to other processes (or run them here: Executor(workers=1))") from None
+                                    "when the runs go to other processes (or run them here: "
+                                    "Executor(workers=1))") from None
 
 
 def _execute(plan, executor, overwrite, progress):

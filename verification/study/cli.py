@@ -1,4 +1,6 @@
-"""``mpmref study SCENE.toml --vary KEY=VALUES [--vary ...] [--t-end T] [--measure MODULE:FUNCTION] [--exact MODULE:FUNCTION] [--setup MODULE:FUNCTION] [--frames] [--backend B] [--out DIR] [--overwrite] [--scheduler A] [--workers N] [--no-ledger] [--no-progress]``
+"""``mpmref study SCENE.toml --vary KEY=VALUES [--vary ...] [--t-end T] [--measure MODULE:FUNCTION]``
+``[--exact MODULE:FUNCTION] [--setup MODULE:FUNCTION] [--frames] [--backend B] [--out DIR] [--overwrite]``
+``[--scheduler A] [--workers N] [--no-ledger] [--no-progress]``
 
 Runs the scene once for every combination of the varied values (several ``--vary`` give their product; keys
 joined by ``:`` vary together), each to the same end time, and writes into ``DIR`` (default

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mpmref.run import arguments
 from mpmref.errors import ArgumentError
+from mpmref.run import arguments
 from mpmref.scene.builder import read_scene_file
 
 from .orders import abscissa

@@ -40,10 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from mpmref import Scene, Simulation
-from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.errors import ArgumentError
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.run_output import clear_run
+from mpmref.observe.diagnostics import angular_momentum_scale, momentum_scale
 from mpmref.observe.ledger import ASYNC_TERMS
 
 from ..framework.report import json_number
@@ -177,7 +177,8 @@ def drift_series(rows, momentum_scale_, angular_scale):
            "momentum_drift": ratio(np.linalg.norm(P - P[0], axis=1), momentum_scale_),
            "angular_momentum_drift": ratio(np.linalg.norm(L - L[0], axis=1), angular_scale),
            "mass_drift": ratio(mass - mass[0], mass[0])}
-    out.update({f"ledger_{t}": ratio(column(f"ledger_{t}"), energy[0]) for t in ASYNC_TERMS if f"ledger_{t}" in rows[0]})
+    out.update({f"ledger_{t}": ratio(column(f"ledger_{t}"), energy[0])
+                for t in ASYNC_TERMS if f"ledger_{t}" in rows[0]})
     return {k: [float(x) for x in v] for k, v in out.items()}
 
 
@@ -216,8 +217,8 @@ NON_FINITE = ("nan", "inf", "-inf")
 
 
 def jsonable(data):
-    """``data`` with every float as :func:`~verification.framework.report.json_number` writes it (NaN and infinities as the
-    strings ``"nan"``, ``"inf"``, ``"-inf"``, so the file stays standard JSON)."""
+    """``data`` with every float as :func:`~verification.framework.report.json_number` writes it (NaN and infinities as
+    the strings ``"nan"``, ``"inf"``, ``"-inf"``, so the file stays standard JSON)."""
     if isinstance(data, dict):
         return {k: jsonable(v) for k, v in data.items()}
     if isinstance(data, (list, tuple)):

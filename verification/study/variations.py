@@ -16,8 +16,8 @@ import tomllib
 from dataclasses import dataclass
 
 from mpmref import Scene
-from mpmref.scene.sampling import sample_particles
 from mpmref.errors import ArgumentError, SceneError
+from mpmref.scene.sampling import sample_particles
 
 #: keys of which a scene declares one: setting one removes the other
 ALTERNATIVES = {("grid", "dx"): "cells", ("grid", "cells"): "dx", ("time", "dt"): "cfl", ("time", "cfl"): "dt",
@@ -118,7 +118,8 @@ def key_path(key, text=None):
 
 
 def dotted(path):
-    """The dotted key of a path (the inverse of :func:`key_path`), as :class:`~mpmref.errors.SceneError` names fields."""
+    """The dotted key of a path (the inverse of :func:`key_path`), as :class:`~mpmref.errors.SceneError` names
+    fields."""
     return "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path).lstrip(".")
 
 

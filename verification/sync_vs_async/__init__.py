@@ -37,8 +37,8 @@ With conservative interfaces, linear momentum (and angular momentum for MLS-MPM)
 :math:`10^{-12}` of :math:`\sum_p m_p |v_p|` on the isolated scene and on the balls (round-off of a few
 hundred level updates), the ledger's booked energy change is the measured one to :math:`10^{-12}` of the
 initial energy at every synchronised time, and bonded bodies stay within 1 % of sync in energy at every CFL number
-(the target set for the conservative treatment). The reference treatment's drift is a finding. The balls' end-state difference is a
-finding too, not a check: synchronous MPM on contact does not converge as Δt shrinks (its transfers
+(the target set for the conservative treatment). The reference treatment's drift is a finding. The balls' end-state
+difference is a finding too, not a check: synchronous MPM on contact does not converge as Δt shrinks (its transfers
 dissipate per step, measured in the case), so no rate against it can be derived.
 
 The case is a package: :mod:`.scenes` (its parameters and scenes), :mod:`.levels` (one level, free fall, the schedule
@@ -52,8 +52,7 @@ from mpmref.steppers import AsynchronousStepper
 
 from ..framework.case import VerificationCase
 from .conservation import isolated, ledger_split
-from .levels import (ONE_LEVEL_BLOCK, ONE_LEVEL_TICK, WORKED_EXAMPLE, FrozenShadows, free_fall, one_level,
-                     schedule)
+from .levels import ONE_LEVEL_BLOCK, ONE_LEVEL_TICK, WORKED_EXAMPLE, FrozenShadows, free_fall, one_level, schedule
 from .pairs import ball_pair, compare, stork_pair
 from .reporting import PAIRS, ROUND_OFF, backends_run, checks, findings, report
 from .scenes import Params, census_scene, pressed_disks, two_bodies
@@ -64,8 +63,8 @@ MAIN_FIGURE = "trade.png"
 
 
 def compiled_scenes(params, backend="numpy"):
-    """``[(backend, scene)]`` whose kernels this case needs compiled (see :mod:`verification.framework.warmup`), on Numba
-    whatever ``backend`` is: the one-level comparison's two scenes and the census. Their kernels serve the 2D
+    """``[(backend, scene)]`` whose kernels this case needs compiled (see :mod:`verification.framework.warmup`), on
+    Numba whatever ``backend`` is: the one-level comparison's two scenes and the census. Their kernels serve the 2D
     pairs and sweeps too, and their asynchronous bookkeeping (compiled with them) every asynchronous run of the
     case: it depends only on which particle fields a scene allocates."""
     return [("numba", two_bodies(cfl=0.5, tick=ONE_LEVEL_TICK, levels=0, steps=1, block=ONE_LEVEL_BLOCK)),

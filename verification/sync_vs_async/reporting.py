@@ -28,7 +28,8 @@ def checks(result):
     ff = result["free_fall"]
     out.append(Check("free fall: |v_com - (v0 + g t)| / |g t| at sync times", ff["max_rel"], "<=", 1e-12,
                      "partition of unity: a uniform velocity field is transferred exactly; round-off only"))
-    out.append(Check("free fall: levels in use", len(ff["levels"]), ">=", 2, "the two bodies must be on different levels"))
+    out.append(Check("free fall: levels in use", len(ff["levels"]), ">=", 2,
+                     "the two bodies must be on different levels"))
     sc = result["schedule"]
     out.append(Check("schedule: updates of the worked two-block example reproduced", float(sc["matches"]), ">=", 1.0,
                      "Fang et al. 2018's schedule: coarse first at shared ticks, shadows sub-cycled by the fine block"))
@@ -98,16 +99,20 @@ def findings(result):
         errors = [r[itf]["sync"] for r in series]
         out.append(Finding(f"balls over {len(series)} steps, {itf}: fitted slope of |v_async - v_sync| (end state)",
                            fitted_slope(steps, errors), "the balls' end velocities against sync at the same finest "
-                           f"step, for steps {steps} ticks: {', '.join(f'{e:.3g}' for e in errors)} of the impact speed."))
+                           f"step, for steps {steps} ticks: {', '.join(f'{e:.3g}' for e in errors)} "
+                           "of the impact speed."))
     own = [r["sync_vs_sync4"] for r in series if "sync_vs_sync4" in r]
     out += [] if not own else [Finding("balls: sync itself, |v(dt) - v(dt/4)| at the largest step", own[0],
                        "synchronous MPM on contact does not converge as the step shrinks (its transfers dissipate per "
-                       f"step): sync against sync at a 4x finer step, for the same steps: {', '.join(f'{e:.3g}' for e in own)}. "
+                       "step): sync against sync at a 4x finer step, for the same steps: "
+                       f"{', '.join(f'{e:.3g}' for e in own)}. "
                        "No rate for async against it can be derived, so these are findings.")]
     s2 = result[f"stork2d/{result['params'].interfaces[0]}"]
-    out.append(Finding("stork2d: sync updates / async updates, ghosts included", s2["updates_sync"] / s2["updates_async"],
-                       f"ghost updates cost {s2['updates_async'] - s2['own_updates']} of {s2['updates_async']}; counting "
-                       f"only the particles' own steps the saving is {s2['updates_sync'] / s2['own_updates']:.2f}x."))
+    out.append(Finding("stork2d: sync updates / async updates, ghosts included",
+                       s2["updates_sync"] / s2["updates_async"],
+                       f"ghost updates cost {s2['updates_async'] - s2['own_updates']} of {s2['updates_async']}; "
+                       "counting only the particles' own steps the saving is "
+                       f"{s2['updates_sync'] / s2['own_updates']:.2f}x."))
     front = [r for r in result["trade"] if r["pareto"]]
     out.append(Finding("trade: runs on the Pareto front (stork2d, error against wall time)", len(front),
                        "; ".join(f"{r['label']}: {r['error_dx']:.2g} dx in {r['wall']:.2f} s" for r in front)))
@@ -188,7 +193,8 @@ def report(result, out_dir):
         for itf in result["params"].interfaces:
             paths.append(write_series(out / "vtk" / f"{key}_{itf}", result[f"{key}/{itf}"]["frames"]))
     sc = result["schedule"]
-    ol = ", ".join(f"{r['backend']}: bitwise {r['bitwise']}, max rel. diff {r['max_rel']:.1e}" for r in result["one_level"])
+    ol = ", ".join(f"{r['backend']}: bitwise {r['bitwise']}, max rel. diff {r['max_rel']:.1e}"
+                   for r in result["one_level"])
     iso = "; ".join(f"{itf}: linear {r['P']:.2e}, angular {r['L']:.2e} (levels {r['levels']})"
                     for itf, r in result["isolated"].items())
     bonded_itfs = result["params"].bonded_interfaces

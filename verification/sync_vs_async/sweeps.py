@@ -87,7 +87,8 @@ def trade(params, backend):
         s = Simulation(example_with_time("stork2d", t_end, dt=finest * tick / div), backend=backend)
         start = perf_counter()
         s.run()
-        runs.append({"kind": "sync", "label": f"sync dt {finest / div:g} ticks", "sim": s, "wall": perf_counter() - start})
+        runs.append({"kind": "sync", "label": f"sync dt {finest / div:g} ticks", "sim": s,
+                     "wall": perf_counter() - start})
     ref = Simulation(example_with_time("stork2d", t_end, dt=finest * tick / params.trade_reference_division),
                      backend=backend)
     ref.run()

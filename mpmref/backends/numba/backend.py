@@ -17,8 +17,8 @@ from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
 from .kicks import class_totals, node_kicks
 from .sparse import BlockLayout
-from .threads import describe_threads, threads_for
 from .stencil import BASE_SHIFT
+from .threads import describe_threads, threads_for
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
 #: the empty row array that tells a transfer kernel it has no particle classes (or no kicks)
@@ -201,7 +201,8 @@ class NumbaBackend:
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
         n_classes = 1 if classes is None else N_CLASSES
-        class_rows = NO_ROWS if classes is None else np.ascontiguousarray(classes, dtype=np.int64) * blocks.layout.n_rows
+        class_rows = (NO_ROWS if classes is None
+                      else np.ascontiguousarray(classes, dtype=np.int64) * blocks.layout.n_rows)
         grid = self._scatter(self._p2g, particles, blocks, n_classes, class_rows, 0.0, 2)
         layout, d = blocks.layout, particles.dim
         class_sums = None
@@ -230,7 +231,8 @@ class NumbaBackend:
         layout = blocks.layout
         n, d = particles.x.shape
         stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
-        grid, = self.buffers.take("grid" if vectors == 2 else "grid_fused", (n_classes * layout.n_rows, 1 + vectors * d))
+        grid, = self.buffers.take("grid" if vectors == 2 else "grid_fused",
+                                  (n_classes * layout.n_rows, 1 + vectors * d))
         grid.fill(0.0)  # a memset: memory-bound, so a parallel loop's launch costs more than its second thread gains
         chunk = numba.set_parallel_chunksize(1)  # groups hold unequal numbers of particles: one at a time
         try:

@@ -21,6 +21,7 @@ for any thread count.
 import numpy as np
 from numba import njit, prange
 
+
 @njit(parallel=True, cache=True)
 def block_keys(x, origin, dx, shift, block, blocks_per_axis):
     """The block (C-order number) of each particle: the block of its stencil's base node, in parallel.

@@ -4,7 +4,6 @@ and the per-particle update from the gathered sums (its motion, then its deforma
 
 from numba import njit
 
-
 #: particles per task of G2P's parallel loop
 G2P_CHUNK = 256
 

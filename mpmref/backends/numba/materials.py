@@ -5,8 +5,8 @@ docstrings for sources and symbols). Each material has a stress kernel and, if p
 kernel over the index list of its particles; :data:`MATERIAL_ARRAY_KERNELS` maps a material class to them and to
 the parameters they take. Adding a material adds its kernels and one entry here.
 
-The singular value and polar decompositions are the fast ones of :mod:`mpmref.backends.numba.svd` (closed form in 2D, Jacobi
-sweeps and a Givens QR in 3D; :mod:`mpmref.physics.svd` gives the method and its accuracy), not LAPACK's
+The singular value and polar decompositions are the fast ones of :mod:`mpmref.backends.numba.svd` (closed form in 2D,
+Jacobi sweeps and a Givens QR in 3D; :mod:`mpmref.physics.svd` gives the method and its accuracy), not LAPACK's
 ``np.linalg.svd``, which cost about 3 µs per particle here. The NumPy reference keeps LAPACK, so the
 conformance harness checks these against an independent factorisation. The kernels loop over chunks of
 :data:`CHUNK` particles and allocate the decomposition's small work arrays once per chunk.
@@ -31,9 +31,10 @@ def n_chunks(n):
 
 @njit(cache=True)
 def work_arrays(d, dtype):
-    """Work arrays of one chunk: ``R``, ``U``, ``sigma``, ``Vt`` for :mod:`mpmref.backends.numba.svd`, and a second length-``d``
-    vector."""
-    return np.empty((d, d), dtype), np.empty((d, d), dtype), np.empty(d, dtype), np.empty((d, d), dtype), np.empty(d, dtype)
+    """Work arrays of one chunk: ``R``, ``U``, ``sigma``, ``Vt`` for :mod:`mpmref.backends.numba.svd`, and a second
+    length-``d`` vector."""
+    return (np.empty((d, d), dtype), np.empty((d, d), dtype), np.empty(d, dtype), np.empty((d, d), dtype),
+            np.empty(d, dtype))
 
 
 @njit(cache=True, inline="always")

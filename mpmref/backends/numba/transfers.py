@@ -1,10 +1,10 @@
 r"""P2G, grid update and G2P of the Numba backend: the equations of
 :mod:`mpmref.backends.numpy.transfers`, one particle at a time with the stencil inside.
 
-Files, by stage, with one 2D/3D convention (the one of the CPIC stages, :mod:`mpmref.backends.numba.cpic`): the kernels whose loops
-run over a particle's stencil are written once per dimension, in :mod:`.transfers2d` and :mod:`.transfers3d`,
-behind one declared interface (:class:`DimensionTransfers`; the table :data:`TRANSFER_KERNELS`, from which
-:func:`make_p2g`, :func:`make_g2p` and :func:`make_kick_gather` take the scene's dimension's); what both
+Files, by stage, with one 2D/3D convention (the one of the CPIC stages, :mod:`mpmref.backends.numba.cpic`): the kernels
+whose loops run over a particle's stencil are written once per dimension, in :mod:`.transfers2d` and
+:mod:`.transfers3d`, behind one declared interface (:class:`DimensionTransfers`; the table :data:`TRANSFER_KERNELS`,
+from which :func:`make_p2g`, :func:`make_g2p` and :func:`make_kick_gather` take the scene's dimension's); what both
 dimensions share is in a module per stage, :mod:`.p2g` (the per-node scatter) and :mod:`.g2p` (the mode
 projections and the per-particle update), and in :mod:`.stencil` (a particle's stencil along one axis),
 :mod:`.sparse` (the rows of the stencil's nodes) and :mod:`.tuple_math`. The grid update (:mod:`.grid_update`)

@@ -43,8 +43,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
     ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the solids' laws stay out of
     this kernel, which is why one compiled P2G serves every scene with solids), the force matrix
     :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine momentum
-    :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets :math:`x_i - x_p` and (classic)
-    weight derivatives. Per node it then forms only products: :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)`
+    :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets :math:`x_i - x_p` and
+    (classic) weight derivatives. Per node it then forms only products: :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)`
     for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic MPM (:func:`~.p2g.p2g_node`). Products are contracted to
     fused multiply-adds where the CPU has them (``fastmath={"contract"}``, no other fast-math licence: still
     IEEE operations, one rounding fewer). With particle classes (a level update of asynchronous stepping with
@@ -211,11 +211,12 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     after G2P, so that the G2P kernels of every other run compile without it.
 
     The returned ``gather(x, mass, layout, kick_rows, kicks, impulse, moment)`` (``layout`` a
-    :class:`~.kernel_args.SparseLayout`) writes, for each particle ``p`` with ``kick_rows[p] >= 0`` (the first row of its class's kicks in
-    ``kicks``), its impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[p]`` and its moment about
-    the origin :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`
-    into ``moment[p]`` (one column: the moments of 3-vectors with zero third components have only a third), in
-    float64; the nodes are the rows of a :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`.
+    :class:`~.kernel_args.SparseLayout`) writes, for each particle ``p`` with ``kick_rows[p] >= 0`` (the first row of
+    its class's kicks in ``kicks``), its impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[p]`` and its
+    moment about the origin
+    :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)` into ``moment[p]``
+    (one column: the moments of 3-vectors with zero third components have only a third), in float64; the nodes are the
+    rows of a :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`.
 
     Docs: docs/async.md#conservative-interfaces
     """

@@ -39,9 +39,10 @@ class NumpyContact:
     body : (K, n) int               that node's nearest body (``-1`` if none)
     node_x : (K, n, 2)              that node's position
     mu : (K, n)                     encoded friction of the particle's side of that body
-    v_star : (n, 2)                 the particle's velocity with this step's gravity, :math:`\\mathbf v_p + \\mathbf g\\Delta t`
-    force_velocity : (K, n, 2)      :math:`\\Delta t\\, \\mathbf f_{ip} / (m_p w_{ip})`, the velocity the particle's own internal
-                                    force gives that node (zero unless ``method.ghost_force``)
+    v_star : (n, 2)                 the particle's velocity with this step's gravity,
+                                    :math:`\\mathbf v_p + \\mathbf g\\Delta t`
+    force_velocity : (K, n, 2)      :math:`\\Delta t\\, \\mathbf f_{ip} / (m_p w_{ip})`, the velocity the particle's own
+                                    internal force gives that node (zero unless ``method.ghost_force``)
     tau : (n, 2, 2)                 the particles' Kirchhoff stress (computed once for the step)
     ghost_body : (K, n) int         the body whose friction projection gives the ghost velocity there: the node's
                                     nearest body, or with the per-body fit the crossed body (:func:`ghost_frames`)
@@ -128,7 +129,8 @@ def ghost_frames(contact, particles, friction, fit):
 
 
 def force_velocity(stencil, offset, gradient_weight, particles, tau, dt):
-    r""":math:`\mathbf a_{ip} = -\Delta t\, V_p^0 \tau_p g_{ip} / (m_p w_{ip})` for one stencil offset (0 where :math:`w_{ip} = 0`)."""
+    r""":math:`\mathbf a_{ip} = -\Delta t\, V_p^0 \tau_p g_{ip} / (m_p w_{ip})` for one stencil offset (0 where
+    :math:`w_{ip} = 0`)."""
     w = stencil.node_weight(offset)
     g = gradient_weight(stencil, w, stencil.node_offset_vector(offset), offset)
     f = -dt * np.einsum("nab,nb->na", particles.vol0[:, None, None] * tau, g)
@@ -182,7 +184,8 @@ def impulses(grid_state, contact, rigid, dt):
 
     At each node :math:`i` with nearest body :math:`r`,
 
-    .. math:: \mathbf J_i = \sum_{p \text{ incompatible with } i} \left[ m_p w_{ip} (\mathbf v_p^* - \tilde{\mathbf v}_i)
+    .. math:: \mathbf J_i = \sum_{p \text{ incompatible with } i} \left[ m_p w_{ip}
+              (\mathbf v_p^* - \tilde{\mathbf v}_i)
               - \Delta t\, V_p^0 \tau_p\, g_{ip} \right],
 
     collected by P2G as ``grid_state.rejected_momentum`` and ``grid_state.rejected_force``; body :math:`r`

@@ -24,7 +24,8 @@ def scatter(index, values, n_nodes):
     """Sum ``values`` (n,) or (n, k) into ``n_nodes`` bins by ``index`` (``np.bincount`` per column)."""
     if values.ndim == 1:
         return np.bincount(index, weights=values, minlength=n_nodes)
-    return np.stack([np.bincount(index, weights=values[:, k], minlength=n_nodes) for k in range(values.shape[1])], axis=1)
+    return np.stack([np.bincount(index, weights=values[:, k], minlength=n_nodes) for k in range(values.shape[1])],
+                    axis=1)
 
 
 def mls_gradient_weight(stencil, w, dpos, offset):
@@ -81,7 +82,8 @@ def p2g(particles, tau, grid, kernel, transfer, prepared=None, contact=None, cla
 
     Docs: docs/mls_vs_classic.md#from-mls-shape-functions-to-the-mls-mpm-step,
     docs/mls_vs_classic.md#two-gradient-weights,
-    docs/mpm_cycle.md#p2g-particle-to-grid, docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#pic, docs/transfers.md#polypic
+    docs/mpm_cycle.md#p2g-particle-to-grid, docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#pic,
+    docs/transfers.md#polypic
 
     Parameters
     ----------
@@ -262,8 +264,8 @@ def g2p(particles, v_grid, v_tilde, grid, kernel, transfer, dt, prepared=None, g
 
     With the MLS velocity gradient :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the
     classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``transfer.gradient`` chooses it, independently of
-    the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are the projections of
-    :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
+    the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are
+    the projections of :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
     ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
     ``(compatible (K, n), ghost velocities (K, n, d))``: at a node incompatible with the particle, its ghost
     velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; docs/cpic.md). Returns new

@@ -19,8 +19,8 @@ the work is laid out:
 * per particle, the contact keeps a bit mask of the incompatible nodes of its transfer stencil instead of
   ``(K, n)`` arrays; ghost velocities are formed inside P2G and G2P from the node's nearest body, the
   particle's normal and friction, and the bodies' velocities of that stage;
-* P2G runs block-parallel by colour (:mod:`mpmref.backends.numba.blocks`), so each node receives its contributions, the rejected
-  momentum and force included, in a fixed order for any thread count;
+* P2G runs block-parallel by colour (:mod:`mpmref.backends.numba.blocks`), so each node receives its contributions, the
+  rejected momentum and force included, in a fixed order for any thread count;
 * impulses are reduced in a fixed order: P2G's serially node by node; the penalty's particle by particle
   within each block by the parallel G2P, then block by block: the same bits for any thread count, no
   atomics.

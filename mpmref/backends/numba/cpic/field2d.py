@@ -10,12 +10,21 @@ import numpy as np
 from numba import njit, prange
 
 from ....physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, ColoredDistanceField
-from ....rigid.polyline import surface_samples
 from ....rigid.dynamics import current_shapes
-from ..stencil import kernel_axis, quadratic_axis
+from ....rigid.polyline import surface_samples
 from ..source_digest import SOURCE_DIGEST
-from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
-                     settle_body, sticky_tags, tagged_by_several)
+from ..stencil import kernel_axis, quadratic_axis
+from .common import (
+    add_pair,
+    add_side_sums,
+    body_target,
+    empty_field,
+    fit_target,
+    node_incompatible,
+    settle_body,
+    sticky_tags,
+    tagged_by_several,
+)
 
 
 def body_samples(bodies, rigid, dx):

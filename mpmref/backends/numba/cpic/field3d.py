@@ -11,10 +11,19 @@ from numba import njit, prange
 from ....physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
 from ....rigid.dynamics import current_shapes
 from ....rigid.trimesh import surface_samples
-from ..stencil import kernel_axis, quadratic_axis
 from ..source_digest import SOURCE_DIGEST
-from .common import (add_pair, add_side_sums, body_target, empty_field, fit_target, node_incompatible,
-                     settle_body, sticky_tags, tagged_by_several)
+from ..stencil import kernel_axis, quadratic_axis
+from .common import (
+    add_pair,
+    add_side_sums,
+    body_target,
+    empty_field,
+    fit_target,
+    node_incompatible,
+    settle_body,
+    sticky_tags,
+    tagged_by_several,
+)
 
 
 def body_samples(bodies, rigid, dx):
@@ -43,7 +52,8 @@ def body_samples(bodies, rigid, dx):
 
 
 def build_cdf(bodies, rigid, shape, origin, dx):
-    """The colored distance field (:func:`mpmref.physics.cdf.build_cdf`) of 3D bodies, rasterised by :func:`rasterise`."""
+    """The colored distance field (:func:`mpmref.physics.cdf.build_cdf`) of 3D bodies, rasterised by
+    :func:`rasterise`."""
     x, tri, start, a, e1, e2, normal = body_samples(bodies, rigid, dx)
     d, nearest, A, T, d_body = empty_field(int(shape[0] * shape[1] * shape[2]), len(bodies))
     rasterise(x, tri, start, a, e1, e2, normal, origin, float(dx), shape, d, nearest, A, T, d_body)
@@ -191,9 +201,10 @@ def stencil_node(b0, b1, b2, k, shape):
 @njit(cache=True, inline="always")
 def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near, near_r, S0, S1, M,
                  rhs):
-    r"""Tags, distance, normal and ``near`` of particle ``p`` (the 3D :func:`mpmref.backends.numba.cpic.field2d.tag_particle`: sticky tags,
-    :math:`S_s = \sum_{i: A_{ir} = 1, T_{ir} = s} w_{ip} d_i`, then :func:`reconstruct_particle`); returns
-    whether it is tagged. Hu et al. 2018 §4; docs/cpic.md."""
+    r"""Tags, distance, normal and ``near`` of particle ``p`` (the 3D
+    :func:`mpmref.backends.numba.cpic.field2d.tag_particle`: sticky tags,
+    :math:`S_s = \sum_{i: A_{ir} = 1, T_{ir} = s} w_{ip} d_i`, then :func:`reconstruct_particle`); returns whether it is
+    tagged. Hu et al. 2018 §4; docs/cpic.md."""
     b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
     b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
     b2, f2, w2, dw2 = quadratic_axis((x[p, 2] - origin[2]) / dx)

@@ -1,6 +1,7 @@
 r"""The CPIC stages of the Numba backend (``cpic_contact``, P2G with a contact, ``cpic_impulses``,
 ``cpic_g2p``), one code path for 2D and 3D over the dimension's kernels, chosen once per step when the
-contact is formed (:data:`CPIC_KERNELS_BY_DIM`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`, :mod:`.transfer3d`)."""
+contact is formed (:data:`CPIC_KERNELS_BY_DIM`; :mod:`.field2d`, :mod:`.transfer2d`, :mod:`.field3d`,
+:mod:`.transfer3d`)."""
 
 from dataclasses import dataclass
 
@@ -10,8 +11,17 @@ from numba import njit
 from ....physics.cdf import ColoredDistanceField
 from ....rigid.dynamics import initial_state
 from ....state import GridState
-from ..kernel_args import (Bodies, BodyFits, ContactArrays, DenseLayout, DistanceFit, G2POutput, Groups, NodeField,
-                           SideTags)
+from ..kernel_args import (
+    Bodies,
+    BodyFits,
+    ContactArrays,
+    DenseLayout,
+    DistanceFit,
+    G2POutput,
+    Groups,
+    NodeField,
+    SideTags,
+)
 from ..stencil import KERNEL_CODES
 from . import field2d, field3d, transfer2d, transfer3d
 

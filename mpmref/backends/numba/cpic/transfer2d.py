@@ -8,8 +8,8 @@ import numpy as np
 from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
-from ..stencil import kernel_axis
 from ..source_digest import SOURCE_DIGEST
+from ..stencil import kernel_axis
 from .common import crossed_body, tagged_by_several
 
 

@@ -9,8 +9,8 @@ import numpy as np
 from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
-from ..stencil import kernel_axis
 from ..source_digest import SOURCE_DIGEST
+from ..stencil import kernel_axis
 from .common import crossed_body, tagged_by_several
 
 
@@ -18,8 +18,8 @@ from .common import crossed_body, tagged_by_several
 def ghost_velocity(v, node_x, r, position, velocity, omega, n, mu):
     r"""The friction projection :math:`\Pi(\mathbf v; \mathbf v_r(\mathbf x_i), \mathbf n, \mu)` against body ``r``
     in 3D, :math:`\mathbf v_r(\mathbf x) = \mathbf v_r + \boldsymbol\omega_r\times(\mathbf x - \mathbf c_r)`
-    (the 3D :func:`mpmref.backends.numba.cpic.transfer2d.ghost_velocity`; the talk's Eq. 25, Hu et al. 2018 §5). ``v``, ``node_x``, ``n``:
-    3-tuples; returns a 3-tuple."""
+    (the 3D :func:`mpmref.backends.numba.cpic.transfer2d.ghost_velocity`; the talk's Eq. 25, Hu et al. 2018 §5). ``v``,
+    ``node_x``, ``n``: 3-tuples; returns a 3-tuple."""
     rel0, rel1, rel2 = node_x[0] - position[r, 0], node_x[1] - position[r, 1], node_x[2] - position[r, 2]
     vb0 = velocity[r, 0] + (omega[r, 1] * rel2 - omega[r, 2] * rel1)
     vb1 = velocity[r, 1] + (omega[r, 2] * rel0 - omega[r, 0] * rel2)
@@ -83,8 +83,9 @@ def add_impulse(block_impulse, bi, r, jv, xp, position):
 
 @njit(cache=True, inline="always")
 def force_velocity(ghost_force, dt, f, w, m):
-    r""":math:`\mathbf a_{ip} = -\Delta t\,\mathbf f_{ip}/(m_p w_{ip})` with ``f`` = :math:`V_p^0\tau_p g_{ip}` (3-tuple),
-    0 where :math:`w_{ip} = 0` or without ``ghost_force`` (see :func:`mpmref.backends.numpy.cpic.force_velocity`)."""
+    r""":math:`\mathbf a_{ip} = -\Delta t\,\mathbf f_{ip}/(m_p w_{ip})` with ``f`` = :math:`V_p^0\tau_p g_{ip}`
+    (3-tuple), 0 where :math:`w_{ip} = 0` or without ``ghost_force`` (see
+    :func:`mpmref.backends.numpy.cpic.force_velocity`)."""
     if not ghost_force or not w > 0.0:
         return 0.0, 0.0, 0.0
     return (-dt * f[0]) / (w * m), (-dt * f[1]) / (w * m), (-dt * f[2]) / (w * m)
