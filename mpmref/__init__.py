@@ -48,7 +48,8 @@ def _threads_that_wait_quietly():
 _default_numba_cache()
 _threads_that_wait_quietly()
 
-from .errors import (  # noqa: E402 - after the cache folder is set
+# the package's modules, imported after the cache folder and the threading layer are set
+from .errors import (
     AllParticlesLeftError,
     ArgumentError,
     DomainExitError,
@@ -57,8 +58,8 @@ from .errors import (  # noqa: E402 - after the cache folder is set
     NonFiniteError,
     SceneError,
 )
-from .run.simulation import Simulation  # noqa: E402
-from .scene import Scene, SceneBuilder  # noqa: E402
+from .run.simulation import Simulation
+from .scene import Scene, SceneBuilder
 
 __version__ = "0.1.0"
 __all__ = ["Scene", "SceneBuilder", "Simulation", "SceneError", "ArgumentError", "InstabilityError", "NonFiniteError",

@@ -11,10 +11,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "examples" / "my_mpm_backend"))
 
-from my_mpm_backend.backend import MyBackend  # noqa: E402
+from my_mpm_backend.backend import MyBackend
 
-from mpmref.backends.numpy import NumpyBackend  # noqa: E402
-from mpmref.physics.kernels import compute_stencil  # noqa: E402
+from mpmref.backends.numpy import NumpyBackend
+from mpmref.physics.kernels import compute_stencil
 
 #: the Δt a code that ignores its argument uses instead
 FIXED_DT = 1.0e-3

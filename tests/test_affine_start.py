@@ -46,7 +46,7 @@ def test_in_3d_the_gradient_and_the_spin_vector_add():
 def transfer_cycle(sim):
     """Particle kinetic energy (velocity and affine parts) before and after one P2G, grid update with Δt = 0,
     G2P; the particles after it."""
-    energy = lambda: sim.diagnostics()["kinetic"] + sim.diagnostics()["kinetic_affine"]  # noqa: E731
+    energy = lambda: sim.diagnostics()["kinetic"] + sim.diagnostics()["kinetic_affine"]
     before = energy()
     sim.particles = substep(sim.backend, sim.particles, 0.0, sim.time)
     return before, energy()

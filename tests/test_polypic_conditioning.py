@@ -58,7 +58,7 @@ def exact_axis_basis(kernel, f, dx):
     N = exact_weights(kernel, f)
     S = len(N)
     delta = [(k - f) * dx for k in range(S)]
-    dot = lambda a, b: sum(N[k] * a[k] * b[k] for k in range(S))  # noqa: E731
+    dot = lambda a, b: sum(N[k] * a[k] * b[k] for k in range(S))
     basis = []
     for j in range(S):
         q = [delta[k] ** j for k in range(S)]

@@ -115,7 +115,7 @@ def test_the_same_study_again_reuses_every_run_and_overwrite_runs_them_again(jel
     again = run_study(JELLY, {"grid.cells": [16, 32, 64], "method.scheme": ["apic", "mls"]}, T_END, out=tmp_path)
     assert not any(r["reused"] for r in again["runs"])
     assert [r["id"] for r in again["runs"]] == [r["id"] for r in results["runs"]]   # the same identities
-    strip = lambda runs: [{k: v for k, v in r["metrics"].items() if k not in ("wall_s", "particle_steps_per_s")}  # noqa: E731
+    strip = lambda runs: [{k: v for k, v in r["metrics"].items() if k not in ("wall_s", "particle_steps_per_s")}
                           for r in runs]
     assert strip(again["runs"]) == strip(results["runs"])        # and the same numbers, in another process
     reused = run_study(JELLY, {"grid.cells": [16, 32, 64], "method.scheme": ["apic", "mls"]}, T_END, out=tmp_path)

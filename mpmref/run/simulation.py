@@ -99,7 +99,7 @@ class Simulation:
         """Stable integer identity of each particle (kept through deletion, reordering and restarts)."""
         return self.state.particles.id
 
-    def _particle_field(name):  # noqa: N805 - class-body helper building properties
+    def _particle_field(name):
         def getter(self):
             return getattr(self.particles, name)
 

@@ -168,8 +168,8 @@ def drift_series(rows, momentum_scale_, angular_scale):
 
     Docs: docs/studying_your_scene.md#what-each-run-measures
     """
-    column = lambda key: np.array([row[key] for row in rows], dtype=np.float64)  # noqa: E731
-    vector = lambda prefix: np.stack([column(k) for k in rows[0] if k.startswith(prefix)], axis=1)  # noqa: E731
+    column = lambda key: np.array([row[key] for row in rows], dtype=np.float64)
+    vector = lambda prefix: np.stack([column(k) for k in rows[0] if k.startswith(prefix)], axis=1)
     energy, mass = column("total_energy"), column("mass")
     P, L = vector("momentum_"), vector("angular_momentum")
     out = {"time": column("time"), "step": column("step"), "total_energy": energy,
@@ -208,7 +208,7 @@ def user_measure(reference, sim, metrics):
 
 def _non_finite(table):
     """A JSON object with the strings ``"nan"``, ``"inf"`` and ``"-inf"`` of :func:`jsonable` as floats again."""
-    back = lambda v: float(v) if isinstance(v, str) and v in NON_FINITE else v  # noqa: E731
+    back = lambda v: float(v) if isinstance(v, str) and v in NON_FINITE else v
     return {k: [back(x) for x in v] if isinstance(v, list) else back(v) for k, v in table.items()}
 
 
