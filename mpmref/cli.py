@@ -1,4 +1,5 @@
-"""Command line: ``mpmref run SCENE.toml [--steps N | --t-end T] [--out DIR] [--resume | --overwrite] [--backend B]``.
+"""Command line: ``mpmref run SCENE.toml [--steps N | --until-step N | --t-end T] [--out DIR] [--resume |
+--overwrite] [--backend B]``.
 
 Exit status: 0 success; 2 a bad scene, command-line option, argument or backend reference (one line on stderr naming
 the field, option, module or stage, the value and what is allowed); 3 any other mpmref error (an instability, a domain
@@ -87,8 +88,11 @@ def _parser():
     run = sub.add_parser("run", help="run a scene file and write a ParaView series")
     run.add_argument("scene", type=Path, help="scene TOML file")
     stop = run.add_mutually_exclusive_group()
-    stop.add_argument("--steps", type=count_option, help="total number of steps (overrides time.steps / time.t_end)")
-    stop.add_argument("--t-end", type=end_time_option, help="end time (overrides time.steps / time.t_end)")
+    stop.add_argument("--steps", type=count_option, metavar="N",
+                      help="take N more steps (from step 0, or from the checkpoint with --resume)")
+    stop.add_argument("--until-step", type=count_option, metavar="N",
+                      help="stop at step N, a total like the scene's time.steps (a resumed run ends there too)")
+    stop.add_argument("--t-end", type=end_time_option, metavar="T", help="stop at simulated time T")
     run.add_argument("--out", type=Path, help="output folder (default: reports/<scene name>)")
     again = run.add_mutually_exclusive_group()
     again.add_argument("--resume", action="store_true", help="continue from the checkpoint in the output folder")
@@ -185,8 +189,8 @@ def _warm_up(sim):
 def resume_command(args, out_dir):
     """The ``mpmref run`` command line that continues the interrupted run (same stop, same backend)."""
     words = ["mpmref", "run", str(args.scene), "--out", str(out_dir), "--resume"]
-    if args.steps is not None:
-        words += ["--steps", str(args.steps)]
+    if args.steps is not None or args.until_step is not None:  # the same end step as the interrupted run
+        words += ["--until-step", str(args.until_step if args.steps is None else args.start_step + args.steps)]
     if args.t_end is not None:
         words += ["--t-end", repr(args.t_end)]
     if args.backend != "numpy":
@@ -205,9 +209,10 @@ def cmd_run(args):
     apply_threads(args.threads)
     sim = _open_simulation(scene, args, out_dir)
     _warm_up(sim)
-    steps = None if args.steps is None else max(0, args.steps - sim.step_count)
+    args.start_step = sim.step_count
     try:
-        summary = sim.run(steps=steps, t_end=args.t_end, progress=not args.no_progress)
+        summary = sim.run(steps=args.steps, until_step=args.until_step, t_end=args.t_end,
+                          progress=not args.no_progress)
     except KeyboardInterrupt:
         path = sim.save_checkpoint("interrupted")
         print(f"mpmref: interrupted at step {sim.step_count}; checkpoint saved to {path}; resume with: "

@@ -111,6 +111,24 @@ class BackendError(MpmrefError):
     """
 
 
+class NotImplementedByBackend(BackendError):
+    """A backend does not implement what a scene needs: its declaration (:mod:`mpmref.backends.capabilities`) lacks
+    it, its factory declined the scene (raised :class:`NotImplementedError`), or it lacks a stage that only some
+    scenes need (asynchronous stepping, rigid bodies). The checks report such a scene as *not applicable*, with
+    ``reasons``; a run of it is refused before any work (exit status 2).
+
+    Parameters
+    ----------
+    backend : str       the backend's label
+    scene : str         the scene's name
+    reasons : list      what the scene needs that the backend lacks, each in words ("needs the cubic kernel")
+    """
+
+    def __init__(self, backend, scene, reasons):
+        self.backend, self.scene, self.reasons = backend, scene, list(reasons)
+        super().__init__(f"backend {backend!r} does not implement what scene {scene!r} needs: {'; '.join(reasons)}")
+
+
 class ArgumentError(MpmrefError, ValueError):
     """An argument of the Python API is out of its range (a ``ValueError``), e.g. ``Simulation.step(dt=-0.01)``.
 

@@ -243,7 +243,8 @@ def test_ctrl_c_saves_a_checkpoint_and_the_printed_command_resumes_bit_identical
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "interrupted at step 3" in err
     command = shlex.split(err.split("resume with: ", 1)[1])
-    assert command[:2] == ["mpmref", "run"] and "--resume" in command and command[command.index("--steps") + 1] == "6"
+    assert command[:2] == ["mpmref", "run"] and "--resume" in command
+    assert command[command.index("--until-step") + 1] == "6"  # a total: the resumed run ends at the same step
     monkeypatch.setattr(Simulation, "step", step)
     assert main(command[1:]) == 0
     a, _ = load_checkpoint(straight / "checkpoint.npz")

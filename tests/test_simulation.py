@@ -11,6 +11,7 @@ import pyvista as pv
 
 from mpmref import DomainExitError, NonFiniteError, Scene, SceneBuilder, Simulation
 from mpmref.cli import main
+from mpmref.errors import ArgumentError
 from mpmref.io.checkpoint import load_checkpoint
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -151,11 +152,28 @@ def test_cli_run_writes_a_series_that_meshio_and_pyvista_read(tmp_path, capsys):
 
 
 def test_cli_resume_continues_to_the_requested_step(tmp_path):
+    """--until-step is a total (the run stops at that step), --steps counts more steps: the rule of run()."""
     args = ["run", str(ROOT / "examples/jelly.toml"), "--out", str(tmp_path), "--no-progress"]
     assert main(args + ["--steps", "3"]) == 0
-    assert main(args + ["--steps", "6", "--resume"]) == 0
+    assert main(args + ["--until-step", "6", "--resume"]) == 0
+    assert main(args + ["--until-step", "6", "--resume"]) == 0  # already there: no step
+    assert main(args + ["--steps", "2", "--resume"]) == 0
     rows = (tmp_path / "diagnostics.csv").read_text().splitlines()
-    assert [r.split(",")[0] for r in rows[1:]] == ["0", "3", "6"]
+    assert [r.split(",")[0] for r in rows[1:]] == ["0", "3", "6", "8"]
+
+
+def test_run_counts_steps_more_and_until_step_as_a_total_and_takes_one_stop():
+    sim = Simulation(Scene.from_toml(ROOT / "examples/jelly.toml"))
+    sim.run(steps=3)
+    sim.run(steps=3)
+    assert sim.step_count == 6
+    sim.run(until_step=7)
+    sim.run(until_step=7)
+    assert sim.step_count == 7
+    for stops in ({"steps": 1, "t_end": 1.0}, {"steps": 1, "until_step": 9}, {"until_step": 9, "t_end": 1.0}):
+        with pytest.raises(ArgumentError, match="one of steps"):
+            sim.run(**stops)
+    assert sim.step_count == 7
 
 
 def test_cli_reports_bad_scene_with_exit_code_2(tmp_path):

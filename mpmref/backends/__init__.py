@@ -23,7 +23,8 @@ from functools import lru_cache
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from ..errors import BackendError
+from ..errors import BackendError, NotImplementedByBackend
+from .capabilities import declared, declined
 
 #: the built-in backends
 BACKENDS = ("numpy", "numba")
@@ -127,6 +128,7 @@ def make_backend(reference, scene):
     for an unknown name, a module or attribute that cannot be imported, and an object made for another scene).
     """
     found = resolve(reference)
+    refuse_unimplemented(found, label(reference), scene)
     if _is_backend_object(found):
         backend = found
         made_for = getattr(backend, "scene", None)
@@ -134,32 +136,54 @@ def make_backend(reference, scene):
             raise BackendError(f"backend {label(reference)}: this object was made for another scene "
                                f"({made_for.name!r}); give a factory f(scene) -> backend instead")
     elif callable(found):
-        backend = found(scene)
+        try:
+            backend = found(scene)
+        except NotImplementedError as exc:
+            raise NotImplementedByBackend(label(reference), scene.name, [declined(exc)]) from None
     else:
         raise BackendError(f"backend {label(reference)}: a {type(found).__name__} is neither a factory "
                            "f(scene) -> backend nor a backend object")
     return checked(backend, label(reference), scene)
 
 
+def implements(reference):
+    """What the backend ``reference`` names declares it implements (:class:`.capabilities.Implements`; everything
+    if it declares nothing)."""
+    return declared(resolve(reference))
+
+
+def refuse_unimplemented(found, name, scene):
+    """:class:`~mpmref.errors.NotImplementedByBackend` if the backend, class or factory ``found`` declares that it
+    does not implement something ``scene`` needs (:meth:`.capabilities.Implements.missing`)."""
+    reasons = declared(found).missing(scene)
+    if reasons:
+        raise NotImplementedByBackend(name, scene.name, reasons)
+
+
 def checked(backend, name, scene=None):
     """``backend`` if it has every stage ``scene`` (default: its own ``scene``) needs, each accepting the
     arguments the steppers pass (:func:`.base.required_calls`); :class:`BackendError` naming each missing or
-    incompatible stage with its expected signature otherwise."""
-    from .base import required_calls, stage_signature
+    incompatible stage with its expected signature otherwise: :class:`~mpmref.errors.NotImplementedByBackend` when
+    what is missing is only what some scenes need (its declaration, the stages of asynchronous stepping or CPIC)."""
+    from .base import BACKEND_STAGES, required_calls, stage_signature
 
     scene = scene if scene is not None else backend.scene
-    problems = []
+    refuse_unimplemented(backend, name, scene)
+    problems, optional = [], []
     for stage, (positional, keywords) in required_calls(scene).items():
         method = getattr(backend, stage, None)
+        every_scene = stage in BACKEND_STAGES + ("running",) and not keywords
         if not callable(method):
-            problems.append(f"lacks the stage {stage_signature(stage)}")
+            (problems if every_scene else optional).append(f"lacks the stage {stage_signature(stage)}")
         elif not _accepts(method, positional, keywords):
-            problems.append(f"has a stage {stage} that does not accept the steppers' {positional} positional "
-                            f"argument(s){' and ' + ', '.join(keywords) if keywords else ''}: expected "
-                            f"{stage_signature(stage)}")
+            (problems if every_scene else optional).append(
+                f"has a stage {stage} that does not accept the steppers' {positional} positional argument(s)"
+                f"{' and ' + ', '.join(keywords) if keywords else ''}: expected {stage_signature(stage)}")
     if problems:
-        raise BackendError(f"backend {name!r} {'; '.join(problems)} (needed by scene {scene.name!r}; the contract: "
-                           "mpmref.backends.base, docs/checking_your_code.md)")
+        raise BackendError(f"backend {name!r} {'; '.join(problems + optional)} (needed by scene {scene.name!r}; the "
+                           "contract: mpmref.backends.base, docs/checking_your_code.md)")
+    if optional:  # stages only asynchronous or CPIC scenes need: the backend does not implement those
+        raise NotImplementedByBackend(name, scene.name, optional)
     return backend
 
 

@@ -233,20 +233,24 @@ class Simulation:
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
-    def run(self, steps=None, t_end=None, progress=False, record=False):
-        """Run until ``steps`` more steps are done or time ``t_end`` is reached (default: the scene's).
+    def run(self, steps=None, until_step=None, t_end=None, progress=False, record=False):
+        """Run ``steps`` more steps, or until step ``until_step`` or time ``t_end`` (at most one of the three; default:
+        the scene's ``time.steps`` or ``time.t_end``).
+
+        One rule, the command line's too (``mpmref run --steps | --until-step | --t-end``): ``steps`` counts the
+        steps to take now, ``until_step`` is the step count to stop at (a total, like the scene's ``time.steps``,
+        so that a resumed run ends where the uninterrupted one does) and ``t_end`` the simulated time to stop at.
+        ``run(steps=3)`` twice ends at step 6; ``run(until_step=3)`` twice ends at step 3.
 
         When the simulation has an output folder, writes a frame (and the checkpoint) every ``scene.output.every``
         steps and a row of ``diagnostics.csv`` every ``scene.output.diagnostics_every`` steps, both also at the
         start and the end. Returns a summary dict (steps, wall time, particle-steps/s, drifts); with ``record``, its
         ``"series"`` holds the diagnostics rows of this run at the same cadence (its first state, every
-        ``diagnostics_every`` steps, its last state), with or without an output folder. Negative ``steps`` or a
-        ``t_end`` before the current time (or not finite) raise :class:`~mpmref.errors.ArgumentError` (a
-        ``ValueError``) before any work.
+        ``diagnostics_every`` steps, its last state), with or without an output folder. Negative ``steps`` or
+        ``until_step``, a ``t_end`` before the current time (or not finite), or two stops at once raise
+        :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
         """
-        steps = None if steps is None else arguments.step_count(steps)
-        t_end = None if t_end is None else arguments.end_time(t_end, self.time)
-        steps, t_end = self._resolve_stop(steps, t_end)
+        steps, t_end = self._resolve_stop(*arguments.stop(steps, until_step, t_end, self.step_count, self.time))
         first = self.diagnostics()
         series = [first] if record else None
         if self.output is not None and self.step_count == 0 and not self.output.rows:
