@@ -196,7 +196,8 @@ def index_html(meta, runs, orders, figures, out):
     verdict = (f"<div class='verdict {'pass' if ok else 'fail'}'><strong>{len(runs) - len(failed)} of {len(runs)} "
                f"runs finished</strong> — {reused} reused from an earlier study, {len(failed)} failed; "
                f"{len(orders)} orders measured.</div>")
-    settings = "".join(f"<li>{e(k)}: {e(_setting(v))}</li>" for k, v in meta.items() if k not in ("machine", "vary"))
+    settings = "".join(f"<li>{e(k)}: {e(_setting(v))}</li>" for k, v in meta.items()
+                       if k not in ("machine", "vary", "same_computation"))
     machine = "".join(f"<li>{e(k)}: {e(str(v))}</li>" for k, v in meta["machine"].items())
     vary = "; ".join(f"<code>{e(':'.join(v['keys']))}</code> = "
                      f"{e(', '.join(':'.join(map(str, level)) for level in v['levels']))}"
@@ -206,6 +207,7 @@ def index_html(meta, runs, orders, figures, out):
             f"Also as <a href='results.json'>results.json</a> and <a href='results.csv'>results.csv</a>.</p>"
             f"<details class='meta'><summary>Settings</summary><ul>{settings}</ul></details>"
             f"<details class='meta'><summary>Machine</summary><ul>{machine}</ul></details>"
+            f"{_same_html(meta.get('same_computation', []))}"
             f"{_failures_html(failed)}<h2 id='orders'>Observed orders</h2>{_orders_html(orders)}"
             f"<h2 id='figures'>Figures</h2><div class='figures'>{_figures_html(figures, out)}</div>"
             f"<h2 id='runs'>Runs</h2>{_runs_html(runs)}")
@@ -219,6 +221,14 @@ def _setting(value):
     if isinstance(value, list):
         return ", ".join(map(str, value)) or "none"
     return "none" if value is None else str(value)
+
+
+def _same_html(messages):
+    """The warning that varied values make the same computation (their runs' numbers are equal)."""
+    if not messages:
+        return ""
+    items = "".join(f"<li>{e(m)}</li>" for m in messages)
+    return f"<div class='verdict fail'><strong>The same computation, run more than once</strong><ul>{items}</ul></div>"
 
 
 def _failures_html(failed):
