@@ -23,7 +23,8 @@ from mpmref.scene.builder import read_scene_file
 from verification import convergence as case
 from verification.framework.executor import Executor
 from verification.study import Variation, make_plan, parse_vary, run_study
-from verification.study.orders import order, richardson
+from verification.study.orders import observed_orders, order, richardson
+from verification.study.report import run_names
 from verification.study.variations import assign, combinations, parse_value
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -61,6 +62,33 @@ def test_the_jelly_study_exits_0_and_writes_every_output(jelly_study):
     assert {"order_energy_change.png", "energy_change.png", "drifts.png", "ledger.png"} <= {
         p.name for p in out.glob("*.png")}
     assert_every_figure_has_a_caption(out)
+
+
+def test_the_report_fits_the_page(jelly_study):
+    """Each figure is at most the width a figure gets on the page (two side by side: about 600 pixels, so its text
+    reads at its size); each runs' table has the parameters and at most the nine shown metrics and the files, the
+    ledger's terms in a table of their own, and its headers may wrap at underscores."""
+    from PIL import Image
+
+    from verification.study.report import WIDTH
+
+    _, out, _ = jelly_study
+    for png in out.glob("*.png"):
+        with Image.open(png) as image:
+            assert image.width <= 1.15 * WIDTH * 110, f"{png.name} is {image.width} pixels wide"
+    page = (out / "index.html").read_text()
+    runs = page.split("<h2 id='runs'>", 1)[1]
+    headers = [table.split("</tr>", 1)[0].count("<th>") for table in runs.split("<table>")[1:]]
+    assert headers == [3 + 9 + 1, 3 + 7]                    # the drifts and timings; the ledger's seven terms
+    assert "ledger_<wbr>p2g_<wbr>transfer" in runs and "The energy ledger at the end" in runs
+
+
+def test_runs_are_named_by_what_tells_them_apart():
+    runs = [{"params": {"grid.cells": c, "method.scheme": "apic", "method.force": f}} for c in (16, 32)
+            for f in ("mls", "classic")]
+    names, shared = run_names(runs)
+    assert names[1] == "grid.cells=16, method.force=classic" and shared == "every run: method.scheme=apic"
+    assert run_names(runs[:1]) == (["grid.cells=16, method.scheme=apic, method.force=mls"], None)
 
 
 def test_the_orders_are_measured_per_force_over_the_cells(jelly_study):
@@ -177,6 +205,24 @@ def test_richardson_says_why_it_has_no_estimate():
     assert "not monotone" in richardson(np.array([0.1, 0.05, 0.025]), np.array([1.0, 1.2, 1.1]))["note"]
     assert "agree exactly" in richardson(np.array([0.1, 0.05, 0.025]), np.array([1.0, 1.1, 1.1]))["note"]
     assert "three levels" in richardson(np.array([0.1, 0.05]), np.array([1.0, 1.1]))["note"]
+
+
+def test_a_negative_limit_of_a_measure_that_cannot_be_negative_is_not_resolved_and_says_why():
+    """q = 0.7, 0.4, 0.15 on h halving: p_R = log2(0.3 / 0.25) = 0.263 and q_R = 0.15 - 0.25 / (2^p_R - 1) = -1.1.
+    An energy excursion (>= 0) cannot have that limit: none, with a note giving it and the finest value; the same
+    values of a signed measure (the energy change) keep it."""
+    runs = [{"params": {"grid.cells": c}, "abscissa": {"grid.cells": ("Δx", 1.0 / c)}, "exact": {},
+             "metrics": {"energy_excursion": q, "energy_change": q}} for c, q in ((16, 0.7), (32, 0.4), (64, 0.15))]
+    rows = {r["measure"]: r for r in observed_orders(runs, [Variation.of("grid.cells", [16, 32, 64])],
+                                                       ["energy_change", "energy_excursion"], np.finfo(float).eps)}
+    limit = 0.15 - 0.25 / (1.2 - 1.0)
+    assert rows["energy_change"]["extrapolated"] == pytest.approx(limit, rel=1e-12) and limit < 0
+    excursion = rows["energy_excursion"]
+    assert math.isnan(excursion["extrapolated"])
+    assert excursion["richardson"] == pytest.approx(math.log2(1.2), rel=1e-12)     # the order is still measured
+    assert f"limit, {limit:.3g}, is negative, which energy_excursion (>= 0) cannot be" in excursion["note"]
+    assert "the finest value, 0.15, is smaller than the extrapolation's estimate of its error, 1.25" in \
+        excursion["note"]
 
 
 def test_a_drift_at_round_off_or_levels_that_agree_to_round_off_get_no_order():
@@ -360,14 +406,16 @@ def test_the_chapter_documents_every_option_and_shows_the_scene_file_it_studies(
 
 @pytest.mark.slow
 def test_the_chapters_four_grid_convergence_study_reads_as_the_chapter_says(tmp_path):
-    """docs/studying_your_scene.md, "A convergence study": the energy excursion is first order by Richardson's
-    estimate while the fit against the finest run reads high; the energy change at the end time gives estimates
-    that disagree once 128 cells are added; the radius of gyration is not monotone."""
+    """docs/studying_your_scene.md, "A convergence study": the energy excursion is first order by Richardson's estimate
+    while the fit against the finest run reads high, and its extrapolated limit (negative) is not resolved; the
+    energy change at the end time gives estimates that disagree once 128 cells are added; the radius of gyration is
+    not monotone."""
     study = run_study(ROOT / "docs" / "breathing_disk.toml", {"grid.cells": [16, 32, 64, 128]}, out=tmp_path,
                       measures=["verification.study.measures:shape"], ledger=False)
     order = {row["measure"]: row for row in study["orders"]}
     excursion, change = order["energy_excursion"], order["energy_change"]
     assert abs(excursion["richardson"] - 1.0) < 0.2 and excursion["order"] > excursion["richardson"] + 0.2
+    assert math.isnan(excursion["extrapolated"]) and "is negative, which energy_excursion" in excursion["note"]
     assert abs(change["order"] - change["richardson"]) > 1.0
     assert "not monotone" in order["radius_of_gyration"]["note"]
 
