@@ -5,6 +5,11 @@ this folder are the chapters, read by MyST-Parser as they are; ``api.md`` docume
 autodoc and napoleon; ``sphinx.ext.viewcode`` renders the source with line numbers, and the local
 extension ``_ext/mpmref_links.py`` turns each link whose text is a qualified name into a link to that
 object's first line in the rendered source.
+
+The equations are typeset by MathJax from the site's own copy: ``sphinx-mathjax-offline`` (the ``docs``
+extra) copies MathJax 3 (its scripts and fonts) into ``_static/mathjax/`` and points ``mathjax_path`` at
+it, so that a built page loads nothing from the network and reads the same on a machine without one
+(``tests/test_docs_site.py`` checks both in a headless browser).
 """
 
 import sys
@@ -26,6 +31,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.viewcode",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",        # MathJax bundled into the site (_static/mathjax), not fetched from a CDN
     "mpmref_links",
     "mpmref_figures",
 ]

@@ -18,7 +18,10 @@ import ast
 import importlib
 import importlib.util
 import inspect
+import json
+import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -91,19 +94,114 @@ def test_the_build_resolves_code_links_to_definitions_and_refuses_missing_ones()
                      ROOT / "mpmref" / "physics" / "materials.py") is None
 
 
-@pytest.mark.skipif(not HAS_SPHINX, reason="the docs extra is not installed: pip install -e '.[docs]'")
-def test_site_builds_with_warnings_as_errors(tmp_path):
-    out = tmp_path / "html"
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """The site built once by ``docs/build.py`` (warnings as errors) for every test of the build below."""
+    if not HAS_SPHINX:
+        pytest.skip("the docs extra is not installed: pip install -e '.[docs]'")
+    out = tmp_path_factory.mktemp("site") / "html"
     run = subprocess.run([sys.executable, str(DOCS / "build.py"), "--no-open", "--out", str(out)],
                          capture_output=True, text=True, cwd=ROOT)
     assert run.returncode == 0, run.stdout + run.stderr
+    return out
+
+
+def test_site_builds_with_warnings_as_errors(site):
     # one equation's implementation link lands on the function's line in the rendered source
-    cycle = (out / "mls_vs_classic.html").read_text(encoding="utf-8")
+    cycle = (site / "mls_vs_classic.html").read_text(encoding="utf-8")
     assert 'href="./_modules/mpmref/backends/numpy/transfers.html#mls_gradient_weight"' in cycle
-    source = (out / "_modules" / "mpmref" / "backends" / "numpy" / "transfers.html").read_text(encoding="utf-8")
+    source = (site / "_modules" / "mpmref" / "backends" / "numpy" / "transfers.html").read_text(encoding="utf-8")
     assert 'id="mls_gradient_weight"' in source
     # and back: the function's docstring links to the section that derives it, in one click
     assert '<a href="../../../../mls_vs_classic.html#two-gradient-weights">' in source
+
+
+# ------------------------------------------------------------------------------------ the site offline
+#: a URL that leaves the machine: http(s) or protocol-relative (``//host/...``, which a page served by http(s) follows)
+REMOTE = r"""(?:https?:)?//[^\s"'<>)\\]+"""
+#: in HTML, or in markup that a script writes: a tag whose source loads when the page is shown
+REMOTE_TAG = re.compile(r"<(script|link|img|iframe|source|embed|object|audio|video|track)\b[^>]*?"
+                        r"\b(?:src|href|data|srcset|poster)\s*=\s*\\?[\"']?(" + REMOTE + ")", re.IGNORECASE)
+#: in CSS (a file, a <style> block or a string in a script): an imported sheet or a fetched font or image
+REMOTE_CSS = re.compile(r"(@import|url\()\s*(?:url\()?\s*\\?[\"']?(" + REMOTE + ")", re.IGNORECASE)
+
+
+def remote_sources(text):
+    """``[(what, url)]`` for each thing in ``text`` (HTML, CSS or JavaScript) that a browser would fetch remotely.
+
+    A remote source is a ``script``/``link``/``img``/``iframe``/... tag whose ``src``/``href``/... is an
+    http(s) or protocol-relative URL, or a CSS ``@import``/``url(...)`` of one. URLs that are names and not
+    loads (an XML namespace such as ``http://www.w3.org/2000/svg``, an ``<a href>`` the reader may follow)
+    are not sources.
+    """
+    return [(m.group(1).lower(), m.group(2)) for pattern in (REMOTE_TAG, REMOTE_CSS) for m in pattern.finditer(text)]
+
+
+def test_the_remote_source_scan_finds_what_loads_and_only_that():
+    assert remote_sources('<script defer src="https://cdn.example.org/mathjax/tex.js"></script>') == \
+        [("script", "https://cdn.example.org/mathjax/tex.js")]
+    assert remote_sources("<link rel='stylesheet' href='//fonts.example.org/a.css'>") == \
+        [("link", "//fonts.example.org/a.css")]
+    assert remote_sources('s.innerHTML = "<img src=\\"http://example.org/x.png\\">"') == \
+        [("img", "http://example.org/x.png")]
+    assert remote_sources('@import url("https://fonts.example.org/css?family=A");') == \
+        [("@import", "https://fonts.example.org/css?family=A")]
+    assert remote_sources("src: url(https://example.org/font.woff) format('woff');") == \
+        [("url(", "https://example.org/font.woff")]
+    assert remote_sources('<a href="https://www.mathjax.org">MathJax</a>') == []
+    assert remote_sources('e.createElementNS("http://www.w3.org/2000/svg", "rect")') == []
+    assert remote_sources('<script src="_static/mathjax/tex-chtml.js"></script><img src="../x.png">') == []
+
+
+def test_no_built_page_loads_anything_remote(site):
+    """Every built HTML, CSS and JavaScript file: no remote source (MathJax comes with the site, _static/mathjax)."""
+    files = [p for p in site.rglob("*") if p.suffix in (".html", ".css", ".js")]
+    assert len(files) > 100 and (site / "_static" / "mathjax" / "tex-chtml.js").exists()
+    hits = [f"{path.relative_to(site)}: {what} {url}" for path in files
+            for what, url in remote_sources(path.read_text(encoding="utf-8", errors="replace"))]
+    assert not hits, "\n".join(hits[:20])
+
+
+def chromium():
+    """Debian's chromium (.ci/run installs it); a skip where it is missing, a failure in CI."""
+    path = shutil.which("chromium")
+    if path is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI has no chromium: .ci/run installs it (apt-get install chromium)")
+        pytest.skip("no headless browser to open the site: apt-get install chromium (Debian's package)")
+    return path
+
+
+def open_offline(page, profile, netlog):
+    """The DOM of ``page`` after its scripts ran in headless chromium, with every host name unresolvable."""
+    run = subprocess.run([chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                          "--disable-component-update", "--disable-sync", "--no-first-run",
+                          f"--user-data-dir={profile}", "--host-resolver-rules=MAP * ~NOTFOUND",
+                          f"--log-net-log={netlog}", "--virtual-time-budget=20000", "--dump-dom", page.as_uri()],
+                         capture_output=True, text=True, timeout=180)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return run.stdout
+
+
+def requests_by_pages(netlog):
+    """The URLs that a page asked the network for (the browser's own requests have no origin)."""
+    events = json.loads(netlog.read_text(encoding="utf-8"))["events"]
+    return sorted({e["params"]["url"] for e in events
+                   if "initiator" in e.get("params", {}) and e["params"]["initiator"] != "not an origin"})
+
+
+def test_an_equation_is_typeset_in_a_headless_browser_without_network(site, tmp_path):
+    """The MPM cycle chapter (inline, display and amsmath equations) opened in chromium with no network:
+    MathJax typesets every equation (one ``mjx-container`` per math element, no TeX error, no raw ``\\[``
+    or ``\\(`` left) and the page asks the network for nothing."""
+    page = site / "mpm_cycle.html"
+    maths = len(re.findall(r'class="math notranslate nohighlight"', page.read_text(encoding="utf-8")))
+    assert maths > 100
+    dom = open_offline(page, tmp_path / "profile", tmp_path / "netlog.json")
+    assert dom.count("<mjx-container") == maths, "not every equation was typeset"
+    assert "<mjx-merror" not in dom, "MathJax reported a TeX error"
+    assert "\\[" not in dom and "\\(" not in dom, "raw TeX source left on the page"
+    assert requests_by_pages(tmp_path / "netlog.json") == []
 
 
 # ------------------------------------------------------------------------------------ equation links

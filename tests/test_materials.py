@@ -6,6 +6,8 @@ closed-form formula written out here (Lamé parameters, wave speeds, mpm88's pre
 """
 
 import math
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -396,3 +398,33 @@ def test_polar_rotation_does_not_modify_input():
     F0 = F.copy()
     polar_rotation(F)
     np.testing.assert_array_equal(F, F0)
+
+
+# -------------------------------------------------------------------------- an inverted or collapsed particle
+def test_an_inverted_or_collapsed_particle_has_no_log_and_numpy_says_nothing():
+    """ln J is not defined for J <= 0: the Neo-Hookean stress and energy and the γ = 1 fluid's energy are NaN (J < 0)
+    or infinite (J = 0) there, as the Numba backend's are, and NumPy's RuntimeWarning ("invalid value encountered in
+    log") does not reach the user: the run reports the non-finite state itself."""
+    inverted = np.array([[[-1.0, 0.0], [0.0, 1.0]], [[0.0, 0.0], [0.0, 1.0]], [[1.1, 0.0], [0.0, 0.9]]])
+    fluid = WeaklyCompressibleFluid(K=400.0, gamma=1.0, rho=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        tau = NeoHookean(E=E, nu=NU, rho=RHO).kirchhoff_stress(inverted)
+        energy = NeoHookean(E=E, nu=NU, rho=RHO).energy_density(inverted)
+        fluid_energy = fluid.energy_density(np.array([-0.5, 0.0, 0.99]))
+    assert np.isnan(tau[0]).any() and not np.isfinite(tau[1]).all() and np.isfinite(tau[2]).all()
+    assert np.isnan(energy[0]) and not np.isfinite(energy[1]) and np.isfinite(energy[2])
+    assert np.isnan(fluid_energy[0]) and not np.isfinite(fluid_energy[1]) and np.isfinite(fluid_energy[2])
+
+
+def test_a_neo_hookean_scene_that_blows_up_stops_with_its_own_error_only(tmp_path, capsys):
+    """The docs' rubber disk (Neo-Hookean) at Δt = 0.005, a CFL number of 6: its particles invert and the run stops
+    with exit status 3 and a NonFiniteError; standard error has the run's own lines and no NumPy warning."""
+    from mpmref.cli import main
+
+    root = Path(__file__).resolve().parent.parent
+    scene = tmp_path / "disk.toml"
+    scene.write_text((root / "docs" / "breathing_disk.toml").read_text().replace("cfl = 0.4", "dt = 0.005"))
+    assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 3
+    err = capsys.readouterr().err
+    assert "NonFiniteError" in err and "encountered" not in err, err

@@ -102,5 +102,5 @@ def test_files_that_are_not_utf8_toml_are_scene_errors(tmp_path, content, expect
 
 
 def test_a_directory_is_not_a_scene(tmp_path):
-    with pytest.raises(SceneError, match="not a directory"):
+    with pytest.raises(SceneError, match="is a folder, not a TOML file"):
         Scene.from_toml(tmp_path)

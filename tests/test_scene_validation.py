@@ -146,9 +146,18 @@ def test_invalid_toml_file(tmp_path):
     assert info.value.field == "scene file" and "valid TOML" in info.value.allowed
 
 
-def test_missing_scene_file(tmp_path):
-    with pytest.raises(SceneError, match="existing TOML file"):
+def test_missing_scene_file(tmp_path, monkeypatch):
+    """The message says the file does not exist and names it (a relative path also as it resolved); the error still
+    names the field and what is allowed, as every scene error does."""
+    with pytest.raises(SceneError) as info:
         Scene.from_toml(tmp_path / "nope.toml")
+    assert str(info.value) == f"scene file '{tmp_path / 'nope.toml'}' does not exist"
+    assert info.value.field == "scene file" and info.value.allowed == "an existing TOML file"
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SceneError, match=r"^scene file 'nope.toml' does not exist \(no such file: .*nope.toml\)$"):
+        Scene.from_toml("nope.toml")
+    with pytest.raises(SceneError, match="is a folder, not a TOML file"):
+        Scene.from_toml(tmp_path)
 
 
 def test_toml_key_after_bodies_table_is_reported_as_body_key(tmp_path):

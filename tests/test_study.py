@@ -23,13 +23,16 @@ from mpmref.scene.builder import read_scene_file
 from verification import convergence as case
 from verification.framework.executor import Executor
 from verification.study import Variation, make_plan, parse_vary, run_study
-from verification.study.orders import order, richardson
+from verification.study.orders import observed_orders, order, richardson
+from verification.study.report import run_names
 from verification.study.variations import assign, combinations, parse_value
 
 ROOT = Path(__file__).resolve().parent.parent
 JELLY = ROOT / "examples" / "jelly.toml"
 T_END = 0.01
-JELLY_ARGS = ["--vary", "grid.cells=16,32,64", "--vary", "method.scheme=apic,mls", "--t-end", str(T_END)]
+JELLY_ARGS = ["--vary", "grid.cells=16,32,64", "--vary", "method.scheme=apic", "--vary", "method.force=mls,classic",
+              "--t-end", str(T_END)]
+JELLY_VARY = {"grid.cells": [16, 32, 64], "method.scheme": ["apic"], "method.force": ["mls", "classic"]}
 
 
 @pytest.fixture(scope="module")
@@ -45,15 +48,15 @@ def test_the_jelly_study_exits_0_and_writes_every_output(jelly_study):
     code, out, results = jelly_study
     assert code == 0
     assert results["schema"] == "mpmref-study/1" and len(results["runs"]) == 6
-    assert [r["params"] for r in results["runs"]] == [{"grid.cells": c, "method.scheme": s}
-                                                      for c in (16, 32, 64) for s in ("apic", "mls")]
+    assert [r["params"] for r in results["runs"]] == [{"grid.cells": c, "method.scheme": "apic", "method.force": f}
+                                                      for c in (16, 32, 64) for f in ("mls", "classic")]
     for run in results["runs"]:
         assert run["error"] is None and (out / run["result"]).is_file()
         assert {"energy_change", "energy_excursion", "momentum_drift", "angular_momentum_drift", "mass_drift",
                 "final_time", "steps", "wall_s", "particle_steps_per_s", "ledger_integration"} <= set(run["metrics"])
         assert run["metrics"]["final_time"] == pytest.approx(T_END, rel=1e-12)
     rows = (out / "results.csv").read_text().splitlines()
-    assert rows[0].startswith("id,grid.cells,method.scheme,energy_change") and len(rows) == 7
+    assert rows[0].startswith("id,grid.cells,method.scheme,method.force,energy_change") and len(rows) == 7
     page = (out / "index.html").read_text()
     assert "Observed orders" in page and "order_energy_change.png" in page and "results.json" in page
     assert {"order_energy_change.png", "energy_change.png", "drifts.png", "ledger.png"} <= {
@@ -61,10 +64,37 @@ def test_the_jelly_study_exits_0_and_writes_every_output(jelly_study):
     assert_every_figure_has_a_caption(out)
 
 
-def test_the_orders_are_measured_per_scheme_over_the_cells(jelly_study):
+def test_the_report_fits_the_page(jelly_study):
+    """Each figure is at most the width a figure gets on the page (two side by side: about 600 pixels, so its text
+    reads at its size); each runs' table has the parameters and at most the nine shown metrics and the files, the
+    ledger's terms in a table of their own, and its headers may wrap at underscores."""
+    from PIL import Image
+
+    from verification.study.report import WIDTH
+
+    _, out, _ = jelly_study
+    for png in out.glob("*.png"):
+        with Image.open(png) as image:
+            assert image.width <= 1.15 * WIDTH * 110, f"{png.name} is {image.width} pixels wide"
+    page = (out / "index.html").read_text()
+    runs = page.split("<h2 id='runs'>", 1)[1]
+    headers = [table.split("</tr>", 1)[0].count("<th>") for table in runs.split("<table>")[1:]]
+    assert headers == [3 + 9 + 1, 3 + 7]                    # the drifts and timings; the ledger's seven terms
+    assert "ledger_<wbr>p2g_<wbr>transfer" in runs and "The energy ledger at the end" in runs
+
+
+def test_runs_are_named_by_what_tells_them_apart():
+    runs = [{"params": {"grid.cells": c, "method.scheme": "apic", "method.force": f}} for c in (16, 32)
+            for f in ("mls", "classic")]
+    names, shared = run_names(runs)
+    assert names[1] == "grid.cells=16, method.force=classic" and shared == "every run: method.scheme=apic"
+    assert run_names(runs[:1]) == (["grid.cells=16, method.scheme=apic, method.force=mls"], None)
+
+
+def test_the_orders_are_measured_per_force_over_the_cells(jelly_study):
     _, _, results = jelly_study
     rows = [r for r in results["orders"] if r["measure"] == "energy_change"]
-    assert [r["fixed"] for r in rows] == [{"method.scheme": "apic"}, {"method.scheme": "mls"}]
+    assert [r["fixed"] for r in rows] == [{"method.scheme": "apic", "method.force": f} for f in ("mls", "classic")]
     for row in rows:
         assert row["key"] == "grid.cells" and row["abscissa"] == "Δx" and row["against"] == "finest run"
         assert row["h"] == [1 / 16, 1 / 32, 1 / 64]
@@ -98,13 +128,13 @@ def direct_metrics(data):
 
 @pytest.mark.parametrize("index", [0, 3])
 def test_each_runs_metrics_are_those_of_the_scene_run_directly_bit_for_bit(jelly_study, index):
-    """The jelly with grid.cells and method.scheme set by hand, the study's output settings (a row every 10
-    steps, the ledger), run by Simulation in this process: every metric equal to the last bit."""
+    """The jelly with grid.cells, method.scheme and method.force set by hand, the study's output settings (a row
+    every 10 steps, the ledger), run by Simulation in this process: every metric equal to the last bit."""
     _, _, results = jelly_study
     run = results["runs"][index]
     data = read_scene_file(JELLY)
     data["grid"]["cells"] = run["params"]["grid.cells"]
-    data["method"]["scheme"] = run["params"]["method.scheme"]
+    data["method"].update(scheme=run["params"]["method.scheme"], force=run["params"]["method.force"])
     data["output"].update(diagnostics_every=10, energy_ledger=True)
     expected = direct_metrics(data)
     assert {k: run["metrics"][k] for k in expected} == expected
@@ -112,13 +142,13 @@ def test_each_runs_metrics_are_those_of_the_scene_run_directly_bit_for_bit(jelly
 
 def test_the_same_study_again_reuses_every_run_and_overwrite_runs_them_again(jelly_study, tmp_path, capsys):
     _, out, results = jelly_study
-    again = run_study(JELLY, {"grid.cells": [16, 32, 64], "method.scheme": ["apic", "mls"]}, T_END, out=tmp_path)
+    again = run_study(JELLY, JELLY_VARY, T_END, out=tmp_path)
     assert not any(r["reused"] for r in again["runs"])
     assert [r["id"] for r in again["runs"]] == [r["id"] for r in results["runs"]]   # the same identities
     strip = lambda runs: [{k: v for k, v in r["metrics"].items() if k not in ("wall_s", "particle_steps_per_s")}
                           for r in runs]
     assert strip(again["runs"]) == strip(results["runs"])        # and the same numbers, in another process
-    reused = run_study(JELLY, {"grid.cells": [16, 32, 64], "method.scheme": ["apic", "mls"]}, T_END, out=tmp_path)
+    reused = run_study(JELLY, JELLY_VARY, T_END, out=tmp_path)
     assert all(r["reused"] for r in reused["runs"]) and reused["runs"][0]["metrics"] == again["runs"][0]["metrics"]
     redone = run_study(JELLY, {"grid.cells": [16]}, T_END, out=tmp_path, overwrite=True)
     assert not redone["runs"][0]["reused"]
@@ -175,6 +205,24 @@ def test_richardson_says_why_it_has_no_estimate():
     assert "not monotone" in richardson(np.array([0.1, 0.05, 0.025]), np.array([1.0, 1.2, 1.1]))["note"]
     assert "agree exactly" in richardson(np.array([0.1, 0.05, 0.025]), np.array([1.0, 1.1, 1.1]))["note"]
     assert "three levels" in richardson(np.array([0.1, 0.05]), np.array([1.0, 1.1]))["note"]
+
+
+def test_a_negative_limit_of_a_measure_that_cannot_be_negative_is_not_resolved_and_says_why():
+    """q = 0.7, 0.4, 0.15 on h halving: p_R = log2(0.3 / 0.25) = 0.263 and q_R = 0.15 - 0.25 / (2^p_R - 1) = -1.1.
+    An energy excursion (>= 0) cannot have that limit: none, with a note giving it and the finest value; the same
+    values of a signed measure (the energy change) keep it."""
+    runs = [{"params": {"grid.cells": c}, "abscissa": {"grid.cells": ("Δx", 1.0 / c)}, "exact": {},
+             "metrics": {"energy_excursion": q, "energy_change": q}} for c, q in ((16, 0.7), (32, 0.4), (64, 0.15))]
+    rows = {r["measure"]: r for r in observed_orders(runs, [Variation.of("grid.cells", [16, 32, 64])],
+                                                       ["energy_change", "energy_excursion"], np.finfo(float).eps)}
+    limit = 0.15 - 0.25 / (1.2 - 1.0)
+    assert rows["energy_change"]["extrapolated"] == pytest.approx(limit, rel=1e-12) and limit < 0
+    excursion = rows["energy_excursion"]
+    assert math.isnan(excursion["extrapolated"])
+    assert excursion["richardson"] == pytest.approx(math.log2(1.2), rel=1e-12)     # the order is still measured
+    assert f"limit, {limit:.3g}, is negative, which energy_excursion (>= 0) cannot be" in excursion["note"]
+    assert "the finest value, 0.15, is smaller than the extrapolation's estimate of its error, 1.25" in \
+        excursion["note"]
 
 
 def test_a_drift_at_round_off_or_levels_that_agree_to_round_off_get_no_order():
@@ -238,6 +286,46 @@ def test_a_scene_without_an_end_time_needs_t_end(tmp_path, capsys):
     assert "t_end" in capsys.readouterr().err
 
 
+# ----------------------------------------------------------------------------------- the same computation
+def test_values_that_make_the_same_computation_are_named_before_any_run(tmp_path, capsys):
+    """``method.scheme=apic,mls``: MLS-MPM is the APIC transfer with the MLS force, the default force, so the two
+    runs are one computation: a warning on standard error before the runs, naming both values and what they
+    resolve to, repeated in results.json and index.html; their numbers are indeed equal."""
+    out = tmp_path / "same"
+    args = ["study", str(JELLY), "--vary", "grid.cells=16", "--vary", "method.scheme=apic,mls", "--t-end", "0.002",
+            "--out", str(out), "--workers", "1", "--no-progress"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert ("mpmref study: warning: method.scheme = apic and mls resolve to the same method: APIC transfer with the "
+            "MLS force") in err
+    results = json.loads((out / "results.json").read_text())
+    assert len(results["same_computation"]) == 1 and "apic and mls" in (out / "index.html").read_text()
+    apic, mls = ({k: v for k, v in r["metrics"].items() if k not in ("wall_s", "particle_steps_per_s")}
+                 for r in results["runs"])
+    assert apic == mls
+
+
+def test_values_that_change_the_computation_are_not_named(tmp_path, capsys):
+    """The MLS force against the classic one (APIC): two computations, no warning; likewise two grids."""
+    args = ["study", str(JELLY), "--vary", "grid.cells=16", "--vary", "method.scheme=apic", "--vary",
+            "method.force=mls,classic", "--t-end", "0.002", "--out", str(tmp_path), "--workers", "1", "--no-progress"]
+    assert main(args) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert json.loads((tmp_path / "results.json").read_text())["same_computation"] == []
+    assert make_plan(JELLY, {"grid.cells": [16, 32], "method.scheme": ["pic", "apic"]}, 0.01, "numpy", tmp_path).same \
+        == []
+
+
+def test_the_same_computation_is_found_by_comparing_resolved_scenes_not_names():
+    """Not only schemes: E = 5000 and 5000.0 are distinct values of one material; at every grid of the study the
+    pair is named once."""
+    plan = make_plan(JELLY, {"grid.cells": [16, 32], "materials.jelly.E": [5000, 5000.0, 6000]}, 0.01, "numpy",
+                     "unused")
+    assert plan.same == ['materials.jelly.E = 5000 and 5000.0 resolve to the same materials: {"jelly": {"type": '
+                         '"FixedCorotated", "rho": 1.0, "E": 5000.0, "nu": 0.3}}, so their runs compute the same '
+                         'numbers (vary what changes the computation, or keep one of them)']
+
+
 # ----------------------------------------------------------------------------------- failures
 def test_a_failed_run_is_reported_the_others_kept_and_a_second_study_runs_only_it(tmp_path, capsys):
     """E = 5e6 at the Δt that is stable for E = 5000 is a CFL number of 17: that run stops with an
@@ -268,13 +356,13 @@ def test_frames_are_written_per_run_and_a_plan_validates_every_combination_first
 
 # ----------------------------------------------------------------------------------- the breathing disk
 def test_the_breathing_disk_study_runs_from_its_scene_file_alone(tmp_path):
-    """The docs' spinning, breathing disk (velocity_gradient in the scene): APIC and MLS-MPM keep linear and
+    """The docs' spinning, breathing disk (velocity_gradient in the scene): PolyPIC and MLS-MPM keep linear and
     angular momentum to round-off (no gravity, open walls; Jiang et al. 2015), PIC keeps linear momentum and loses
     angular momentum at exercise 1's rate, a fraction dx^2/R^2 per step for a rigid disk of radius R (within 10 %:
     this disk deforms, and breathes by about 1 % of its radius over the run)."""
     scene = ROOT / "docs" / "breathing_disk.toml"
     assert tomllib.loads(scene.read_text())["bodies"][0]["velocity_gradient"]
-    study = run_study(scene, {"method.scheme": ["pic", "apic", "mls"], "grid.cells": [16, 32]}, 0.02,
+    study = run_study(scene, {"method.scheme": ["pic", "polypic", "mls"], "grid.cells": [16, 32]}, 0.02,
                       out=tmp_path, ledger=False, executor=Executor(workers=1))
     for run in study["runs"]:
         m = run["metrics"]
@@ -318,14 +406,16 @@ def test_the_chapter_documents_every_option_and_shows_the_scene_file_it_studies(
 
 @pytest.mark.slow
 def test_the_chapters_four_grid_convergence_study_reads_as_the_chapter_says(tmp_path):
-    """docs/studying_your_scene.md, "A convergence study": the energy excursion is first order by Richardson's
-    estimate while the fit against the finest run reads high; the energy change at the end time gives estimates
-    that disagree once 128 cells are added; the radius of gyration is not monotone."""
+    """docs/studying_your_scene.md, "A convergence study": the energy excursion is first order by Richardson's estimate
+    while the fit against the finest run reads high, and its extrapolated limit (negative) is not resolved; the
+    energy change at the end time gives estimates that disagree once 128 cells are added; the radius of gyration is
+    not monotone."""
     study = run_study(ROOT / "docs" / "breathing_disk.toml", {"grid.cells": [16, 32, 64, 128]}, out=tmp_path,
                       measures=["verification.study.measures:shape"], ledger=False)
     order = {row["measure"]: row for row in study["orders"]}
     excursion, change = order["energy_excursion"], order["energy_change"]
     assert abs(excursion["richardson"] - 1.0) < 0.2 and excursion["order"] > excursion["richardson"] + 0.2
+    assert math.isnan(excursion["extrapolated"]) and "is negative, which energy_excursion" in excursion["note"]
     assert abs(change["order"] - change["richardson"]) > 1.0
     assert "not monotone" in order["radius_of_gyration"]["note"]
 

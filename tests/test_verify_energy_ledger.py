@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import meshio
 import numpy as np
+import PIL.Image
 import pytest
 from helpers import assert_every_figure_has_a_caption
 
@@ -14,7 +15,7 @@ from mpmref.backends.numpy import backend as numpy_backend
 from mpmref.backends.numpy.transfers import wall_bands
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 from verification import energy_ledger as case
-from verification.energy_ledger import runs
+from verification.energy_ledger import reporting, runs
 from verification.framework.cli import add_parser
 from verification.framework.common import failed
 
@@ -177,6 +178,8 @@ def test_report_writes_the_split_the_figures_and_the_per_particle_terms(result, 
     paths = case.report(result, tmp_path)
     assert all(p.exists() for p in paths)
     assert_every_figure_has_a_caption(tmp_path)
+    for png in tmp_path.glob("*.png"):            # each readable where a report shows it, about 600 pixels wide
+        assert PIL.Image.open(png).width <= 1.15 * reporting.WIDTH * 110, png.name
     text = (tmp_path / "energy_ledger.md").read_text()
     assert all(f"| {r['key']} |" in text for r in result["runs"]) and "FAIL" not in text
     sand = meshio.read(last_frame(tmp_path / "vtk" / "sand"))

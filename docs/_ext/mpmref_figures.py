@@ -23,7 +23,7 @@ FIGURE_CASES = ("momentum", "energy", "convergence", "extremes", "cpic")
 #: command lines the chapter shows)
 STUDIES = (
     ("study_conservation", "The conservation study's figures",
-     {"method.scheme": ["pic", "flip", "apic", "polypic", "mls"]}, {}),
+     {"method.scheme": ["pic", "flip", "polypic", "mls"]}, {}),
     ("study_convergence", "The convergence study's figures", {"grid.cells": [16, 32, 64, 128]},
      {"measures": ["verification.study.measures:shape"], "ledger": False}),
 )

@@ -136,6 +136,16 @@ class FixedCorotated(ElasticSolid):
         return 2.0 * self.mu * (F - R) @ F.transpose(0, 2, 1) + (self.lam * (J - 1.0) * J)[:, None, None] * eye
 
 
+def log_volume_ratio(J):
+    r""":math:`\ln J` of each volume ratio ``J``: NaN for an inverted particle (:math:`J < 0`) and :math:`-\infty`
+    for a collapsed one (:math:`J = 0`), whose energy and stress are not defined, without NumPy's
+    ``RuntimeWarning`` (the Numba backend's ``log`` gives the same): the run's own check then stops it where the
+    non-finite value reaches the particles, with :class:`~mpmref.errors.NonFiniteError` naming the step and
+    particle."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.log(J)
+
+
 @dataclass(frozen=True)
 class NeoHookean(ElasticSolid):
     r"""Compressible Neo-Hookean elasticity (Bonet & Wood 2008 §6.4.3; Sifakis & Barbič 2012 §3.4).
@@ -149,7 +159,7 @@ class NeoHookean(ElasticSolid):
     """
 
     def energy_density(self, F):
-        logJ = np.log(np.linalg.det(F))
+        logJ = log_volume_ratio(np.linalg.det(F))
         d = F.shape[1]
         return 0.5 * self.mu * (np.einsum("nij,nij->n", F, F) - d) - self.mu * logJ + 0.5 * self.lam * logJ**2
 
@@ -158,9 +168,11 @@ class NeoHookean(ElasticSolid):
 
         Docs: docs/materials.md#neo-hookean, docs/mpm_cycle.md#materials
         """
-        logJ = np.log(np.linalg.det(F))
-        eye = np.eye(F.shape[1], dtype=F.dtype)
-        return self.mu * (F @ F.transpose(0, 2, 1) - eye) + (self.lam * logJ)[:, None, None] * eye
+        logJ = log_volume_ratio(np.linalg.det(F))
+        d = F.shape[1]
+        tau = self.mu * (F @ F.transpose(0, 2, 1) - np.eye(d, dtype=F.dtype))
+        tau[:, range(d), range(d)] += (self.lam * logJ)[:, None]     # on the diagonal only, as the Numba kernel
+        return tau
 
 
 @dataclass(frozen=True)
@@ -193,7 +205,7 @@ class WeaklyCompressibleFluid(Material):
 
     def energy_density(self, J):
         if self.gamma == 1.0:
-            return self.K * (J - 1.0 - np.log(J))
+            return self.K * (J - 1.0 - log_volume_ratio(J))
         g = self.gamma
         return self.K * (J ** (1.0 - g) / (g - 1.0) + J - g / (g - 1.0))
 

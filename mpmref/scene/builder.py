@@ -137,30 +137,56 @@ def read_scene_file(path):
     return data
 
 
+class SceneFileError(SceneError):
+    """A scene file that cannot be read as UTF-8 TOML: ``field`` is ``"scene file"``, ``value`` its path and
+    ``allowed`` what it must be, as for every :class:`~mpmref.errors.SceneError`; the message says what is wrong
+    with the file itself (``scene file 'disk.toml' does not exist (no such file: /home/me/disk.toml)``)."""
+
+    def __init__(self, path, problem, allowed):
+        super().__init__("scene file", str(path), allowed)
+        self.problem = problem
+
+    def __str__(self):
+        return f"scene file '{self.value}' {self.problem}"
+
+
 def _load_scene_file(path):
-    """The parsed TOML of a scene file; what is not a readable UTF-8 TOML file is a :class:`SceneError`."""
+    """The parsed TOML of a scene file; what is not a readable UTF-8 TOML file is a :class:`SceneFileError`."""
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
-        raise SceneError("scene file", str(path), "an existing TOML file") from None
+        where = "" if path.is_absolute() else f" (no such file: {path.absolute()})"
+        raise SceneFileError(path, f"does not exist{where}", "an existing TOML file") from None
     except IsADirectoryError:
-        raise SceneError("scene file", str(path), "a TOML file, not a directory") from None
+        raise SceneFileError(path, "is a folder, not a TOML file", "a TOML file, not a directory") from None
     except OSError as exc:
-        raise SceneError("scene file", str(path), f"a readable TOML file ({exc.strerror})") from None
+        raise SceneFileError(path, f"cannot be read ({exc.strerror})",
+                             f"a readable TOML file ({exc.strerror})") from None
+    return _parse_toml(path, _utf8_text(path, raw))
+
+
+def _utf8_text(path, raw):
+    """The text of a scene file's bytes ``raw``; a :class:`SceneFileError` for bytes that are not UTF-8 text."""
     if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-        raise SceneError("scene file", str(path), "a UTF-8 text file (this one is UTF-16; save it as UTF-8)")
+        raise SceneFileError(path, "is UTF-16 text: save it as UTF-8",
+                             "a UTF-8 text file (this one is UTF-16; save it as UTF-8)")
     nul = raw.find(b"\x00")
     if nul >= 0:
-        raise SceneError("scene file", str(path), f"a UTF-8 text file (byte {nul} is NUL: a binary or UTF-16 file)")
+        why = f"byte {nul} is NUL: a binary or UTF-16 file"
+        raise SceneFileError(path, f"is not UTF-8 text ({why})", f"a UTF-8 text file ({why})")
     try:
-        text = raw.decode("utf-8")
+        return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise SceneError("scene file", str(path), f"a UTF-8 text file (byte {exc.start} is not UTF-8: a binary "
-                                                  "file or another encoding)") from None
+        why = f"byte {exc.start} is not UTF-8: a binary file or another encoding"
+        raise SceneFileError(path, f"is not UTF-8 text ({why})", f"a UTF-8 text file ({why})") from None
+
+
+def _parse_toml(path, text):
+    """The TOML of a scene file's ``text``; a :class:`SceneFileError` naming the parser's complaint."""
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError("scene file", str(path), f"valid TOML ({exc})") from None
+        raise SceneFileError(path, f"is not valid TOML ({exc})", f"valid TOML ({exc})") from None
 
 
 class SceneBuilder:

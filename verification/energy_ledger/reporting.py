@@ -9,7 +9,7 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 
 from ..framework.common import Check, Finding, checks_table
-from ..framework.report import ledger_figure, pyplot, save_figure, write_series
+from ..framework.report import LEDGER_COLOURS, plot_ledger_areas, pyplot, save_figure, write_series
 from .runs import run_scale, terms_of, total_energy
 
 #: round-off of one energy, relative to the run's energy scale S (:func:`mpmref.observe.ledger.energy_scale`): each
@@ -166,18 +166,85 @@ def split_md(result):
 
 
 # --------------------------------------------------------------------------------------------- figures
-def plot_terms(result, path):
-    """One panel per run: the cumulative terms as stacked areas, the ledger's energy change and the diagnostics'."""
-    panels = [(f"{r['key']} ({r['method']})", r["t"], terms_of(r), r["ledger"][:, ASYNC_COLUMNS.index("energy_change")],
-               (r["t"][r["sampled_steps"]], total_energy(r) - total_energy(r)[0])) for r in result["runs"]]
-    return ledger_figure(panels, path, "cumulative energy [J]", cols=4, caption=(
-        "Where each run's energy went: the ledger's cumulative terms stacked above zero (energy a stage added) and "
-        "below (energy it took), in joules against time, with the change of total energy in black (their sum) and "
-        "the diagnostics' own measurement of it as dots on the line. Look for the transfers (P2G blue, G2P orange) "
-        "below zero in every run but CPIC's cut2d, whose ghost velocities and penalty make its G2P add energy, FLIP's "
-        "G2P above zero, PolyPIC's G2P absent, the walls (brown) taking energy at contact, and plasticity (red) "
-        "dissipating in snow88 and sand, and in the asynchronous stork the exchange across its level interfaces "
-        "(olive); the checks hold the signs."))
+#: the width of a figure (inches, at the reports' 110 dpi): about the 600 pixels a figure gets on a report's page, so
+#: that its text reads at about its point size
+WIDTH = 6.6
+#: the runs drawn in one figure of the terms over time (two columns of panels)
+PANELS = 6
+
+
+def plot_split(result, path):
+    """The case's main figure: one bar per run, its terms at the end as shares of the energy the run's stages moved
+    (:math:`\\sum_t |L_t|`), those that took energy to the left, those that added it to the right, and the net
+    change as a black diamond; each run's change of total energy in joules and against :math:`E_0` beside it."""
+    rows = split_rows(result)
+    terms = [t for t in ASYNC_TERMS if any(row[t] for row in rows)]
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(WIDTH, 1.4 + 0.42 * len(rows)), layout="constrained")
+    for y, row in enumerate(rows):
+        moved = sum(abs(row[t]) for t in terms) or 1.0
+        left = right = 0.0
+        for term in terms:
+            share = row[term] / moved
+            start = right if share > 0 else left
+            ax.barh(y, share, left=start, color=LEDGER_COLOURS[term], height=0.7, label=term)
+            right, left = (right + share, left) if share > 0 else (right, left + share)
+        ax.plot(row["measured_change"] / moved, y, "kD", ms=5, label="net change E(t_end) - E0")
+        ax.text(1.04, y, f"{row['measured_change']:+.3g} J ({100 * row['measured_change'] / row['E0']:+.2g} % of E0)",
+                va="center", fontsize=8, transform=ax.get_yaxis_transform())
+    ax.set_yticks(range(len(rows)), [f"{row['run']} ({row['method']})" for row in rows], fontsize=8.5)
+    ax.invert_yaxis()
+    ax.set_xlim(-1.0, 1.0)
+    ax.axvline(0.0, color="k", lw=0.6)
+    ax.set_xlabel("share of the energy the stages moved: taken (left), added (right)")
+    ax.grid(True, axis="x", alpha=0.3)
+    handles = dict(zip(*reversed(ax.get_legend_handles_labels())))
+    handles["net change E(t_end) - E0"] = handles.pop("net change E(t_end) - E0")          # the diamond last
+    fig.legend(handles.values(), handles.keys(), loc="outside upper center", ncol=4, fontsize=8)
+    return save_figure(fig, path, caption=(
+        "Where each run's energy went, at the end of the run: the ledger's terms as shares of the energy its stages "
+        "moved (the sum of their sizes), those that took energy to the left of zero and those that added it to the "
+        "right, with the net change of total energy as a black diamond and, beside each bar, that change in joules "
+        "and against the initial energy. Look for the transfers (P2G blue, G2P orange) taking energy in every run but "
+        "FLIP's, whose G2P gives back part of what its P2G took, and CPIC's cut2d, whose ghost velocities make its "
+        "G2P add energy; PolyPIC's G2P absent; the walls (brown) taking energy at contact; plasticity (red) "
+        "dissipating in snow88 and sand, where the integrator (green) adds energy; and in the asynchronous stork the "
+        "exchange across its level interfaces (olive). The checks hold the signs; the runs' terms over time are in "
+        "the figures that follow."))
+
+
+def plot_terms(result, folder):
+    """The runs' cumulative terms over time, :data:`PANELS` runs a figure in two columns of panels
+    (:func:`~verification.framework.report.plot_ledger_areas`): ``ledger_time_1.png``, ... in ``folder``."""
+    runs = result["runs"]
+    return [_terms_figure(runs[i:i + PANELS], Path(folder) / f"ledger_time_{i // PANELS + 1}.png")
+            for i in range(0, len(runs), PANELS)]
+
+
+def _terms_figure(runs, path):
+    plt = pyplot()
+    rows = -(-len(runs) // 2)
+    fig, axes = plt.subplots(rows, 2, figsize=(WIDTH, 0.9 + 2.3 * rows), squeeze=False, layout="constrained")
+    for ax, r in zip(axes.flat, runs):
+        plot_ledger_areas(ax, r["t"], terms_of(r), r["ledger"][:, ASYNC_COLUMNS.index("energy_change")])
+        ax.plot(r["t"][r["sampled_steps"]], total_energy(r) - total_energy(r)[0], "wo", ms=3.5, mec="k",
+                label="diagnostics' E - E0")
+        ax.set_title(f"{r['key']} ({r['method']})", fontsize=9)
+        ax.tick_params(labelsize=8)
+        ax.locator_params(axis="x", nbins=4)
+        ax.grid(True, alpha=0.3)
+    for ax in axes.flat[len(runs):]:
+        ax.set_visible(False)
+    handles = {label: h for ax in axes.flat for h, label in zip(*ax.get_legend_handles_labels())}
+    fig.legend(handles.values(), handles.keys(), loc="outside upper center", ncol=3, fontsize=8)
+    fig.supxlabel("time [s]", fontsize=9)
+    fig.supylabel("cumulative energy [J]", fontsize=9)
+    names = ", ".join(r["key"] for r in runs)
+    return save_figure(fig, path, caption=(
+        f"Where the energy of {names} went over time: the ledger's cumulative terms stacked above zero (energy a "
+        "stage added) and below (energy it took), in joules against time, with the change of total energy in black "
+        "(their sum) and the diagnostics' own measurement of it as dots on the line. Look for when each term grows: "
+        "the transfers at every step, the walls at contact, plasticity as the material yields."))
 
 
 def plot_friction(result, path):
@@ -226,13 +293,15 @@ def report(result, out_dir):
     ``energy_ledger.md``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [plot_terms(result, out / "ledger_terms.png"), plot_friction(result, out / "friction.png"),
+    terms = plot_terms(result, out)
+    paths = [plot_split(result, out / "ledger_terms.png"), *terms, plot_friction(result, out / "friction.png"),
              plot_integration(result, out / "integration_order.png")]
     paths += [write_series(out / "vtk" / r["key"], r["frames"]) for r in result["runs"]]
     f = tables(result)["friction"][0]
     text = (f"# Where the energy goes, run by run\n\nEach run's change of total energy split into the ledger's terms "
             f"(joules; in brackets, the share of the measured change ΔE; `closure` is the round-off of the terms' "
             f"sum against the ledger's own ΔE).\n\n{split_md(result)}\n\n![terms](ledger_terms.png)\n\n"
+            + "".join(f"![terms over time]({p.name})\n\n" for p in terms) +
             f"## The candidate's ledger ({result['candidate']}) against the reference's\n\nOne step booked on both "
             f"from the same state, half-way through the run and at its end.\n\n{candidate_md(result)}\n\n"
             f"## Friction and the integration error\n\nThe sliding block: d = {f['distance']:.4g} m, boundary = "

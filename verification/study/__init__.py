@@ -5,9 +5,12 @@ the same end time, and measures every run (:mod:`.runs`): the drifts of energy, 
 mass at the end and as time series, the energy ledger, steps, wall time, and the user's own measures. For every
 resolution it varies (cells, Δt or CFL number, particles per cell) it measures the observed order of each
 measure, fitted and by Richardson's estimate (:mod:`.orders`), and writes ``results.json``, ``results.csv``, the
-plots and ``index.html`` (:mod:`.report`). The runs go through :class:`~verification.framework.executor.Executor`, like
-the sweeps of ``mpmref verify``; each writes its result when it finishes, so a study stopped half-way keeps what is
-done, and running it again runs only the rest. ``docs/studying_your_scene.md`` is the chapter.
+plots and ``index.html`` (:mod:`.report`). Varied values that make the same computation (``method.scheme = apic``
+and ``mls``: the APIC transfer with the MLS force, both) are named before any run, as a
+:class:`SameComputationWarning`, and in the report. The runs go through
+:class:`~verification.framework.executor.Executor`, like the sweeps of ``mpmref verify``; each writes its result
+when it finishes, so a study stopped half-way keeps what is done, and running it again runs only the rest.
+``docs/studying_your_scene.md`` is the chapter.
 
 >>> from verification.study import run_study                                # doctest: +SKIP
 >>> study = run_study("disk.toml", {"grid.cells": [16, 32, 64]}, t_end=0.1, out="reports/study/disk")
@@ -16,6 +19,7 @@ done, and running it again runs only the rest. ``docs/studying_your_scene.md`` i
 import os
 import pickle
 import time
+import warnings
 
 from mpmref.backends import describe, make_backend
 from mpmref.errors import ArgumentError
@@ -28,7 +32,12 @@ from .report import write_report
 from .runs import METRICS, finished, load, run
 from .variations import Variation, label, parse_vary
 
-__all__ = ["run_study", "make_plan", "parse_vary", "Variation"]
+__all__ = ["run_study", "make_plan", "parse_vary", "Variation", "SameComputationWarning"]
+
+
+class SameComputationWarning(UserWarning):
+    """Varied values whose runs make the same computation (:func:`verification.study.plan.same_computations`):
+    the study runs each, and they give the same numbers."""
 
 
 def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures=(), exact=None,
@@ -70,6 +79,8 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures
     """
     start = time.perf_counter()
     plan = make_plan(scene, vary, t_end, backend, out, measures, setup, frames, ledger)
+    for message in plan.same:
+        warnings.warn(message, SameComputationWarning, stacklevel=2)
     exact_fn = None if exact is None else load(exact, "exact")
     info = describe(backend, make_backend(backend, plan.runs[0]["scene"]))
     executor = executor or Executor(workers=1)
@@ -82,7 +93,8 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures
     meta = {"scene": plan.source, "scene_name": plan.scene_name, "t_end": plan.runs[0]["spec"].t_end,
             "vary": [{"keys": list(v.keys), "levels": [list(level) for level in v.levels]} for v in plan.variations],
             "backend": info, "measures": [_name(m) for m in measures], "exact": _name(exact), "setup": _name(setup),
-            "ledger": ledger, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
+            "ledger": ledger, "same_computation": plan.same, "executor": executor.describe(),
+            "wall_s": time.perf_counter() - start,
             "machine": machine()}
     paths = write_report(plan.out, meta, records, orders)
     return {**meta, "runs": records, "orders": orders, "paths": [str(p) for p in paths]}

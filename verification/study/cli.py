@@ -7,9 +7,10 @@ joined by ``:`` vary together), each to the same end time, and writes into ``DIR
 ``reports/study/<scene name>``) ``results.json``, ``results.csv``, the plots and ``index.html``: each run's drifts
 of energy, momentum, angular momentum and mass, its energy ledger, steps, wall time and the user's measures, and
 for every resolution varied (cells, Δt, CFL number, particles per cell) the observed order of each measure.
-Every run's scene is validated before any run starts. A progress bar on standard error counts the runs;
-standard output gets the orders and the files at the end. A study run again reuses the runs whose results are
-in ``DIR`` (``--overwrite`` runs them again).
+Every run's scene is validated before any run starts, and varied values whose runs would compute the same numbers
+(``method.scheme=apic,mls``: the APIC transfer with the MLS force, both) are named on standard error. A progress
+bar on standard error counts the runs; standard output gets the orders and the files at the end. A study run again
+reuses the runs whose results are in ``DIR`` (``--overwrite`` runs them again).
 
 Exit status: 0 when every run finished; 1 when a run failed (the others are reported); 2 for a bad scene, key,
 value, reference or option (before any run); 130 when interrupted (the finished runs are kept).
@@ -17,6 +18,7 @@ value, reference or option (before any run); 130 when interrupted (the finished 
 
 import math
 import sys
+import warnings
 from pathlib import Path
 
 from mpmref.backends import OPTION_HELP, importable_from_here, reference_argument
@@ -24,7 +26,7 @@ from mpmref.cli import OptionError, add_threads_option, apply_threads, end_time_
 from mpmref.errors import ArgumentError
 
 from ..framework.executor import Executor
-from . import run_study
+from . import SameComputationWarning, run_study
 from .orders import series_label
 from .runs import load
 from .variations import SYNTAX, label, parse_vary
@@ -89,10 +91,13 @@ def cmd_study(args):
     apply_threads(args.threads)
     bar = _ProgressBar(not args.no_progress)
     try:
-        study = run_study(args.scene, args.vary, args.t_end, backend=args.backend, out=args.out, measures=args.measure,
-                          exact=args.exact, setup=args.setup, frames=args.frames, overwrite=args.overwrite,
-                          ledger=not args.no_ledger, executor=Executor(scheduler=args.scheduler, workers=args.workers),
-                          progress=bar.update)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", SameComputationWarning)
+            warnings.showwarning = _one_line(warnings.showwarning)
+            study = run_study(args.scene, args.vary, args.t_end, backend=args.backend, out=args.out,
+                              measures=args.measure, exact=args.exact, setup=args.setup, frames=args.frames,
+                              overwrite=args.overwrite, ledger=not args.no_ledger,
+                              executor=Executor(scheduler=args.scheduler, workers=args.workers), progress=bar.update)
     except KeyboardInterrupt:
         folder = args.out or Path("reports") / "study" / "<scene name>"
         print(f"mpmref study: interrupted; the finished runs are kept in {folder / 'runs'}, and the same command "
@@ -102,6 +107,17 @@ def cmd_study(args):
         bar.close()
     print(summary(study))
     return 1 if any(r["error"] for r in study["runs"]) else 0
+
+
+def _one_line(show):
+    """``warnings.showwarning`` that prints a study's warning as one line on standard error, others by ``show``."""
+    def shown(message, category, *args, **kwargs):
+        if issubclass(category, SameComputationWarning):
+            print(f"mpmref study: warning: {message}", file=sys.stderr)
+        else:
+            show(message, category, *args, **kwargs)
+
+    return shown
 
 
 def summary(study):

@@ -29,6 +29,10 @@ errors are in the ratio :math:`(4^p - 1)/(2^p - 1)`, so a first-order measure re
 Richardson's estimate has no such bias; with the exact value the fit has none either, and where the two then
 disagree the levels are not yet in the asymptotic range. Levels that agree to round-off (errors within
 :data:`ROUND_OFF_EPS` machine epsilons of the values), and drifts that are round-off at every level, get no order.
+A measure that cannot be negative (:data:`NON_NEGATIVE`: a norm, the largest :math:`|E(t) - E(0)|`) whose
+extrapolated limit :math:`q_R` comes out negative has no limit resolved by its levels: its finest value is smaller
+than the extrapolation's own estimate of its error, :math:`|q_n - q_R|`, so the limit is reported as missing with
+a note giving both (a limit clipped at 0 would be a number no level measured).
 """
 
 import math
@@ -43,6 +47,8 @@ from .variations import key_path, label
 ORDERED = DRIFTS[:3] + ("energy_excursion",)
 #: a relative drift whose every level is below this many machine epsilons is round-off, not discretisation error
 ROUND_OFF_EPS = 1.0e4
+#: the built-in measures that cannot be negative (norms of a change, the largest relative change): their limit >= 0
+NON_NEGATIVE = ("momentum_drift", "angular_momentum_drift", "energy_excursion")
 
 
 def abscissa(key, scene):
@@ -94,7 +100,8 @@ def observed_orders(runs, variations, measures, eps):
                 if all(name in r["metrics"] for r in series):
                     rows.append({"key": key, "abscissa": series[0]["abscissa"][key][0],
                                  "refined_with": [k for k in variation.keys if k != key], "fixed": fixed,
-                                 "measure": name, **order(series, key, name, eps, drift=name in ORDERED)})
+                                 "measure": name, **order(series, key, name, eps, drift=name in ORDERED,
+                                                          non_negative=name in NON_NEGATIVE)})
     return rows
 
 
@@ -107,10 +114,11 @@ def _series(runs, key, others):
     return [(fixed, sorted(rs, key=lambda r: -r["abscissa"][key][1])) for fixed, rs in groups.values() if len(rs) >= 2]
 
 
-def order(series, key, name, eps, drift=False):
+def order(series, key, name, eps, drift=False, non_negative=False):
     """The fitted order and Richardson's estimate of measure ``name`` over one refinement ``series`` (the module
     docstring). Errors within :data:`ROUND_OFF_EPS` machine epsilons ``eps`` of the values are round-off, as is a
-    relative ``drift`` whose every value is that small: then there is no order to measure."""
+    relative ``drift`` whose every value is that small: then there is no order to measure. A ``non_negative``
+    measure's negative extrapolated limit is not resolved (:func:`unresolved_limit`)."""
     h = np.array([r["abscissa"][key][1] for r in series])
     q = np.array([float(r["metrics"][name]) for r in series])
     exact = [r["exact"].get(name) for r in series]
@@ -125,6 +133,8 @@ def order(series, key, name, eps, drift=False):
     if round_off:
         return {**out, "richardson": math.nan, "extrapolated": math.nan, "note": round_off}
     out.update(richardson(h, q))
+    if non_negative and out["extrapolated"] < 0.0:
+        out.update(extrapolated=math.nan, note=unresolved_limit(name, out["extrapolated"], q[-1]))
     why = _why_no_fit(h[fit], errors[fit])
     if not why:
         out["order"], out["intercept"] = fit_slope(h[fit], errors[fit])
@@ -132,6 +142,13 @@ def order(series, key, name, eps, drift=False):
     bent = ("the values are not monotone over the levels, so the coarse ones are not in the asymptotic range"
             if np.any(steps[:-1] * steps[1:] < 0) and "not monotone" not in out["note"] else "")
     return {**out, "note": "; ".join(n for n in (why, out["note"], bent) if n)}
+
+
+def unresolved_limit(name, limit, finest):
+    """Why a measure that cannot be negative has no extrapolated limit: Richardson's came out negative."""
+    return (f"Richardson's extrapolated limit, {limit:.3g}, is negative, which {name} (>= 0) cannot be: these levels "
+            f"do not resolve the limit (the finest value, {finest:.3g}, is smaller than the extrapolation's estimate "
+            f"of its error, {finest - limit:.3g})")
 
 
 def _round_off(errors, q, eps, drift):

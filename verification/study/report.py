@@ -7,6 +7,11 @@ metrics, then ``error``). The plots: ``order_<measure>.png`` for each measure wi
 the resolution on log-log axes, fitted lines, slopes in the legend), ``energy_change.png`` and ``drifts.png``
 (every run's time series) and, with the ledger, ``ledger.png``. Each PNG carries its caption
 (:func:`verification.framework.report.save_figure`); ``index.html`` is in the style of ``mpmref verify``'s report.
+
+The page shows two figures side by side, each about 600 pixels wide: a figure is at most :data:`WIDTH` inches
+wide (its text then reads at about its point size), runs are named by the keys that differ between them
+(:func:`run_names`, the keys shared by every run said once), and the runs' tables are split by what they hold
+(drifts, the ledger, the user's measures), with headers that wrap, so that they fit the page.
 """
 
 import csv
@@ -15,6 +20,7 @@ import html
 import io
 import json
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +29,7 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import ASYNC_TERMS
 
 from ..framework.html_report import figure_html, page
-from ..framework.report import NO_CAPTION, figure_caption, pyplot, save_figure
+from ..framework.report import LEDGER_COLOURS, NO_CAPTION, figure_caption, pyplot, save_figure
 from .orders import series_label
 from .runs import METRICS, jsonable
 from .variations import label
@@ -33,6 +39,10 @@ SCHEMA = "mpmref-study/1"
 #: the metrics the runs table of ``index.html`` shows first
 SHOWN = ("energy_change", "energy_excursion", "momentum_drift", "angular_momentum_drift", "mass_drift", "steps",
          "final_time", "wall_s", "particle_steps_per_s")
+#: the width of a figure (inches, at the report's 110 dpi): about the 600 pixels a figure gets on the page
+WIDTH = 6.6
+#: the size of a figure's small text (legends, run names), in points
+SMALL = 8.5
 e = html.escape
 
 
@@ -79,14 +89,14 @@ def plot_orders(out, orders):
         mine = [row for row in orders if row["measure"] == measure]
         keys = list(dict.fromkeys(row["key"] for row in mine))
         plt = pyplot()
-        fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4.3), squeeze=False)
-        for ax, key in zip(axes[0], keys):
+        fig, axes = plt.subplots(len(keys), 1, figsize=(WIDTH, 4.6 * len(keys)), squeeze=False)
+        for ax, key in zip(axes[:, 0], keys):
             for i, row in enumerate(r for r in mine if r["key"] == key):
                 _order_panel(ax, row, f"C{i}")
             ax.set_xlabel(f"{next(r['abscissa'] for r in mine if r['key'] == key)} ({key})")
             ax.grid(True, which="both", alpha=0.3)
             if ax.get_legend_handles_labels()[0]:
-                ax.legend(fontsize=7, loc="best", framealpha=0.6)
+                ax.legend(fontsize=SMALL, loc="best", framealpha=0.6)
             else:
                 ax.text(0.5, 0.5, "no error to plot:\nthe measure is the same at every level",
                         transform=ax.transAxes, ha="center", va="center")
@@ -128,63 +138,84 @@ def plot_series(out, runs):
     done = [r for r in runs if r.get("series")]
     if not done:
         return []
+    names, shared = run_names(done)
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for r in done:
-        ax.plot(r["series"]["time"], r["series"]["energy_change"], label=label(r["params"]))
+    fig, ax = plt.subplots(figsize=(WIDTH, 4.4))
+    for r, name in zip(done, names):
+        ax.plot(r["series"]["time"], r["series"]["energy_change"], label=name)
     ax.set_xlabel("time")
     ax.set_ylabel("(E(t) − E(0)) / E(0)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, framealpha=0.6)
+    ax.legend(fontsize=SMALL, framealpha=0.6, title=shared, title_fontsize=SMALL)
     energy = save_figure(fig, out / "energy_change.png", caption=(
         "Relative change of the total energy (kinetic, affine, modes, elastic, gravitational) of every run "
         "over time. Look for how the change depends on the varied keys: a dissipative transfer loses energy "
         "steadily, faster on coarse grids, while an instability shows as growth."))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.3))
+    fig, axes = plt.subplots(2, 1, figsize=(WIDTH, 7.0), sharex=True, layout="constrained")
     for ax, key, what in zip(axes, ("momentum_drift", "angular_momentum_drift"), ("|P(t) − P(0)| / S_P",
                                                                                   "|L(t) − L(0)| / S_L")):
-        for r in done:
+        for r, name in zip(done, names):
             drift = np.array(r["series"][key])
-            ax.plot(r["series"]["time"], np.where(drift > 0, drift, np.nan), ".-", label=label(r["params"]))
+            ax.plot(r["series"]["time"], np.where(drift > 0, drift, np.nan), ".-", label=name)
         ax.set_yscale("log")
-        ax.set_xlabel("time")
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=7, framealpha=0.6)
+    axes[1].set_xlabel("time")
+    axes[0].legend(fontsize=SMALL, framealpha=0.6, title=shared, title_fontsize=SMALL)
     drifts = save_figure(fig, out / "drifts.png", caption=(
-        "Drift of the linear (left) and angular (right) momentum of every run, relative to the sums of the "
+        "Drift of the linear (top) and angular (bottom) momentum of every run, relative to the sums of the "
         "particles' contributions, on a log scale (a drift of exactly zero is not drawn). Look for round-off "
         "(1e-16 to 1e-13) where a scheme conserves the quantity and nothing external acts; gravity and walls "
         "change momentum, and PIC and FLIP lose angular momentum."))
     return [energy, drifts]
 
 
+def run_names(runs):
+    """``(names, shared)``: each run named by the keys whose values differ between ``runs``, and the keys every run
+    shares said once (``None`` when there are none), so that a legend or an axis shows what tells the runs apart."""
+    keys = list(dict.fromkeys(k for r in runs for k in r["params"]))
+    differ = [k for k in keys if len({repr(r["params"].get(k)) for r in runs}) > 1]
+    names = [label({k: r["params"].get(k) for k in differ}) if differ else label(r["params"]) for r in runs]
+    same = {k: runs[0]["params"][k] for k in keys if k not in differ}
+    return names, (f"every run: {label(same)}" if same and differ else None)
+
+
 def plot_ledger(out, runs):
-    """``ledger.png``: each run's energy ledger at the end (bars per term), when the runs booked it."""
+    """``ledger.png``: each run's energy ledger at the end, a group of horizontal bars per run (one per term that is
+    not zero in every run), on a symmetric log scale, when the runs booked it."""
     done = [r for r in runs if r.get("metrics") and f"ledger_{ASYNC_TERMS[0]}" in r["metrics"]]
     if not done:
         return []
-    terms = [t for t in ASYNC_TERMS if all(f"ledger_{t}" in r["metrics"] for r in done)]  # interface: async only
+    booked = [t for t in ASYNC_TERMS if all(f"ledger_{t}" in r["metrics"] for r in done)]  # interface: async only
+    terms = [t for t in booked if any(r["metrics"][f"ledger_{t}"] for r in done)]
+    if not terms:
+        return []
+    names, shared = run_names(done)
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(max(8, 1.2 * len(done) + 3), 4.5))
-    width = 0.8 / len(terms)
+    height = 0.8 / len(terms)
+    fig, ax = plt.subplots(figsize=(WIDTH, 1.8 + 0.17 * len(terms) * len(done) + 0.12 * len(done)),
+                           layout="constrained")
     for i, term in enumerate(terms):
-        ax.bar(np.arange(len(done)) + (i - len(terms) / 2 + 0.5) * width,
-               [r["metrics"][f"ledger_{term}"] for r in done], width, label=term)
-    ax.set_xticks(range(len(done)), [label(r["params"]) for r in done], rotation=30, ha="right", fontsize=7)
+        ax.barh(np.arange(len(done)) + (i - len(terms) / 2 + 0.5) * height,
+                [r["metrics"][f"ledger_{term}"] for r in done], height, label=term, color=LEDGER_COLOURS[term])
+    ax.set_yticks(range(len(done)), names, fontsize=SMALL)
+    ax.invert_yaxis()                                                  # the first run on top, as in the tables
     largest = max(abs(r["metrics"][f"ledger_{t}"]) for r in done for t in terms)
-    ax.set_yscale("symlog", linthresh=max(1e-4 * largest, 1e-300))
-    ax.set_ylabel("energy booked / E(0) (symmetric log scale)")
-    ax.axhline(0.0, color="k", lw=0.6)
-    ax.grid(True, axis="y", alpha=0.3)
-    ax.legend(fontsize=7, ncol=4, framealpha=0.6)
-    fig.tight_layout()
+    ax.set_xscale("symlog", linthresh=10.0 ** math.floor(math.log10(1e-4 * largest)))
+    ax.set_xlabel("energy booked / E(0) (symmetric log scale)")
+    ax.axvline(0.0, color="k", lw=0.6)
+    ax.grid(True, axis="x", alpha=0.3)
+    zero = [t for t in booked if t not in terms]
+    notes = [shared, f"zero in every run: {', '.join(zero)}" if zero else None]
+    ax.set_title("\n".join(textwrap.fill(n, 60) for n in notes if n), fontsize=SMALL, loc="left")
+    fig.legend(loc="outside upper center", ncol=min(len(terms), 4), fontsize=SMALL, framealpha=0.6)
     return [save_figure(fig, out / "ledger.png", caption=(
         "Where the energy went in each run: the energy ledger's terms at the end, relative to the initial energy "
-        "(they add up to the run's energy change), on a symmetric log scale, linear within 1e-4 of the largest "
-        "term. Look for which stage carries the change: P2G and G2P "
-        "transfers (dissipation of the transfer scheme), the boundary (walls and colliders), plasticity, or "
-        "integration (the time integrator's own error, which falls with the step)."))]
+        "(they add up to the run's energy change), a bar per term that is not zero in every run (those are named "
+        "above the bars), on a symmetric log scale, linear below a power of ten at most 1e-4 of the largest term. "
+        "Look for which stage carries the change: P2G and G2P transfers (dissipation of the transfer scheme), the "
+        "boundary (walls and colliders), plasticity, or integration (the time integrator's own error, which falls "
+        "with the step)."))]
 
 
 # ------------------------------------------------------------------------------------------------ html
@@ -196,7 +227,8 @@ def index_html(meta, runs, orders, figures, out):
     verdict = (f"<div class='verdict {'pass' if ok else 'fail'}'><strong>{len(runs) - len(failed)} of {len(runs)} "
                f"runs finished</strong> — {reused} reused from an earlier study, {len(failed)} failed; "
                f"{len(orders)} orders measured.</div>")
-    settings = "".join(f"<li>{e(k)}: {e(_setting(v))}</li>" for k, v in meta.items() if k not in ("machine", "vary"))
+    settings = "".join(f"<li>{e(k)}: {e(_setting(v))}</li>" for k, v in meta.items()
+                       if k not in ("machine", "vary", "same_computation"))
     machine = "".join(f"<li>{e(k)}: {e(str(v))}</li>" for k, v in meta["machine"].items())
     vary = "; ".join(f"<code>{e(':'.join(v['keys']))}</code> = "
                      f"{e(', '.join(':'.join(map(str, level)) for level in v['levels']))}"
@@ -206,6 +238,7 @@ def index_html(meta, runs, orders, figures, out):
             f"Also as <a href='results.json'>results.json</a> and <a href='results.csv'>results.csv</a>.</p>"
             f"<details class='meta'><summary>Settings</summary><ul>{settings}</ul></details>"
             f"<details class='meta'><summary>Machine</summary><ul>{machine}</ul></details>"
+            f"{_same_html(meta.get('same_computation', []))}"
             f"{_failures_html(failed)}<h2 id='orders'>Observed orders</h2>{_orders_html(orders)}"
             f"<h2 id='figures'>Figures</h2><div class='figures'>{_figures_html(figures, out)}</div>"
             f"<h2 id='runs'>Runs</h2>{_runs_html(runs)}")
@@ -219,6 +252,14 @@ def _setting(value):
     if isinstance(value, list):
         return ", ".join(map(str, value)) or "none"
     return "none" if value is None else str(value)
+
+
+def _same_html(messages):
+    """The warning that varied values make the same computation (their runs' numbers are equal)."""
+    if not messages:
+        return ""
+    items = "".join(f"<li>{e(m)}</li>" for m in messages)
+    return f"<div class='verdict fail'><strong>The same computation, run more than once</strong><ul>{items}</ul></div>"
 
 
 def _failures_html(failed):
@@ -252,17 +293,45 @@ def _figures_html(figures, out):
     return "".join(figure_html(p.name, figure_caption(Path(out) / p.name) or NO_CAPTION) for p in figures)
 
 
+#: a heading between two tables: space above it
+SPACED = "style='margin-top:1.2em'"
+
+
 def _runs_html(runs):
-    params = list(dict.fromkeys(k for r in runs for k in r["params"]))
+    """The runs' tables, each with the runs' parameters first: the drifts, steps and timings; the energy ledger at
+    the end; the user's measures. Split so that each fits the page."""
     names = list(dict.fromkeys(k for r in runs for k in r.get("metrics", {})))
-    metrics = [m for m in SHOWN if m in names] + [m for m in names if m not in METRICS]
-    head = "".join(f"<th>{e(k)}</th>" for k in params + metrics) + "<th>files</th>"
+    ledger = [m for m in names if m.startswith("ledger_")]
+    parts = [_runs_table(runs, [m for m in SHOWN if m in names], files=True)]
+    if ledger:
+        parts.append(f"<h3 {SPACED}>The energy ledger at the end, over E(0)</h3>" + _runs_table(runs, ledger))
+    measures = [m for m in names if m not in METRICS and m not in ledger]
+    if measures:
+        parts.append(f"<h3 {SPACED}>Your measures</h3>" + _runs_table(runs, measures))
+    return "".join(parts)
+
+
+def _runs_table(runs, metrics, files=False):
+    """A table of the runs: their parameters, then ``metrics`` (headers wrap at underscores), then their files."""
+    params = list(dict.fromkeys(k for r in runs for k in r["params"]))
+    head = "".join(f"<th>{_wrappable(k)}</th>" for k in params + metrics) + ("<th>files</th>" if files else "")
     rows = []
     for r in runs:
-        files = f"<a href='{e(r['result'])}'>result</a>" if r.get("metrics") else "failed"
-        if r.get("frames"):
-            files += f", <a href='{e(r['frames'])}/particles.pvd'>frames</a>"
         cells = "".join(f"<td class='num'>{e(_number(r['params'].get(k)))}</td>" for k in params)
         cells += "".join(f"<td class='num'>{e(_number(r.get('metrics', {}).get(m)))}</td>" for m in metrics)
-        rows.append(f"<tr class='{'fail' if r.get('error') else ''}'>{cells}<td>{files}</td></tr>")
-    return f"<table><tr>{head}</tr>{''.join(rows)}</table>"
+        if files:
+            cells += f"<td>{_files_html(r)}</td>"
+        rows.append(f"<tr class='{'fail' if r.get('error') else ''}'>{cells}</tr>")
+    return f"<div style='overflow-x:auto'><table><tr>{head}</tr>{''.join(rows)}</table></div>"
+
+
+def _files_html(run):
+    files = f"<a href='{e(run['result'])}'>result</a>" if run.get("metrics") else "failed"
+    if run.get("frames"):
+        files += f", <a href='{e(run['frames'])}/particles.pvd'>frames</a>"
+    return files
+
+
+def _wrappable(name):
+    """A column name that may break after its underscores (``angular_<wbr>momentum_<wbr>drift``)."""
+    return "<wbr>".join(e(part) for part in name.replace("_", "_\0").split("\0"))
