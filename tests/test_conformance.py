@@ -12,6 +12,7 @@ from helpers import valid_methods
 from mpmref.backends import BACKENDS
 from mpmref.backends.numpy import NumpyBackend
 from mpmref.conformance import (
+    ASYNC_CONFORMANCE_STAGES,
     CONFORMANCE_STAGES,
     ConformanceCase,
     add_parser,
@@ -30,6 +31,8 @@ from mpmref.state import GridState
 
 ALL_CASES = make_cases()
 PLANE_CASES = make_cases(dims=(2,))  # enough to locate a broken stage, at half the cost
+#: the cases of the stages asynchronous stepping adds
+ASYNC_CASES = make_cases(stages=ASYNC_CONFORMANCE_STAGES)
 
 
 def cases_of(stage, cases=ALL_CASES):
@@ -144,19 +147,23 @@ def test_relative_error_definition():
 # ---------------------------------------------------------------------------------------- the candidates
 def conformance_runs():
     """Every backend on the 2D and on the 3D cases, one test per stage (so that a parallel test run can share
-    the compile-heavy stages out). A compiled backend's 3D half is in the ``slow`` set (``pytest -m slow``): on
-    a fresh Numba cache it compiles the kernels of 17 more configurations, about 80 s of one idle core, which
-    is most of what the default run could spare."""
-    return [pytest.param(backend, dim, stage, marks=[pytest.mark.slow] if backend != "numpy" and dim == 3 else [],
+    the compile-heavy stages out), the stages of asynchronous stepping included. A compiled backend's 3D half is in
+    the ``slow`` set (``pytest -m slow``): on a fresh Numba cache it compiles the kernels of 17 more configurations,
+    about 80 s of one idle core, which is most of what the default run could spare; so are its stages of asynchronous
+    stepping (their kick gathers compile per transfer: about 50 s of one core in 2D)."""
+    def slow(backend, dim, stage):
+        return backend != "numpy" and (dim == 3 or stage in ASYNC_CONFORMANCE_STAGES)
+
+    return [pytest.param(backend, dim, stage, marks=[pytest.mark.slow] if slow(backend, dim, stage) else [],
                          id=f"{backend}-{dim}d-{stage}")
-            for backend in BACKENDS for dim in (2, 3) for stage in CONFORMANCE_STAGES]
+            for backend in BACKENDS for dim in (2, 3) for stage in CONFORMANCE_STAGES + ASYNC_CONFORMANCE_STAGES]
 
 
 @pytest.mark.parametrize("backend, dim, stage", conformance_runs())
 def test_every_backend_conforms_at_1e_12(backend, dim, stage):
     """Adding a name to mpmref.backends.BACKENDS is all it takes to check a backend here; the reference
     itself reproduces its outputs exactly."""
-    cases = [c for c in ALL_CASES if c.dim == dim and c.stage == stage]
+    cases = [c for c in ALL_CASES + ASYNC_CASES if c.dim == dim and c.stage == stage]
     report = check(backend, cases, rtol=1e-12)
     assert report.passed, report.table()
     assert not report.skipped and len(report.results) == len(cases) > 0

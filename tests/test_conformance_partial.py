@@ -21,7 +21,7 @@ from mpmref.backends.numpy import NumpyBackend
 from mpmref.cli import main
 from mpmref.conformance import check, make_cases
 from mpmref.conformance.case import STAGE_PARTS
-from mpmref.conformance.scene_cases import scene_stages
+from mpmref.conformance.scenes import scene_stages
 from mpmref.scene import Scene
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -55,7 +55,7 @@ the materials the backend has, with the parameters it fixes.
 
 Cases from the user's scene
 ---------------------------
-:func:`scene_cases` draws every stage that a scene's steps call from that scene (:mod:`.scene_cases`): its method,
+:func:`scene_cases` draws every stage that a scene's steps call from that scene (:mod:`.scenes`): its method,
 materials, walls, colliders, gravity and dtype, at its scales, in small boxes at its cell size (``mpmref conformance
 check --scene SCENE.toml``).
 
@@ -104,7 +104,7 @@ from .candidates import stage_functions
 from .cases import ConformanceCase, make_cases, valid_methods
 from .cli import add_parser
 from .report import CaseResult, NotApplicable, Report, check, relative_error
-from .scene_cases import scene_cases
+from .scenes import scene_cases
 from .stages import ALL_CONFORMANCE_STAGES, ASYNC_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES
 from .vectors import export, load_vectors
 

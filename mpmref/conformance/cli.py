@@ -14,7 +14,7 @@ from ..scene import SCHEMES
 from .candidates import candidate_implements
 from .cases import DEFAULT_RTOL, MATERIALS, make_cases
 from .report import check
-from .scene_cases import scene_cases, scene_record
+from .scenes import scene_cases, scene_record
 from .stages import ALL_CONFORMANCE_STAGES
 from .vectors import export
 

@@ -232,7 +232,8 @@ def describe_setting(case, scene, inputs):
     for name, material in scene.materials.items():
         declared = case.scene_dict["materials"][name]
         values = ", ".join(f"{k} = {getattr(material, k):g}" for k in declared if k != "type" and hasattr(material, k))
-        materials.append(f"{name}: {declared['type']} ({values})")
+        named = declared["type"] if name == declared["type"] else f"{name}: {declared['type']}"
+        materials.append(f"{named} ({values})")
     parts.append("materials " + "; ".join(materials))
     if "boundary" in case.parts:
         walls = {face: w.type + (f" (friction {w.friction:g})" if w.type == "separate" else "")

@@ -2,7 +2,7 @@ r"""The seeded random states of the conformance cases: particles, grid states, Î
 
 A case's state is drawn from a generator seeded by its name, so it is the same on every machine. Its magnitudes
 are a :class:`Scales`: those of the built-in catalogue (:func:`catalogue_scales`, set by the case's cell size), or
-those of a user's scene (:func:`mpmref.conformance.scene_cases.scene_scales`: its cell size, its bodies' speeds, its
+those of a user's scene (:func:`mpmref.conformance.scenes.scene_scales`: its cell size, its bodies' speeds, its
 materials' wave speeds, its gravity). Î”t is drawn from a CFL number over nearly four decades inside the stable range
 (:func:`draw_step`), the time over three decades (:func:`draw_time`).
 """

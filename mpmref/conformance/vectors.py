@@ -156,7 +156,7 @@ def write_case(out_dir, case):
 def export(out_dir, cases=None, scene=None):
     """Write every case (default: all float64 cases) to ``out_dir`` as ``.npz`` files and ``manifest.json``.
 
-    ``scene`` is the record of the user's scene the cases were drawn from (:func:`.scene_cases.scene_record`), written
+    ``scene`` is the record of the user's scene the cases were drawn from (:func:`.scenes.scene_record`), written
     as the manifest's ``scene``. Every file is written atomically (temporary name, then rename); the manifest comes
     last. Returns the path of the manifest.
     """
