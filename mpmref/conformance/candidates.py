@@ -108,16 +108,24 @@ def _mapping_stages(mapping, bind=None):
     return StageSet(functions, {stage: _lacks(stage) for stage in ALL_CONFORMANCE_STAGES if stage not in mapping})
 
 
-def stage_set(found, scene):
-    """The :class:`StageSet` of the resolved candidate ``found`` for ``scene`` (a factory is called here; its
-    :class:`NotImplementedError` propagates, for the caller to report the scene as declined)."""
+def validated(found):
+    """``found`` (a resolved candidate) if it is a factory or a mapping of known stage names; :class:`TypeError`
+    naming what it is otherwise."""
     if isinstance(found, Mapping):
+        _check_stage_names(found)
+    elif not callable(found):
+        raise TypeError(f"a candidate is a backend reference, a factory(scene) or a mapping of stage callables; got "
+                        f"{type(found).__name__} (a backend object is made for one scene: give its factory)")
+    return found
+
+
+def stage_set(found, scene):
+    """The :class:`StageSet` of the resolved candidate ``found`` for ``scene`` (a factory is called here; what it
+    raises propagates, for the caller to report: :class:`NotImplementedError` declines the scene)."""
+    if isinstance(validated(found), Mapping):
         return _mapping_stages(found, scene)
-    if callable(found):
-        made = found(scene)
-        return _mapping_stages(made) if isinstance(made, Mapping) else _object_stages(made)
-    raise TypeError(f"a candidate is a backend reference, a factory(scene) or a mapping of stage callables; got "
-                    f"{type(found).__name__} (a backend object is made for one scene: give its factory)")
+    made = found(scene)
+    return _mapping_stages(made) if isinstance(made, Mapping) else _object_stages(made)
 
 
 def stage_functions(candidate, scene):

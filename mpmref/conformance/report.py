@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from ..backends import resolve
 from ..backends.capabilities import EVOLVED, declined
-from .candidates import candidate_implements, stage_set
+from .candidates import candidate_implements, stage_set, validated
 from .cases import make_cases
 from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
 from .stages import ALL_CONFORMANCE_STAGES, run_stage
@@ -267,8 +267,6 @@ class _Candidate:
                 self.made[key] = stage_set(self.found, case.scene())
             except NotImplementedError as exc:
                 self.made[key] = ("declined", declined(exc))
-            except TypeError:
-                raise
             except Exception as exc:  # a factory that fails on a scene it implements fails that scene's cases
                 self.made[key] = ("error", f"the factory raised {type(exc).__name__}: {exc} (for scene "
                                            f"{case.scene_dict.get('name')!r})")
@@ -355,7 +353,7 @@ def check(candidate, cases=None, rtol=None, progress=False, implements=None):
     -------
     Report
     """
-    found = resolve(candidate)
+    found = validated(resolve(candidate))
     cases = None if cases is None else list(cases)
     if implements is None:
         implements = candidate_implements(found, _probe_scenes(cases))
