@@ -100,10 +100,9 @@ their parameters, walls, Δt, time), and names its worst particle or node and, w
 that factor (:mod:`.diagnosis`).
 """
 
-from .candidates import stage_functions
 from .cases import ConformanceCase, make_cases, valid_methods
 from .cli import add_parser
-from .report import CaseResult, NotApplicable, Report, check, relative_error
+from .report import CaseResult, NotApplicable, Report, check, relative_error, stage_functions
 from .scenes import scene_cases
 from .stages import ALL_CONFORMANCE_STAGES, ASYNC_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES
 from .vectors import export, load_vectors

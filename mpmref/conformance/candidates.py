@@ -11,7 +11,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import partial
 
-from ..backends import resolve
 from ..backends.base import BACKEND_STAGES
 from ..backends.capabilities import EVERYTHING, declared, probed
 from .cpic import CPIC_METHODS, RUNNERS, has_cpic
@@ -126,18 +125,6 @@ def stage_set(found, scene):
         return _mapping_stages(found, scene)
     made = found(scene)
     return _mapping_stages(made) if isinstance(made, Mapping) else _object_stages(made)
-
-
-def stage_functions(candidate, scene):
-    """The candidate's stage callables for ``scene`` as ``{stage: callable}`` (see :mod:`mpmref.conformance`).
-
-    ``candidate`` is a backend reference of :mod:`mpmref.backends` (a built-in or plugin name, or
-    ``"MODULE:ATTRIBUTE"``, resolved to what it names), a factory ``factory(scene)`` returning an object with stage
-    methods or a mapping of stage names to callables, or a mapping of stage names to callables that take the
-    scene first. Unlike :func:`mpmref.backends.make_backend`, a candidate may lack stages: those are not applicable.
-    (A backend object is made for one scene, and every case has its own: give its factory.)
-    """
-    return stage_set(resolve(candidate), scene).functions
 
 
 def candidate_implements(found, scenes):

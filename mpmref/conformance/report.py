@@ -252,6 +252,18 @@ def describe_setting(case, scene, inputs):
 
 
 # ------------------------------------------------------------------------------------------------ check
+def stage_functions(candidate, scene):
+    """The candidate's stage callables for ``scene`` as ``{stage: callable}`` (see :mod:`mpmref.conformance`).
+
+    ``candidate`` is a backend reference of :mod:`mpmref.backends` (a built-in or plugin name, or
+    ``"MODULE:ATTRIBUTE"``, resolved to what it names), a factory ``factory(scene)`` returning an object with stage
+    methods or a mapping of stage names to callables, or a mapping of stage names to callables that take the
+    scene first. Unlike :func:`mpmref.backends.make_backend`, a candidate may lack stages: those are not applicable.
+    (A backend object is made for one scene, and every case has its own: give its factory.)
+    """
+    return stage_set(resolve(candidate), scene).functions
+
+
 class _Candidate:
     """A resolved candidate, with what it made for each distinct scene (a factory is called once per scene)."""
 
@@ -336,7 +348,7 @@ def check(candidate, cases=None, rtol=None, progress=False, implements=None):
     Parameters
     ----------
     candidate : str, mapping or callable
-        What to check; see :func:`~.candidates.stage_functions`. A factory is called once per distinct scene.
+        What to check; see :func:`stage_functions`. A factory is called once per distinct scene.
     cases : iterable of :class:`~mpmref.conformance.case.ConformanceCase`, optional
         Default: the float64 catalogue of the seven stages of every backend fitted to what the candidate implements,
         :func:`~mpmref.conformance.cases.make_cases` ``(implements=...)``.
