@@ -154,6 +154,8 @@ def test_export_scene_records_the_scene_its_scales_and_the_resolved_parameters(t
     manifest = json.loads((tmp_path / "manifest.json").read_text())
     assert manifest["version"] == 4 and manifest["scene"]["name"] == "mpm88"
     assert manifest["scene"]["declared"]["materials"]["water"]["gamma"] == 1.0
+    assert manifest["scene"]["resolved"]["grid"]["cells"] == [128, 128]
+    assert manifest["scene"]["resolved"]["boundary"]["walls"]["y_min"] == {"type": "separate", "friction": 0.0}
     assert manifest["scene"]["stages"] == scene_stages(Scene.from_toml(path))
     assert manifest["scene"]["scales"]["speed"] == pytest.approx(np.sqrt(2 * 9.8))
     for entry in manifest["cases"]:

@@ -241,10 +241,14 @@ def scene_cases(scene, stages=None, dtype=None, count=CASES_PER_STAGE):
 
 
 def scene_record(scene):
-    """What ``export --scene`` writes of the user's scene in the manifest: its name, its declarations, the scales the
-    states are drawn at, the stages checked and the box sizes (JSON-ready)."""
+    """What ``export --scene`` writes of the user's scene in the manifest: its name, its declarations, what they resolve
+    to (:func:`.vectors.resolved`: every default filled in), the scales the states are drawn at, the stages checked and
+    the box sizes (JSON-ready)."""
+    from .vectors import resolved
+
     declared, parsed = load_scene(scene)
-    return {"name": parsed.name, "declared": declared, "scales": asdict(scene_scales(parsed)),
+    return {"name": parsed.name, "declared": declared, "resolved": resolved(parsed, declared["materials"]),
+            "scales": asdict(scene_scales(parsed)),
             "stages": scene_stages(parsed), "cases_per_stage": CASES_PER_STAGE,
             "cells_per_axis": [max(SCENE_CELLS[0], 2 * (parsed.boundary.width + 1)),
                                max(SCENE_CELLS[0], 2 * (parsed.boundary.width + 1)) + SCENE_CELLS[1]],

@@ -90,9 +90,13 @@ def _collider_entry(collider):
 
 def resolved_scene(case):
     """What an implementation needs of ``case``'s scene, every default filled in (JSON-serialisable)."""
-    scene = case.scene()
+    return resolved(case.scene(), case.scene_dict["materials"])
+
+
+def resolved(scene, declared):
+    """What an implementation needs of ``scene`` (its materials ``declared`` as the scene file has them), every default
+    filled in (JSON-serialisable)."""
     grid, kernel = scene.grid, scene.kernel
-    declared = case.scene_dict["materials"]
     return {
         "grid": {"origin": grid.origin.tolist(), "dx": grid.dx, "cells": list(grid.cells),
                  "node_shape": list(grid.node_shape), "n_nodes": grid.n_nodes},
