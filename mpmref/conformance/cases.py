@@ -417,7 +417,8 @@ def _async_cases(stage, dim, dtype, fit):
 def _cpic_case(stage, label, method, dim, fit):
     """A CPIC case: the bodies of :mod:`.cpic` in the unit box, Δt drawn from its name inside the stable range (CFL
     numbers as the other stages', and the penalty's :math:`k \\Delta t \\le 1`)."""
-    names, _ = fit.material_set(TRANSFER_MATERIALS)
+    names, suffix = fit.material_set(TRANSFER_MATERIALS)
+    label += suffix
     declared = cpic_scene_dict(scene_dict(dim, names, parameters=fit.target.parameters), method)
     scene = Scene.from_dict(declared)
     penalty = scene.cpic.penalty
