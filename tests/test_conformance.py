@@ -12,6 +12,7 @@ from helpers import valid_methods
 from mpmref.backends import BACKENDS
 from mpmref.backends.numpy import NumpyBackend
 from mpmref.conformance import (
+    ASYNC_CONFORMANCE_STAGES,
     CONFORMANCE_STAGES,
     ConformanceCase,
     add_parser,
@@ -30,6 +31,8 @@ from mpmref.state import GridState
 
 ALL_CASES = make_cases()
 PLANE_CASES = make_cases(dims=(2,))  # enough to locate a broken stage, at half the cost
+#: the cases of the stages asynchronous stepping adds
+ASYNC_CASES = make_cases(stages=ASYNC_CONFORMANCE_STAGES)
 
 
 def cases_of(stage, cases=ALL_CASES):
@@ -60,9 +63,9 @@ def test_cases_cover_every_valid_combination():
                          for k in c.scene().colliders}
         assert ledger_shapes == shapes
     assert {c.stage for c in ALL_CASES} == set(CONFORMANCE_STAGES)
-    # 12 stress + 6 return map + 56 P2G + 46 fused P2G + 12 grid update + 56 G2P + 56 steps + 58 ledgers (the
+    # 12 stress + 6 return map + 56 P2G + 46 fused P2G + 14 grid update + 56 G2P + 56 steps + 58 ledgers (the
     # steps' and colliders)
-    assert len({c.name for c in ALL_CASES}) == len(ALL_CASES) == 302
+    assert len({c.name for c in ALL_CASES}) == len(ALL_CASES) == 304
     for dim in (2, 3):  # each material alone in the transfers too, so that a one-material code has cases
         for stage in ("p2g", "g2p"):
             alone = [c for c in cases_of(stage) if c.dim == dim and len(c.scene_dict["materials"]) == 1]
@@ -144,19 +147,23 @@ def test_relative_error_definition():
 # ---------------------------------------------------------------------------------------- the candidates
 def conformance_runs():
     """Every backend on the 2D and on the 3D cases, one test per stage (so that a parallel test run can share
-    the compile-heavy stages out). A compiled backend's 3D half is in the ``slow`` set (``pytest -m slow``): on
-    a fresh Numba cache it compiles the kernels of 17 more configurations, about 80 s of one idle core, which
-    is most of what the default run could spare."""
-    return [pytest.param(backend, dim, stage, marks=[pytest.mark.slow] if backend != "numpy" and dim == 3 else [],
+    the compile-heavy stages out), the stages of asynchronous stepping included. A compiled backend's 3D half is in
+    the ``slow`` set (``pytest -m slow``): on a fresh Numba cache it compiles the kernels of 17 more configurations,
+    about 80 s of one idle core, which is most of what the default run could spare; so are its stages of asynchronous
+    stepping (their kick gathers compile per transfer: about 50 s of one core in 2D)."""
+    def slow(backend, dim, stage):
+        return backend != "numpy" and (dim == 3 or stage in ASYNC_CONFORMANCE_STAGES)
+
+    return [pytest.param(backend, dim, stage, marks=[pytest.mark.slow] if slow(backend, dim, stage) else [],
                          id=f"{backend}-{dim}d-{stage}")
-            for backend in BACKENDS for dim in (2, 3) for stage in CONFORMANCE_STAGES]
+            for backend in BACKENDS for dim in (2, 3) for stage in CONFORMANCE_STAGES + ASYNC_CONFORMANCE_STAGES]
 
 
 @pytest.mark.parametrize("backend, dim, stage", conformance_runs())
 def test_every_backend_conforms_at_1e_12(backend, dim, stage):
     """Adding a name to mpmref.backends.BACKENDS is all it takes to check a backend here; the reference
     itself reproduces its outputs exactly."""
-    cases = [c for c in ALL_CASES if c.dim == dim and c.stage == stage]
+    cases = [c for c in ALL_CASES + ASYNC_CASES if c.dim == dim and c.stage == stage]
     report = check(backend, cases, rtol=1e-12)
     assert report.passed, report.table()
     assert not report.skipped and len(report.results) == len(cases) > 0
@@ -236,7 +243,8 @@ def test_mapping_candidate_skips_missing_stages_and_reports_exceptions():
     assert all(r.passed for r in report.results if r.case.stage == "stress")
     assert report.failed_stages() == {"p2g"}
     assert all("RuntimeError: not implemented" in r.note for r in report.failures())
-    assert not report.passed and "skipped" in report.table()
+    table = report.table()
+    assert not report.passed and "does not provide the stage grid_update" in table and "not applicable" in table
 
 
 def test_factory_returning_a_mapping_and_missing_outputs():
@@ -272,7 +280,7 @@ def test_export_writes_the_inputs_and_a_complete_manifest(exported):
     """The files hold each case's inputs and describe themselves; that their outputs are the reference's is
     shown by the replay candidate below, which passes at zero error."""
     manifest = json.loads((exported / "manifest.json").read_text())
-    assert manifest["format"] == "mpmref-conformance" and manifest["version"] == 3
+    assert manifest["format"] == "mpmref-conformance" and manifest["version"] == 4
     assert {"nodes", "particles", "material", "modes", "error"} <= set(manifest["conventions"])
     entries = {e["name"]: e for e in manifest["cases"]}
     files = [e["file"] for e in entries.values()] + ["manifest.json"]
@@ -352,7 +360,7 @@ def test_cli_check_prints_the_table_and_exits_0_or_1(capsys, monkeypatch):
     monkeypatch.setattr("mpmref.conformance.report.resolve", lambda reference: PerturbedStress)
     assert cli(["conformance", "check", "--backend", "numpy", "--dim", "3", "--stage", "stress", "grid_update"]) == 1
     out = capsys.readouterr().out
-    assert "FAILED: 6 of 12" in out and "stress-3d-snow" in out
+    assert "FAILED: 7 of 13" in out and "stress-3d-snow" in out  # 6 stress cases fail, 7 grid updates pass
 
 
 def test_cli_check_shows_progress_on_stderr_unless_told_not_to(capsys):
@@ -370,9 +378,9 @@ def test_cli_check_shows_progress_on_stderr_unless_told_not_to(capsys):
 def test_cli_export_selects_dimension_stage_and_dtype(tmp_path, capsys):
     assert cli(["conformance", "export", str(tmp_path / "v"), "--dim", "3", "--stage", "grid_update",
                 "--dtype", "float32"]) == 0
-    assert "wrote 6 cases" in capsys.readouterr().out
+    assert "wrote 7 cases" in capsys.readouterr().out
     entries = json.loads((tmp_path / "v" / "manifest.json").read_text())["cases"]
-    assert len(entries) == 6
+    assert len(entries) == 7
     assert all(e["dim"] == 3 and e["stage"] == "grid_update" and e["name"].endswith("-f32") for e in entries)
     assert all(e["rtol"] == DEFAULT_RTOL["float32"] for e in entries)
     inputs, outputs = load_vectors(tmp_path / "v" / entries[0]["file"])

@@ -43,6 +43,10 @@ DTYPES = ("float64", "float32")
 EVOLVED = ("C", "modes", "F", "J", "Jp")
 STEPPINGS = ("sync", "async")
 STEPPING_WORDS = {"sync": "synchronous", "async": "asynchronous"}
+#: the axes of a scene that :meth:`Implements.missing` examines, in the order of its reasons: dimension and dtype;
+#: scheme, force and kernel (and the affine matrix or modes they carry); materials, their fixed parameters and
+#: deformation fields; walls and colliders; time stepping and rigid bodies
+PARTS = ("dims", "method", "materials", "boundary", "stepping")
 
 _CHOICES = {"schemes": SCHEMES, "forces": FORCES, "kernels": tuple(KERNELS), "materials": tuple(MATERIALS),
             "walls": WALL_TYPES, "colliders": COLLIDER_SHAPES, "dtypes": DTYPES, "evolves": EVOLVED,
@@ -109,27 +113,22 @@ class Implements:
         object.__setattr__(self, "parameters", MappingProxyType(frozen))
 
     # ------------------------------------------------------------------------------------------ scenes
-    def missing(self, scene):
+    def missing(self, scene, parts=PARTS):
         """What ``scene`` needs that this backend does not implement, in words (``[]``: it implements the scene).
 
         Each reason reads "needs ..." (a dimension, dtype, scheme, force, kernel, material or parameter value, wall,
         friction, collider, asynchronous stepping or rigid bodies) or "compares F: this backend evolves C, J only".
+        ``parts`` (a subset of :data:`PARTS`) limits the question to some axes of the scene: what one stage depends on
+        (the conformance harness asks a stress case about ``("dims", "materials", "stepping")`` only; the walls of
+        its scene are not the stress's business).
         """
+        unknown = sorted(set(parts) - set(PARTS))
+        if unknown:
+            raise ValueError(f"unknown parts {unknown}: the parts are {list(PARTS)}")
         reasons = []
-        reasons += self._needs("dims", scene.dim, f"{scene.dim}D")
-        reasons += self._needs("dtypes", scene.dtype.name, scene.dtype.name)
-        method = scene.method
-        if TRANSFER_OF[method.scheme] not in {TRANSFER_OF[s] for s in self.schemes}:  # "mls" is APIC + MLS force
-            reasons.append(f"needs the {method.scheme} scheme")
-        for force in dict.fromkeys((method.force, method.velocity_gradient)):
-            reasons += self._needs("forces", force, f"the {force} force")
-        reasons += self._needs("kernels", method.kernel, f"the {method.kernel} kernel")
-        reasons += self._material_reasons(scene)
-        reasons += self._evolved_reasons(scene)
-        reasons += self._boundary_reasons(scene)
-        reasons += self._needs("stepping", scene.time.stepping, f"{STEPPING_WORDS[scene.time.stepping]} time stepping")
-        if scene.rigid_bodies and not self.rigid_bodies:
-            reasons.append("needs rigid bodies (CPIC coupling)")
+        for part in PARTS:
+            if part in parts:
+                reasons += getattr(self, f"_{part}_reasons")(scene)
         return reasons
 
     def implements(self, scene):
@@ -139,7 +138,24 @@ class Implements:
     def _needs(self, axis, value, what):
         return [] if value in getattr(self, axis) else [f"needs {what}"]
 
-    def _material_reasons(self, scene):
+    def _dims_reasons(self, scene):
+        return self._needs("dims", scene.dim, f"{scene.dim}D") + self._needs("dtypes", scene.dtype.name,
+                                                                              scene.dtype.name)
+
+    def _method_reasons(self, scene):
+        """The scheme, the force and velocity gradient, the kernel, and the affine matrix or PolyPIC modes the
+        transfer carries."""
+        method, reasons = scene.method, []
+        if TRANSFER_OF[method.scheme] not in {TRANSFER_OF[s] for s in self.schemes}:  # "mls" is APIC + MLS force
+            reasons.append(f"needs the {method.scheme} scheme")
+        for force in dict.fromkeys((method.force, method.velocity_gradient)):
+            reasons += self._needs("forces", force, f"the {force} force")
+        reasons += self._needs("kernels", method.kernel, f"the {method.kernel} kernel")
+        carried = [name for name, flag in (("C", scene.transfer.affine), ("modes", scene.transfer.polypic)) if flag]
+        return reasons + self._evolved_reasons(carried)
+
+    def _materials_reasons(self, scene):
+        """The material types, the parameter values this backend fixes, and the deformation fields they carry."""
         reasons = []
         for material in scene.material_list:
             kind = material_type(material)
@@ -150,14 +166,10 @@ class Implements:
                 value = getattr(material, parameter)
                 if value != fixed:
                     reasons.append(f"needs {kind} {parameter} = {value:g} (this backend fixes {parameter} = {fixed:g})")
-        return list(dict.fromkeys(reasons))
+        carried = dict.fromkeys(field for m in scene.material_list for field in evolved_fields(m))
+        return list(dict.fromkeys(reasons)) + self._evolved_reasons(carried)
 
-    def _evolved_reasons(self, scene):
-        needed = dict.fromkeys(field for m in scene.material_list for field in evolved_fields(m))
-        if scene.transfer.affine:
-            needed["C"] = None
-        if scene.transfer.polypic:
-            needed["modes"] = None
+    def _evolved_reasons(self, needed):
         lacking = [f for f in needed if f not in self.evolves]
         own = ", ".join(self.evolves) if self.evolves else "x and v"
         return [f"compares {', '.join(lacking)}: this backend evolves {own} only"] if lacking else []
@@ -177,6 +189,12 @@ class Implements:
             reasons += self._needs("walls", kind, f"{kind} colliders")
         if not self.moving_colliders and any(bool(abs(c.velocity).max() > 0.0) for c in scene.colliders):
             reasons.append("needs a moving collider")
+        return reasons
+
+    def _stepping_reasons(self, scene):
+        reasons = self._needs("stepping", scene.time.stepping, f"{STEPPING_WORDS[scene.time.stepping]} time stepping")
+        if scene.rigid_bodies and not self.rigid_bodies:
+            reasons.append("needs rigid bodies (CPIC coupling)")
         return reasons
 
     # --------------------------------------------------------------------------------------- reporting
@@ -231,6 +249,27 @@ def declared(obj):
         raise TypeError(f"{getattr(obj, '__qualname__', type(obj).__name__)}.implements is a "
                         f"{type(found).__name__}; declare an mpmref.backends.capabilities.Implements")
     return found
+
+
+def probed(found, scenes):
+    """What the backend ``found`` (a resolved backend reference) implements, where its declaration is on the objects
+    it makes: :func:`declared` of ``found`` if it declares, else, for a factory function (not a class, which declares
+    on itself), :func:`declared` of the first object it makes for one of ``scenes`` (a factory that raises for a scene
+    is tried on the next); :data:`EVERYTHING` if none is made.
+
+    A factory ``def factory(scene): return MyBackend(scene)`` need not repeat its class's declaration: the checks
+    find it this way before they choose their cases (docs/checking_your_code.md, "Codes that implement a part").
+    """
+    found_declares = getattr(found, "implements", None) is not None
+    if found_declares or isinstance(found, type) or not callable(found) or callable(getattr(found, "p2g", None)):
+        return declared(found)
+    for scene in scenes:
+        try:
+            made = found(scene)
+        except Exception:  # a factory that cannot make this scene's backend: try the next scene
+            continue
+        return declared(made)
+    return EVERYTHING
 
 
 def declined(exc):

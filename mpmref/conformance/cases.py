@@ -1,67 +1,64 @@
-"""Conformance cases: which scenes each stage is checked on, and the seeded random state of each case.
+"""The built-in catalogue of conformance cases: which scenes each stage is checked on.
 
-Every case is one stage on one scene. The scene is declared as a plain dict (the TOML structure, so that it can be
-written to ``manifest.json``): a box of 8 to 13 cells per axis (each axis its own count), a cell size drawn
-log-uniformly over two and a half decades and an origin off zero (:func:`case_grid`). The state, Δt and the time
-are drawn from generators seeded by the case's name, so a case is the same on every machine and adding cases
-changes no other; Δt spans nearly four decades of CFL number inside the stable range (:func:`draw_step`), because
-one Δt in every case cannot tell a stage that ignores its Δt from one that uses it. Why each stage varies only
-some axes is explained in :mod:`mpmref.conformance`.
+Every case is one stage on one scene (:class:`~.case.ConformanceCase`). The scene is declared as a plain dict (the
+TOML structure, so that it can be written to ``manifest.json``): a box of 8 to 13 cells per axis (each axis its own
+count), a cell size drawn log-uniformly over two and a half decades and an origin off zero (:func:`case_grid`). The
+state, Δt and the time are drawn from generators seeded by the case's name (:mod:`.states`), so a case is the same on
+every machine and adding cases changes no other; Δt spans nearly four decades of CFL number inside the stable range
+(:func:`~.states.draw_step`), because one Δt in every case cannot tell a stage that ignores its Δt from one that uses
+it. Why each stage varies only some axes is explained in :mod:`mpmref.conformance`.
+
+The catalogue is fitted to what a backend implements (:func:`make_cases` with ``implements``,
+:class:`~mpmref.backends.capabilities.Implements`): the axes a stage does not depend on (the walls of a stress case,
+the scheme of a grid-update case) are set to ones the backend has, and the per-method cases run on the materials it
+has (the fluid alone for a fluid-only code; the case name says so) with the parameters it fixes. For a backend that
+implements everything, the catalogue is the same.
 """
 
 import zlib
-from dataclasses import dataclass, field
-from functools import partial
+from dataclasses import dataclass, replace
+from functools import cache, cached_property, partial
 from itertools import product
 
 import numpy as np
 
-from ..backends import make_backend
+from ..backends.capabilities import EVERYTHING, SCHEMES, Implements
 from ..errors import SceneError
-from ..physics.kernels import KERNELS, compute_stencil
-from ..physics.polypic import higher_modes
-from ..scene import CPIC_SCHEMES, FORCES, SCHEMES, Scene
-from .cpic import RUNNERS, cpic_scene_dict, random_cpic_state, reference_grid_velocity
-from .stages import (
-    ALL_CONFORMANCE_STAGES,
-    CONFORMANCE_STAGES,
-    CPIC_CONFORMANCE_STAGES,
-    STAGES_WITH_DT,
-    STAGES_WITH_TIME,
-    composed_step,
-    ledger_step,
-    particles_from,
-    run_stage,
-    unfused_then_force,
+from ..physics.catalogue import MATERIALS as MATERIAL_CLASSES
+from ..physics.kernels import KERNELS
+from ..physics.parameters import declared as declared_parameters
+from ..physics.scheme import TRANSFER_OF
+from ..scene import CPIC_SCHEMES, FORCES, Scene
+from ..scene import SCHEMES as SCENE_SCHEMES
+from .case import DEFAULT_RTOL, STAGE_PARTS, ConformanceCase, backend_stage
+from .cpic import cpic_scene_dict
+from .stages import ALL_CONFORMANCE_STAGES, ASYNC_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES
+from .states import (
+    CFL_RANGE,
+    EDGE_CELLS,
+    MIN_WEIGHT,
+    N_PARTICLES,
+    REFERENCE_DX,
+    TIME_RANGE,
+    cfl_number,
+    draw_step,
+    draw_time,
+    random_grid,
+    random_particles,
 )
+
+__all__ = ["CELL_RANGE", "CFL_RANGE", "DEFAULT_RTOL", "DX_RANGE", "EDGE_CELLS", "MATERIALS", "MIN_WEIGHT",
+           "N_PARTICLES", "REFERENCE_DX", "TIME_RANGE", "ConformanceCase", "backend_stage", "case_grid", "cfl_number",
+           "cpic_methods", "draw_step", "draw_time", "make_cases", "random_grid", "random_particles", "scene_dict",
+           "valid_methods"]  # the states' names too, where the docs and the tests have always found them
 
 #: cells per axis of a case's grid: each axis draws its own count in this range (:func:`case_grid`)
 CELL_RANGE = (8, 13)
 #: a case's cell size is drawn log-uniformly in this range
 DX_RANGE = (0.02, 5.0)
-#: the cell size at which the state's velocities are of order 1; they scale with the cell size, so that a
-#: state moves the same number of cells per second on every grid
-REFERENCE_DX = 1.0 / 8
-#: particles stay at least this many cells away from every face of the domain
-EDGE_CELLS = 2
-N_PARTICLES = {2: 64, 3: 128}
-#: smallest per-axis kernel weight a particle may have (see :func:`random_positions`). 1e-4 was enough on the unit
-#: box of 8 cells; with the drawn grids and steps, two 3D PolyPIC steps (classic force) moved their modes by
-#: 1.0e-13 and 1.3e-13 for a 1e-15 input change (a top mode's norm is a product of per-axis factors, one per
-#: axis); at 1e-3 the largest over every case is 4.1e-14
-MIN_WEIGHT = 1.0e-3
-#: the CFL number of a case, Δt (c + 4 s) / Δx, is drawn log-uniformly in this range (:func:`draw_step`)
-CFL_RANGE = (1.0e-4, 0.5)
-#: the time of a case (where colliders move) is drawn log-uniformly in this range
-TIME_RANGE = (1.0e-4, 0.2)
-#: Δt and time of the CPIC cases, whose bodies are declared in the coordinates of the unit box of 8 cells
-CPIC_DT, CPIC_TIME = 1.0e-3, 0.05
 GRAVITY = [0.3, -9.8, 0.5]
-#: default pass threshold on the relative error, per dtype. In float32 the reference itself lies within
-#: 3.7e-6 of the float64 result on the same inputs (3.6e-6 measured, PolyPIC modes after a classic-force step;
-#: 9.2e-7 on the unit box of 8 cells, where dx = 1/8 and the origin are exact in float32); 5e-5 leaves more than
-#: ten times that for the candidate's own rounding (the Numba backend in float32: 3.6e-6 at most).
-DEFAULT_RTOL = {"float64": 1.0e-12, "float32": 5.0e-5}
+#: the time stepping of the cases of asynchronous stepping's stages (their Δt is drawn, :attr:`ConformanceCase.dt`)
+ASYNC_TIME = {"stepping": "async", "cfl": 0.4}
 
 MATERIALS = {
     "fixed_corotated": {"type": "fixed_corotated", "E": 1.0e3, "nu": 0.3, "rho": 1.0},
@@ -78,8 +75,14 @@ TRANSFER_MATERIALS = ("fixed_corotated", "fluid")
 MIXED_WALLS = {"x_min": {"type": "sticky"}, "x_max": {"type": "slip"},
                "y_min": {"type": "separate", "friction": 0.5}, "y_max": {"type": "open"},
                "z_min": {"type": "separate", "friction": 0.0}, "z_max": {"type": "sticky"}}
+#: one wall type on every face; ``separate-frictionless`` is the one wall of the 88-line program
 UNIFORM_WALLS = {"sticky": {"type": "sticky"}, "slip": {"type": "slip"},
-                 "separate": {"type": "separate", "friction": 0.3}, "open": {"type": "open"}}
+                 "separate": {"type": "separate", "friction": 0.3}, "open": {"type": "open"},
+                 "separate-frictionless": {"type": "separate", "friction": 0.0}}
+#: the methods of the cases of P2G by classes and G2P with kicks: each kernel, each transfer and both forces
+ASYNC_METHODS = ("mls-mls-quadratic", "pic-classic-linear", "flip-mls-cubic", "polypic-classic-quadratic")
+#: the methods of the node-kick cases: the kick depends on the scheme only through FLIP's momentum share
+KICK_METHODS = ("mls-mls-quadratic", "flip-mls-quadratic")
 
 
 # ------------------------------------------------------------------------------------------ scenes
@@ -93,13 +96,19 @@ def case_grid(label, dim):
     positions stay within about half the box of zero, so float32 cases keep the precision of the unit box).
     """
     rng = np.random.default_rng(zlib.crc32(f"grid-{label}".encode()))
-    cells = rng.integers(CELL_RANGE[0], CELL_RANGE[1] + 1, size=dim)
-    if np.all(cells == cells[0]):
-        cells[-1] = CELL_RANGE[0] + (cells[0] - CELL_RANGE[0] + 1) % (CELL_RANGE[1] - CELL_RANGE[0] + 1)
+    cells = distinct_cells(rng, dim, CELL_RANGE)
     dx = float(np.exp(rng.uniform(*np.log(DX_RANGE))))
     size = cells * dx
     origin = -size * rng.uniform(0.35, 0.65, dim)
     return {"origin": origin.tolist(), "size": size.tolist(), "dx": dx}
+
+
+def distinct_cells(rng, dim, cell_range):
+    """Cells per axis drawn in ``cell_range`` (inclusive), not all equal."""
+    cells = rng.integers(cell_range[0], cell_range[1] + 1, size=dim)
+    if np.all(cells == cells[0]):
+        cells[-1] = cell_range[0] + (cells[0] - cell_range[0] + 1) % (cell_range[1] - cell_range[0] + 1)
+    return cells
 
 
 def in_box(grid, unit):
@@ -116,6 +125,12 @@ def unit_box_grid(dim):
 def mixed_walls(dim):
     """A boundary with a different wall type on each face (catches walls applied to the wrong face)."""
     return {"type": "open", "walls": {k: dict(w) for k, w in MIXED_WALLS.items() if k[0] in "xyz"[:dim]}}
+
+
+def uniform_walls(name):
+    """A boundary with the wall :data:`UNIFORM_WALLS` ``[name]`` on every face."""
+    wall = UNIFORM_WALLS[name]
+    return {"type": wall["type"], **({"friction": wall["friction"]} if "friction" in wall else {})}
 
 
 def collider_dicts(dim, grid):
@@ -137,28 +152,46 @@ def collider_dicts(dim, grid):
     return colliders
 
 
-def scene_dict(dim, materials, method=None, boundary=None, colliders=(), dtype="float64", grid=None):
+def material_dicts(names, parameters=None):
+    """The declared materials ``names`` of :data:`MATERIALS`, with the values a backend fixes (``parameters``, as
+    :attr:`~mpmref.backends.capabilities.Implements.parameters`) in place of the catalogue's."""
+    out = {}
+    for name in names:
+        kind = MATERIALS[name]["type"]
+        keys = {p.name for p in declared_parameters(MATERIAL_CLASSES[kind])}
+        fixed = {k: v for k, v in (parameters or {}).get(kind, {}).items() if k in keys}
+        out[name] = {**MATERIALS[name], **fixed}
+    return out
+
+
+def scene_dict(dim, materials, method=None, boundary=None, colliders=(), dtype="float64", grid=None,
+               parameters=None):
     """The declaration of a case's scene: the box ``grid`` (default: the unit box of 8 cells per axis), gravity,
-    the given materials.
+    the given materials (names of :data:`MATERIALS`, with the values ``parameters`` fixes, :func:`material_dicts`).
 
     ``boundary`` defaults to :func:`mixed_walls`. The one body only makes the scene valid; the cases draw
     their own particles.
     """
     grid = grid or unit_box_grid(dim)
     return {"name": "conformance", "dim": dim, "dtype": dtype, "grid": dict(grid),
-            "method": dict(method or {}), "materials": {name: dict(MATERIALS[name]) for name in materials},
+            "method": dict(method or {}), "materials": material_dicts(materials, parameters),
             "bodies": [{"shape": "box", "material": materials[0], "lower": in_box(grid, [0.25] * dim),
                         "upper": in_box(grid, [0.75] * dim)}],
             "gravity": GRAVITY[:dim], "boundary": boundary or mixed_walls(dim),
-            "colliders": [dict(c) for c in colliders], "time": {"dt": CPIC_DT}}
+            "colliders": [dict(c) for c in colliders], "time": {"dt": 1.0e-3}}
 
 
 def valid_methods():
     """Every ``{"scheme", "force", "kernel"}`` combination that the scene validator accepts, plus APIC
     (quadratic) with the velocity gradient of the other force (the force/F-update ablation of the
     convergence case)."""
+    return [dict(m) for m in _valid_methods()]
+
+
+@cache
+def _valid_methods():
     methods = []
-    for scheme, force, kernel in product(SCHEMES, FORCES, KERNELS):
+    for scheme, force, kernel in product(SCENE_SCHEMES, FORCES, KERNELS):
         method = {"scheme": scheme, "force": force, "kernel": kernel}
         try:
             Scene.from_dict(scene_dict(2, TRANSFER_MATERIALS, method=method))
@@ -167,7 +200,7 @@ def valid_methods():
         methods.append(method)
     crossed = [dict(m, velocity_gradient=g) for m in methods if m["scheme"] == "apic" and m["kernel"] == "quadratic"
                for g in FORCES if g != m["force"]]
-    return methods + crossed
+    return tuple(methods + crossed)
 
 
 def method_label(method):
@@ -176,223 +209,9 @@ def method_label(method):
     return f"{method['scheme']}-{method['force']}-{method['kernel']}{suffix}"
 
 
-# ------------------------------------------------------------------------------------------- states
-def random_rotations(rng, n, dim):
-    """``n`` uniformly random proper rotations (QR of Gaussian matrices with the sign fixed)."""
-    q, r = np.linalg.qr(rng.standard_normal((n, dim, dim)))
-    q = q * np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :]
-    q[np.linalg.det(q) < 0, :, 0] *= -1.0
-    return q
-
-
-def random_deformation_gradients(rng, n, dim, min_det=0.3):
-    """``F = R (I + s G)``: random rotation ``R``, Gaussian ``G``, ``s`` log-uniform in [1e-3, 0.2]; det F > min_det.
-
-    Small ``s`` leave snow and sand inside their yield surface, large ones outside, so both branches of each
-    return map are exercised.
-    """
-    F = np.empty((n, dim, dim))
-    todo = np.arange(n)
-    while todo.size:
-        s = np.exp(rng.uniform(np.log(1e-3), np.log(0.2), todo.size))
-        stretch = np.eye(dim) + s[:, None, None] * rng.standard_normal((todo.size, dim, dim))
-        F[todo] = random_rotations(rng, todo.size, dim) @ stretch
-        todo = todo[np.linalg.det(F[todo]) <= min_det]
-    return F
-
-
-def random_modes(rng, n, dim, support, dx, speed=1.0):
-    """PolyPIC coefficients scaled by ``dx^-degree``, so that each mode adds O(0.1) ``speed`` to a node's velocity."""
-    degree = higher_modes(dim, support).sum(axis=1)
-    return 0.1 * speed * rng.standard_normal((n, len(degree), dim)) / (dx ** degree)[None, :, None]
-
-
-def random_positions(scene, rng, n):
-    """``n`` positions at least ``EDGE_CELLS`` cells inside the domain whose per-axis kernel weights are all
-    at least ``MIN_WEIGHT``.
-
-    Where a particle's outermost weight vanishes (at cell centres for the quadratic B-spline, on nodes for
-    the cubic), PolyPIC's top mode norms vanish too and G2P divides by them: there a 1e-15 relative change of
-    the inputs moved the output modes by up to 2.5e-7 relative, so no threshold near round-off could be
-    asked of a correct implementation. With the margin the same perturbation moves every output by < 1e-13
-    (4.1e-14 at most, measured on every case).
-    """
-    grid = scene.grid
-    lo = grid.origin + EDGE_CELLS * grid.dx
-    hi = grid.origin + (np.array(grid.cells) - EDGE_CELLS) * grid.dx  # each axis its own count
-    x = np.empty((0, scene.dim))
-    while len(x) < n:
-        trial = lo + (hi - lo) * rng.random((n, scene.dim))
-        weights = compute_stencil(scene.kernel, trial, grid.origin, grid.dx).w
-        x = np.concatenate([x, trial[weights.min(axis=(1, 2)) >= MIN_WEIGHT]])
-    return x[:n]
-
-
-def speed_scale(scene):
-    """The velocity scale of a case's state: 1 at :data:`REFERENCE_DX`, proportional to the cell size (a state
-    moves as many cells per unit time on every grid)."""
-    return scene.grid.dx / REFERENCE_DX
-
-
-def random_particles(scene, rng):
-    """A particle state for ``scene`` as a flat dict.
-
-    Positions from :func:`random_positions`; random materials of the scene; volume a quarter cell (2D) or
-    an eighth (3D) within ±20 %; mass ``rho * vol0``; velocities N(0, 1) times :func:`speed_scale`; ``C``
-    N(0, 4^2); ``F`` from :func:`random_deformation_gradients`; ``J`` in [0.9, 1.1]; ``Jp`` in [0.7, 1.2];
-    PolyPIC modes from :func:`random_modes`. ``C``, ``F``, ``J``, ``Jp`` and ``modes`` only where the scene
-    needs them.
-    """
-    grid, dim, speed = scene.grid, scene.dim, speed_scale(scene)
-    n = N_PARTICLES[dim]
-    material = rng.integers(len(scene.materials), size=n).astype(np.int32)
-    vol0 = grid.dx**dim / 2**dim * rng.uniform(0.8, 1.2, n)
-    rho = np.array([m.rho for m in scene.material_list])[material]
-    flat = {"x": random_positions(scene, rng, n), "v": speed * rng.standard_normal((n, dim)), "mass": rho * vol0,
-            "vol0": vol0, "material": material}
-    if scene.transfer.affine:
-        flat["C"] = 4.0 * rng.standard_normal((n, dim, dim))
-    if scene.tracks("F"):
-        flat["F"] = random_deformation_gradients(rng, n, dim)
-    if scene.tracks("J"):
-        flat["J"] = rng.uniform(0.9, 1.1, n)
-    if scene.tracks("Jp"):
-        flat["Jp"] = rng.uniform(0.7, 1.2, n)
-    if scene.transfer.polypic:
-        flat["modes"] = random_modes(rng, n, dim, scene.kernel.support, grid.dx, speed)
-    return flat
-
-
-def random_grid(scene, rng):
-    """Grid state after a P2G: a quarter of the nodes empty, the others with mass in [0.2, 1.5] x rho dx^d,
-    velocity N(0, 1) and force mass x N(0, 50^2), both times :func:`speed_scale`."""
-    n_nodes, dim, speed = scene.grid.n_nodes, scene.dim, speed_scale(scene)
-    mass = scene.grid.dx**dim * rng.uniform(0.2, 1.5, n_nodes) * (rng.random(n_nodes) >= 0.25)
-    return {"grid_mass": mass, "grid_momentum": mass[:, None] * speed * rng.standard_normal((n_nodes, dim)),
-            "grid_force": mass[:, None] * 50.0 * speed * rng.standard_normal((n_nodes, dim))}
-
-
-def draw_step(label, scene):
-    r"""Δt of the case called ``label``: :math:`\Delta t = \mathrm{CFL}\,\Delta x / (c + 4 s)` with the CFL number
-    log-uniform in :data:`CFL_RANGE` (nearly four decades, all inside the stable range of every scheme,
-    docs/stability.md), :math:`c` the scene's largest rest wave speed and :math:`s` the state's
-    :func:`speed_scale` (four standard deviations bound the drawn speeds). Seeded by the label."""
-    cfl = np.exp(np.random.default_rng(zlib.crc32(f"dt-{label}".encode())).uniform(*np.log(CFL_RANGE)))
-    return float(cfl * scene.grid.dx / (scene.max_wave_speed() + 4.0 * speed_scale(scene)))
-
-
-def cfl_number(scene):
-    """The CFL number of a case's scene as :func:`draw_step` drew it: ``time.dt (c + 4 s) / dx``."""
-    return scene.time.dt * (scene.max_wave_speed() + 4.0 * speed_scale(scene)) / scene.grid.dx
-
-
-def draw_time(seed):
-    """The time of a case (log-uniform in :data:`TIME_RANGE`): where the moving colliders are."""
-    return float(np.exp(np.random.default_rng([seed, 1]).uniform(*np.log(TIME_RANGE))))
-
-
-def reference_grid_velocities(scene, flat, dt, time):
-    """``grid_v`` and ``grid_v_tilde`` of the reference P2G and grid update of the particles ``flat``."""
-    backend = make_backend("numpy", scene)
-    v, v_tilde = backend.grid_update(backend.p2g(particles_from(flat)), dt, time)
-    return {"grid_v": v, "grid_v_tilde": v_tilde}
-
-
-def _as_dtype(flat, dtype):
-    """Floating arrays of ``flat`` in ``dtype``; integer arrays and 0-d scalars unchanged."""
-    return {k: a.astype(dtype) if a.ndim and a.dtype.kind == "f" else a for k, a in flat.items()}
-
-
-# -------------------------------------------------------------------------------------------- cases
-@dataclass(frozen=True, eq=False)
-class ConformanceCase:
-    """One stage of a backend on one scene, with a seeded random state.
-
-    Attributes
-    ----------
-    stage : str        one of :data:`~mpmref.conformance.stages.CONFORMANCE_STAGES`
-    dim : int          2 or 3
-    variant : str      what the case varies: a material set, a method ``scheme-force-kernel``, a boundary
-    scene_dict : dict  the scene, as :meth:`mpmref.scene.Scene.from_dict` takes it
-    dtype : str        ``"float64"`` or ``"float32"``
-    """
-
-    stage: str
-    dim: int
-    variant: str
-    scene_dict: dict = field(repr=False)
-    dtype: str = "float64"
-
-    @property
-    def name(self):
-        """Unique, file-name safe: ``stage-<dim>d-variant`` (plus ``-f32`` in float32)."""
-        suffix = "-f32" if self.dtype == "float32" else ""
-        return f"{self.stage}-{self.dim}d-{self.variant}{suffix}"
-
-    @property
-    def seed(self):
-        """Seed of the state: CRC-32 of the name without the dtype (a float32 case rounds the float64 state)."""
-        return zlib.crc32(f"{self.stage}-{self.dim}d-{self.variant}".encode())
-
-    @property
-    def rtol(self):
-        return DEFAULT_RTOL[self.dtype]
-
-    @property
-    def materials(self):
-        """The material types of the case's scene (a set)."""
-        return {m["type"] for m in self.scene_dict["materials"].values()}
-
-    def scene(self):
-        return Scene.from_dict(self.scene_dict)
-
-    def inputs(self):
-        """The stage's inputs as a flat dict of arrays (same result on every call)."""
-        scene, rng = self.scene(), np.random.default_rng(self.seed)
-        if self.stage in CPIC_CONFORMANCE_STAGES:
-            return _as_dtype(cpic_inputs(self.stage, scene, rng), self.dtype)
-        flat = random_grid(scene, rng) if self.stage == "grid_update" else random_particles(scene, rng)
-        dt, time = scene.time.dt, draw_time(self.seed)
-        if self.stage == "g2p":
-            flat.update(reference_grid_velocities(scene, flat, dt, time))
-        if self.stage in STAGES_WITH_DT:
-            flat["dt"] = np.array(dt)
-        if self.stage in STAGES_WITH_TIME:
-            flat["time"] = np.array(time)
-        flat = _as_dtype(flat, self.dtype)
-        if self.stage == "p2g":  # the optional input of a P2G that takes the stress (docs/conformance.md)
-            flat["tau"] = make_backend("numpy", scene).stress(particles_from(flat))
-        return flat
-
-    def reference(self, inputs=None):
-        """The NumPy reference's outputs of the stage on ``inputs`` (default: :meth:`inputs`), a flat dict."""
-        backend = make_backend("numpy", self.scene())
-        fn = backend_stage(backend, self.stage)
-        return run_stage(self.stage, fn, self.inputs() if inputs is None else inputs)
-
-
-def backend_stage(backend, stage):
-    """The callable of ``stage`` for a backend object (``step``: the pipeline over its stages; ``ledger``: that
-    step's energy ledger; CPIC stages: their runners of :mod:`mpmref.conformance.cpic` bound to it)."""
-    if stage == "step":
-        return partial(composed_step, backend)
-    if stage == "p2g_fused":  # the truth is the unfused P2G plus dt times its force, whatever the backend folds
-        return unfused_then_force(backend)
-    if stage == "ledger":
-        return partial(ledger_step, backend)
-    if stage in CPIC_CONFORMANCE_STAGES:
-        return partial(RUNNERS[stage], backend)
-    return getattr(backend, stage)
-
-
-def cpic_inputs(stage, scene, rng):
-    """A CPIC stage's inputs: :func:`random_particles`, previous tags and bodies (:func:`.cpic.random_cpic_state`),
-    ``dt``, ``time`` and, for ``cpic_g2p``, the reference's ``grid_v`` of that state."""
-    flat = random_cpic_state(scene, rng, random_particles(scene, rng))
-    flat["dt"], flat["time"] = np.array(CPIC_DT), np.array(CPIC_TIME)
-    if stage == "cpic_g2p":
-        flat["grid_v"] = reference_grid_velocity(scene, flat)
-    return flat
+def method_of(label):
+    """The method ``{"scheme", "force", "kernel"}`` of a label ``scheme-force-kernel``."""
+    return next(m for m in valid_methods() if method_label(m) == label)
 
 
 def cpic_methods():
@@ -400,11 +219,214 @@ def cpic_methods():
     return [m for m in valid_methods() if m["scheme"] in CPIC_SCHEMES]
 
 
-def _cpic_case(stage, label, method, dim=2):
-    return ConformanceCase(stage, dim, label, cpic_scene_dict(scene_dict(dim, TRANSFER_MATERIALS), method))
+# ---------------------------------------------------------------------------- fitting to a backend
+#: the method a scene declares when it declares none: MLS-MPM, quadratic
+DEFAULT_METHOD = {"scheme": "mls", "force": "mls", "kernel": "quadratic"}
+#: the walls a stage that does not see them is given, in order of preference, when the backend lacks the mixed walls
+WALL_PREFERENCE = ("separate", "separate-frictionless", "slip", "sticky", "open")
 
 
-def _cpic_cases(stage, dim, dtype):
+@dataclass(frozen=True, eq=False)
+class Fit:
+    """The catalogue fitted to a declaration (:class:`~mpmref.backends.capabilities.Implements`): for each axis of a
+    scene, the catalogue's choice if the declaration has it, else one it has.
+
+    ``target`` is what the cases are fitted to (a backend's declaration, narrowed by the filters); ``filters`` is the
+    selection (``--material``, ``--scheme``, ``--kernel``): a case whose materials, scheme or kernel it excludes is
+    left out of the catalogue (a case the backend lacks stays in, and is reported as not applicable).
+    """
+
+    target: Implements = EVERYTHING
+    materials: tuple | None = None
+    schemes: tuple | None = None
+    kernels: tuple | None = None
+
+    def _check(self, dim, parts, **declared):
+        """Whether the target implements ``parts`` of a unit-box scene with ``declared`` (keyword arguments of
+        :func:`scene_dict`)."""
+        declared.setdefault("materials", ("fixed_corotated",))
+        return not self.target.missing(Scene.from_dict(scene_dict(dim, **declared)), parts)
+
+    @cached_property
+    def method(self):
+        """The method of the cases that are not per method: ``None`` (the scene's default, MLS-MPM) if the target
+        implements it, else the first valid one it implements (with the affine matrix or modes it carries)."""
+        if self._check(2, ("method",), method=DEFAULT_METHOD):
+            return None
+        return next((m for m in valid_methods() if self._check(2, ("method",), method=m)), None)
+
+    def method_suffix(self):
+        """``-<method>`` for the names of cases on :attr:`method` when it is not the default, else ``""``."""
+        return "" if self.method is None else f"-{method_label(self.method)}"
+
+    def walls(self, dim):
+        """``(boundary, suffix)``: the mixed walls if the target has them, else the uniform walls it has first in
+        :data:`WALL_PREFERENCE` (with ``-<walls>`` for the case names of the stages that see the walls)."""
+        if self._check(dim, ("boundary",), boundary=mixed_walls(dim)):
+            return mixed_walls(dim), ""
+        name = next((w for w in WALL_PREFERENCE if self._check(dim, ("boundary",), boundary=uniform_walls(w))), None)
+        return (uniform_walls(name), f"-{name}") if name else (mixed_walls(dim), "")
+
+    @cached_property
+    def kinds(self):
+        """The material types of :data:`MATERIALS` that the target implements (with the fields they carry)."""
+        return tuple(k for k in MATERIALS if self._check(2, ("materials",), materials=(k,)))
+
+    def material_set(self, wanted):
+        """``(names, suffix)``: the materials of ``wanted`` that the target implements (all of them, the suffix
+        empty, if it implements each), else those (``-<names>``), else its first material; ``wanted`` itself if it
+        implements none."""
+        have = tuple(m for m in wanted if m in self.kinds)
+        if have == tuple(wanted):
+            return tuple(wanted), ""
+        have = have or self.kinds[:1]
+        return (have, "-" + "-".join(have)) if have else (tuple(wanted), "")
+
+    def mixed_set(self):
+        """``(names, variant)`` of the set of every material: all five (``mixed``), or every one the target
+        implements if that is at least two (``mixed-<names>``)."""
+        if len(self.kinds) == len(MATERIALS) or len(self.kinds) < 2:
+            return MATERIAL_SETS["mixed"], "mixed"
+        return self.kinds, "mixed-" + "-".join(self.kinds)
+
+    def selects(self, case):
+        """Whether the filters keep ``case``: its materials among ``materials``, and where its stage depends on the
+        method, its scheme among ``schemes`` and its kernel among ``kernels``."""
+        if self.materials is not None and "materials" in STAGE_PARTS[case.stage] \
+                and not case.materials <= set(self.materials):
+            return False
+        method = {"scheme": "mls", "kernel": "quadratic", **case.scene_dict["method"]}
+        if "method" not in STAGE_PARTS[case.stage]:
+            return True
+        return ((self.schemes is None or method["scheme"] in self.schemes)
+                and (self.kernels is None or method["kernel"] in self.kernels))
+
+
+def fit_for(implements=None, materials=None, schemes=None, kernels=None):
+    """The :class:`Fit` of a backend's declaration ``implements`` (default: everything) narrowed by the filters."""
+    target = implements or EVERYTHING
+    narrowed = {"parameters": {k: dict(v) for k, v in target.parameters.items()}}
+    if materials is not None:
+        kept = tuple(m for m in target.materials if m in materials)
+        narrowed.update(materials=kept, parameters={k: v for k, v in target.parameters.items() if k in kept})
+    if schemes is not None:
+        have = {TRANSFER_OF[s] for s in target.schemes}
+        narrowed["schemes"] = tuple(s for s in SCHEMES if s in schemes and TRANSFER_OF[s] in have)
+    if kernels is not None:
+        narrowed["kernels"] = tuple(k for k in target.kernels if k in kernels)
+    if len(narrowed) > 1:
+        target = replace(target, **narrowed)
+    return Fit(target, materials, schemes, kernels)
+
+
+# -------------------------------------------------------------------------------------------- cases
+def drawn_case(stage, dim, variant, dtype, materials, method=None, boundary=None, colliders=False, fit=None,
+               stepping=None):
+    """A case whose grid (:func:`case_grid`) and Δt (:func:`~.states.draw_step`, the scene's ``time.dt``, or the
+    case's own Δt for asynchronous stepping) are drawn from its name; ``colliders``: one of each shape in its box
+    (:func:`collider_dicts`); the materials with the parameters ``fit`` fixes."""
+    label = f"{stage}-{dim}d-{variant}"
+    grid = case_grid(label, dim)
+    parameters = (fit or Fit()).target.parameters
+    declared = scene_dict(dim, materials, method, boundary, collider_dicts(dim, grid) if colliders else (), dtype,
+                          grid, parameters)
+    dt = draw_step(label, Scene.from_dict(declared))
+    if stepping == "async":
+        declared["time"] = dict(ASYNC_TIME)
+        return ConformanceCase(stage, dim, variant, declared, dtype, dt=dt)
+    declared["time"] = {"dt": dt}
+    return ConformanceCase(stage, dim, variant, declared, dtype)
+
+
+def _material_cases(stage, dim, dtype, set_names, fit, stepping=None):
+    """Each material set of ``set_names`` (:data:`MATERIAL_SETS`), with the method and walls ``fit`` gives the stages
+    that do not see them (a material the target lacks is kept: the case is not applicable to it)."""
+    walls, _ = fit.walls(dim)
+    cases = []
+    for name in set_names:
+        names, variant = fit.mixed_set() if name == "mixed" else (MATERIAL_SETS[name], name)
+        cases.append(drawn_case(stage, dim, variant, dtype, names, fit.method, walls, fit=fit, stepping=stepping))
+    return cases
+
+
+def _transfer_material_cases(stage, dim, dtype, fit):
+    """Each material set with MLS-MPM (or the target's method, named), on the walls ``fit`` gives (named where the
+    stage sees them): a code with one material checks its transfers on that material's cases."""
+    walls, wall_suffix = fit.walls(dim)
+    wall_suffix = wall_suffix if "boundary" in STAGE_PARTS[stage] else ""
+    cases = []
+    for name in MATERIAL_SETS:
+        names, variant = fit.mixed_set() if name == "mixed" else (MATERIAL_SETS[name], name)
+        cases.append(drawn_case(stage, dim, variant + fit.method_suffix() + wall_suffix, dtype, names, fit.method,
+                                walls, fit=fit))
+    return cases
+
+
+def _method_cases(stage, dim, dtype, fit, methods=None, stepping=None):
+    """Every valid method (or ``methods``, labels) on the solid and the fluid together, or the materials of them the
+    target implements (named), on the walls ``fit`` gives (named where the stage sees them)."""
+    names, material_suffix = fit.material_set(TRANSFER_MATERIALS)
+    walls, wall_suffix = fit.walls(dim)
+    wall_suffix = wall_suffix if "boundary" in STAGE_PARTS[stage] else ""
+    chosen = valid_methods() if methods is None else [method_of(label) for label in methods]
+    return [drawn_case(stage, dim, method_label(m) + material_suffix + wall_suffix, dtype, names, method=m,
+                       boundary=walls, fit=fit, stepping=stepping) for m in chosen]
+
+
+def _grid_update_cases(dim, dtype, fit):
+    """Each uniform wall (:data:`UNIFORM_WALLS`), the mixed walls, and one collider of each shape with open walls, on
+    a material and a method the target has (the grid update sees neither)."""
+    material = fit.kinds[:1] or ("fixed_corotated",)
+    boundaries = {**{name: uniform_walls(name) for name in UNIFORM_WALLS}, "mixed": mixed_walls(dim)}
+    cases = [drawn_case("grid_update", dim, name, dtype, material, fit.method, boundary=b, fit=fit)
+             for name, b in boundaries.items()]
+    return cases + [drawn_case("grid_update", dim, "colliders", dtype, material, fit.method,
+                               boundary=uniform_walls("open"), colliders=True, fit=fit)]
+
+
+def _transfer_cases(stage, dim, dtype, fit):
+    """Every method with the solid and the fluid together, then each material alone and all five together (with
+    MLS-MPM): a code with one material checks its transfers on that material's cases."""
+    return _method_cases(stage, dim, dtype, fit) + _transfer_material_cases(stage, dim, dtype, fit)
+
+
+def _ledger_cases(dim, dtype, fit):
+    """The step's cases (:func:`_transfer_cases`), then MLS-MPM with open walls and one collider of each shape, two
+    of them moving: the nodes the colliders act on book ``boundary``, where a moving one may add energy."""
+    names, suffix = fit.material_set(TRANSFER_MATERIALS)
+    colliders = drawn_case("ledger", dim, "colliders" + suffix, dtype, names, boundary=uniform_walls("open"),
+                           colliders=True, fit=fit)
+    return _transfer_cases("ledger", dim, dtype, fit) + [colliders]
+
+
+def _fused_cases(dim, dtype, fit):
+    """The P2G cases without FLIP (whose G2P needs the velocity before the force, so its steps never fuse)."""
+    return [c for c in _transfer_cases("p2g_fused", dim, dtype, fit) if c.scene_dict["method"].get("scheme") != "flip"]
+
+
+def _async_cases(stage, dim, dtype, fit):
+    """The stages of asynchronous stepping: the wave speeds of each material set; P2G by classes and G2P with kicks on
+    :data:`ASYNC_METHODS` (each kernel, each transfer, both forces); the node kicks with and without FLIP's momentum
+    share (:data:`KICK_METHODS`)."""
+    if stage == "wave_speeds":
+        return _material_cases(stage, dim, dtype, MATERIAL_SETS, fit, stepping="async")
+    methods = KICK_METHODS if stage == "interface_kicks" else ASYNC_METHODS
+    return _method_cases(stage, dim, dtype, fit, methods, stepping="async")
+
+
+def _cpic_case(stage, label, method, dim, fit):
+    """A CPIC case: the bodies of :mod:`.cpic` in the unit box, Δt drawn from its name inside the stable range (CFL
+    numbers as the other stages', and the penalty's :math:`k \\Delta t \\le 1`)."""
+    names, suffix = fit.material_set(TRANSFER_MATERIALS)
+    label += suffix
+    declared = cpic_scene_dict(scene_dict(dim, names, parameters=fit.target.parameters), method)
+    scene = Scene.from_dict(declared)
+    penalty = scene.cpic.penalty
+    declared["time"] = {"dt": draw_step(f"{stage}-{dim}d-{label}", scene, limit=1.0 / penalty if penalty else None)}
+    return ConformanceCase(stage, dim, label, declared)
+
+
+def _cpic_cases(stage, dim, dtype, fit):
     """The CPIC cases of ``stage`` (2D and 3D, float64; none in float32): the field once; the tags on each kernel
     (the compatibility is evaluated on the transfer stencil); P2G, G2P and steps on every CPIC method, and two
     variants of the step: momentum-exact, and ghost velocities without the particle's internal force; the tags,
@@ -412,102 +434,71 @@ def _cpic_cases(stage, dim, dtype):
     if dtype != "float64":
         return []
     methods = cpic_methods()
+    case = partial(_cpic_case, stage, dim=dim, fit=fit)
     if stage == "cpic_field":
-        return [_cpic_case(stage, "bodies", methods[0], dim)]
+        return [case("bodies", methods[0])]
     if stage == "cpic_tags":
         first = {}
         for m in methods:
             first.setdefault(m["kernel"], m)
-        cases = [_cpic_case(stage, method_label(m), m, dim) for m in first.values()]
-        return cases + _per_body_cases(stage, dim)
-    cases = [_cpic_case(stage, method_label(m), m, dim) for m in methods]
+        return [case(method_label(m), m) for m in first.values()] + [_per_body_case(case)]
+    cases = [case(method_label(m), m) for m in methods]
     if stage == "cpic_step":
         exact = {"scheme": "pic", "force": "mls", "kernel": "quadratic", "momentum_exact": True}
         plain_ghosts = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "ghost_force": False}
-        cases += [_cpic_case(stage, "pic-mls-quadratic-exact", exact, dim),
-                  _cpic_case(stage, "mls-mls-quadratic-no-ghost-force", plain_ghosts, dim)]
-    return cases + _per_body_cases(stage, dim)
+        cases += [case("pic-mls-quadratic-exact", exact), case("mls-mls-quadratic-no-ghost-force", plain_ghosts)]
+    return cases + [_per_body_case(case)]
 
 
-def _per_body_cases(stage, dim):
-    """The per-body fit's case of ``stage`` (many particles of the cases are tagged by two or three bodies)."""
-    per_body = {"scheme": "mls", "force": "mls", "kernel": "quadratic", "cpic_fit": "per_body"}
-    return [_cpic_case(stage, "mls-mls-quadratic-per-body", per_body, dim)]
-
-
-def drawn_case(stage, dim, variant, dtype, materials, method=None, boundary=None, colliders=False):
-    """A case whose grid (:func:`case_grid`) and Δt (:func:`draw_step`, the scene's ``time.dt``) are drawn from its
-    name; ``colliders``: one of each shape in its box (:func:`collider_dicts`)."""
-    label = f"{stage}-{dim}d-{variant}"
-    grid = case_grid(label, dim)
-    declared = scene_dict(dim, materials, method, boundary, collider_dicts(dim, grid) if colliders else (), dtype,
-                          grid)
-    declared["time"] = {"dt": draw_step(label, Scene.from_dict(declared))}
-    return ConformanceCase(stage, dim, variant, declared, dtype)
-
-
-def _material_cases(stage, dim, dtype, set_names):
-    return [drawn_case(stage, dim, name, dtype, MATERIAL_SETS[name]) for name in set_names]
-
-
-def _method_cases(stage, dim, dtype):
-    return [drawn_case(stage, dim, method_label(m), dtype, TRANSFER_MATERIALS, method=m) for m in valid_methods()]
-
-
-def _grid_update_cases(dim, dtype):
-    boundaries = {**UNIFORM_WALLS, "mixed": mixed_walls(dim)}
-    cases = [drawn_case("grid_update", dim, name, dtype, ("fixed_corotated",), boundary=b)
-             for name, b in boundaries.items()]
-    return cases + [drawn_case("grid_update", dim, "colliders", dtype, ("fixed_corotated",),
-                               boundary=UNIFORM_WALLS["open"], colliders=True)]
-
-
-def _transfer_cases(stage, dim, dtype):
-    """Every method with the solid and the fluid together, then each material alone and all five together (with
-    MLS-MPM): a code with one material checks its transfers on that material's cases."""
-    return _method_cases(stage, dim, dtype) + _material_cases(stage, dim, dtype, MATERIAL_SETS)
-
-
-def _ledger_cases(dim, dtype):
-    """The step's cases (:func:`_transfer_cases`), then MLS-MPM with open walls and one collider of each shape, two
-    of them moving: the nodes the colliders act on book ``boundary``, where a moving one may add energy."""
-    colliders = drawn_case("ledger", dim, "colliders", dtype, TRANSFER_MATERIALS, boundary=UNIFORM_WALLS["open"],
-                           colliders=True)
-    return _transfer_cases("ledger", dim, dtype) + [colliders]
+def _per_body_case(case):
+    """The per-body fit's case (many particles of the cases are tagged by two or three bodies)."""
+    return case("mls-mls-quadratic-per-body", {"scheme": "mls", "force": "mls", "kernel": "quadratic",
+                                               "cpic_fit": "per_body"})
 
 
 _STAGE_CASES = {
-    "stress": lambda dim, dtype: _material_cases("stress", dim, dtype, MATERIAL_SETS),
-    "return_map": lambda dim, dtype: _material_cases("return_map", dim, dtype, PLASTIC_SETS),
+    "stress": lambda dim, dtype, fit: _material_cases("stress", dim, dtype, MATERIAL_SETS, fit),
+    "return_map": lambda dim, dtype, fit: _material_cases("return_map", dim, dtype, PLASTIC_SETS, fit),
     "p2g": partial(_transfer_cases, "p2g"),
-    "p2g_fused": lambda dim, dtype: [c for c in _transfer_cases("p2g_fused", dim, dtype)
-                                     if not c.scene().transfer.flip],
+    "p2g_fused": _fused_cases,
     "grid_update": _grid_update_cases,
     "g2p": partial(_transfer_cases, "g2p"),
     "step": partial(_transfer_cases, "step"),
     "ledger": _ledger_cases,
+    **{stage: partial(_async_cases, stage) for stage in ASYNC_CONFORMANCE_STAGES},
     **{stage: partial(_cpic_cases, stage) for stage in CPIC_CONFORMANCE_STAGES},
 }
 
 
-def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", materials=None):
-    """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of
-    :class:`ConformanceCase`).
-
-    The default is the seven stages of every backend (its six and the energy ledger of a step); the CPIC stages
-    (:data:`.stages.CPIC_CONFORMANCE_STAGES`, 2D and float64 only) are included when asked for, e.g.
-    ``stages=ALL_CONFORMANCE_STAGES``. ``materials`` (material
-    types, e.g. ``("fluid",)``) keeps the cases whose materials are all among them, and the grid update's (which
-    does not see the material): what a code with only those constitutive models can run.
-    """
-    unknown = sorted(set(stages) - set(ALL_CONFORMANCE_STAGES))
+def _validated(name, values, allowed):
+    unknown = sorted(set(values or ()) - set(allowed))
     if unknown:
-        raise ValueError(f"unknown stages {unknown}: the stages are {list(ALL_CONFORMANCE_STAGES)}")
+        raise ValueError(f"unknown {name} {unknown}: the {name} are {list(allowed)}")
+
+
+def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", materials=None, implements=None,
+               schemes=None, kernels=None):
+    """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of
+    :class:`~.case.ConformanceCase`).
+
+    The default is the seven stages of every backend (its six and the energy ledger of a step); the stages of
+    asynchronous stepping (:data:`.stages.ASYNC_CONFORMANCE_STAGES`) and the CPIC stages
+    (:data:`.stages.CPIC_CONFORMANCE_STAGES`, float64 only) are included when asked for, e.g.
+    ``stages=ALL_CONFORMANCE_STAGES``.
+
+    ``implements`` (a backend's :class:`~mpmref.backends.capabilities.Implements`) fits the catalogue to that backend
+    (module docstring); the cases it does not implement stay, for the check to list as not applicable. ``materials``
+    (material types, e.g. ``("fluid",)``), ``schemes`` and ``kernels`` select: the catalogue is fitted to those
+    materials (the per-method cases run on the fluid alone for ``("fluid",)``), and a case whose stage depends on
+    the materials or the method and whose materials, scheme or kernel are not among them is left out.
+    """
+    _validated("stages", stages, ALL_CONFORMANCE_STAGES)
     if dtype not in DEFAULT_RTOL:
         raise ValueError(f"unknown dtype {dtype!r}: use one of {list(DEFAULT_RTOL)}")
-    unknown = sorted(set(materials or ()) - set(MATERIALS))
-    if unknown:
-        raise ValueError(f"unknown material types {unknown}: the types are {list(MATERIALS)}")
-    cases = [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype)]
-    return cases if materials is None else [c for c in cases
-                                            if c.stage == "grid_update" or c.materials <= set(materials)]
+    _validated("material types", materials, MATERIALS)
+    _validated("schemes", schemes, SCENE_SCHEMES)
+    _validated("kernels", kernels, KERNELS)
+    fit = fit_for(implements, materials, schemes, kernels)
+    cases = [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype, fit)]
+    return [c for c in cases if fit.selects(c)]
+

@@ -1,47 +1,83 @@
-"""``mpmref conformance export DIR`` and ``mpmref conformance check --backend NAME|MODULE:ATTRIBUTE``.
+"""``mpmref conformance export DIR`` and ``mpmref conformance check --backend NAME|MODULE:ATTRIBUTE``, on the
+built-in catalogue or on cases drawn from a scene (``--scene SCENE.toml``).
 
-Exit status of ``check``: 0 every case passed, 1 a case failed, 2 a backend reference that does not resolve.
+Exit status of ``check``: 0 every case that applies passed (at least one), 1 a case failed or none applied, 2 a bad
+option, scene or backend reference.
 """
 
 from pathlib import Path
 
-from ..backends import OPTION_HELP, reference_argument
-from ..cli import add_threads_option, apply_threads
+from ..backends import OPTION_HELP, reference_argument, resolve
+from ..cli import OptionError, add_threads_option, apply_threads
+from ..physics.kernels import KERNELS
+from ..scene import SCHEMES
+from .candidates import candidate_implements
 from .cases import DEFAULT_RTOL, MATERIALS, make_cases
 from .report import check
+from .scenes import scene_cases, scene_record
 from .stages import ALL_CONFORMANCE_STAGES
 from .vectors import export
 
+#: the options that select catalogue cases, which a scene fixes itself
+CATALOGUE_OPTIONS = ("dim", "material", "scheme", "kernel")
+
 
 def _add_selection(parser):
-    parser.add_argument("--dim", type=int, nargs="+", choices=(2, 3), default=[2, 3],
-                        help="dimensions of the cases (default: 2 3)")
-    parser.add_argument("--stage", nargs="+", choices=ALL_CONFORMANCE_STAGES, default=list(ALL_CONFORMANCE_STAGES),
-                        help="stages to include (default: all; the CPIC stages have 2D float64 cases only)")
-    parser.add_argument("--dtype", choices=tuple(DEFAULT_RTOL), default="float64",
-                        help="floating-point type of the states (default: float64)")
+    parser.add_argument("--scene", type=Path, metavar="SCENE.toml",
+                        help="draw every case from this scene: its dimension, method, materials and their "
+                        "parameters, walls, colliders, gravity and dtype, at its scales (docs/conformance.md, "
+                        "'Cases from your scene'); without it, the built-in catalogue")
+    parser.add_argument("--dim", type=int, nargs="+", choices=(2, 3),
+                        help="dimensions of the catalogue's cases (default: 2 3)")
+    parser.add_argument("--stage", nargs="+", choices=ALL_CONFORMANCE_STAGES,
+                        help="stages to include (default: all; with --scene, every stage its steps call; the CPIC "
+                        "stages have float64 cases only)")
+    parser.add_argument("--dtype", choices=tuple(DEFAULT_RTOL),
+                        help="floating-point type of the states (default: float64, or the scene's)")
     parser.add_argument("--material", nargs="+", choices=tuple(MATERIALS), metavar="TYPE",
-                        help="only the cases whose materials are all among these types (and the grid update's), "
-                        f"for a code with only some constitutive models; types: {', '.join(MATERIALS)}")
+                        help="only these material types: the per-method cases run on them, and the cases with other "
+                        f"materials are left out; types: {', '.join(MATERIALS)}")
+    parser.add_argument("--scheme", nargs="+", choices=SCHEMES, metavar="SCHEME",
+                        help="only the cases of these schemes where the stage depends on the scheme (the others run "
+                        f"on one of them); schemes: {', '.join(SCHEMES)}")
+    parser.add_argument("--kernel", nargs="+", choices=tuple(KERNELS), metavar="KERNEL",
+                        help="only the cases of these kernels where the stage depends on the kernel; kernels: "
+                        f"{', '.join(KERNELS)}")
 
 
-def _selected_cases(args):
-    return make_cases(dims=tuple(args.dim), stages=tuple(args.stage), dtype=args.dtype, materials=args.material)
+def _selected_cases(args, implements=None):
+    """The cases the options select: drawn from ``--scene``, or the catalogue fitted to ``implements``."""
+    if args.scene is not None:
+        given = [f"--{name}" for name in CATALOGUE_OPTIONS if getattr(args, name) is not None]
+        if given:
+            raise OptionError(f"{', '.join(given)}: not with --scene (the scene sets its dimension, materials, scheme "
+                              "and kernel)")
+        try:
+            return scene_cases(args.scene, stages=args.stage, dtype=args.dtype)
+        except ValueError as exc:
+            raise OptionError(f"--stage: {exc}") from None
+    return make_cases(dims=tuple(args.dim or (2, 3)), stages=tuple(args.stage or ALL_CONFORMANCE_STAGES),
+                      dtype=args.dtype or "float64", materials=args.material, implements=implements,
+                      schemes=args.scheme, kernels=args.kernel)
 
 
 def cmd_export(args):
     """Write the selected cases as ``.npz`` files and ``manifest.json`` into ``args.dir``."""
     cases = _selected_cases(args)
-    manifest = export(args.dir, cases)
+    manifest = export(args.dir, cases, scene=None if args.scene is None else scene_record(args.scene))
     print(f"wrote {len(cases)} cases to {args.dir} (index: {manifest.name})")
     return 0
 
 
 def cmd_check(args):
     """Check a backend against the reference (progress bar on standard error unless ``--no-progress``); print
-    the table on standard output; exit status 0 if every case passed, else 1."""
+    the table on standard output; exit status 0 if every case that applies passed, else 1."""
     apply_threads(args.threads)
-    report = check(args.backend, _selected_cases(args), rtol=args.rtol, progress=not args.no_progress)
+    found = resolve(args.backend)
+    probes = make_cases(stages=("stress",)) if args.scene is None else scene_cases(args.scene, stages=("stress",))
+    implements = candidate_implements(found, (c.scene() for c in probes))
+    report = check(args.backend, _selected_cases(args, implements), rtol=args.rtol, progress=not args.no_progress,
+                   implements=implements)
     print(report.table(verbose=args.verbose))
     return 0 if report.passed else 1
 
@@ -55,14 +91,16 @@ def add_parser(subparsers):
     export_parser.add_argument("dir", type=Path, help="output folder (created if missing)")
     _add_selection(export_parser)
     export_parser.set_defaults(func=cmd_export)
-    check_parser = actions.add_parser("check", help="run a backend on every case and print the error table")
+    check_parser = actions.add_parser("check", help="run a backend on every case that it implements and print the "
+                                      "error table (the others are listed as not applicable, with the reason)")
     check_parser.add_argument("--backend", required=True, type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
                               help="the backend to check: " + OPTION_HELP + "; a factory may return an object "
-                              "with only some stages, or a dict {stage: callable}, and the others are skipped")
+                              "with only some stages, or a dict {stage: callable}, and the others are not applicable")
     check_parser.add_argument("--rtol", type=float, default=None,
                               help="pass threshold on the relative error (default: "
                               + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")
-    check_parser.add_argument("--verbose", action="store_true", help="list every case, not only the failed ones")
+    check_parser.add_argument("--verbose", action="store_true",
+                              help="list every case, not only the failed ones, and each not-applicable case")
     add_threads_option(check_parser)
     check_parser.add_argument("--no-progress", action="store_true",
                               help="no progress bar (it goes to standard error; the table to standard output)")

@@ -82,32 +82,39 @@ def cpic_scene_dict(scene_dict, method):
             "rigid_bodies": [dict(b) for b in bodies]}
 
 
-def random_cpic_state(scene, rng, flat):
-    """Add previous tags and a random state of the bodies to the particle state ``flat`` (in place): poses
-    near the declared ones, velocities N(0, 1) and angular velocities N(0, 2²) (zero for a fixed body); in 3D
-    the orientation is the quaternion of a rotation vector N(0, 0.05²) per axis."""
+def random_cpic_state(scene, rng, flat, scales=None):
+    r"""Add previous tags and a random state of the bodies to the particle state ``flat`` (in place): poses near the
+    declared ones (positions within N(0, (0.08 Δx)²) per axis, angles N(0, 0.05²)), velocities N(0, s²) and angular
+    velocities N(0, (2 s / 8 Δx)²) (zero for a fixed body), with :math:`s` the speed of ``scales`` (default
+    :func:`~.states.catalogue_scales`, 1 on the unit box of 8 cells); in 3D the orientation is the quaternion of a
+    rotation vector N(0, 0.05²) per axis."""
+    from .states import catalogue_scales
+
+    speed = (scales or catalogue_scales(scene)).speed
+    dx = scene.grid.dx
     n, nb = len(flat["x"]), len(scene.rigid_bodies)
     flat["tag_A"] = rng.random((n, nb)) < 0.5
     flat["tag_T"] = flat["tag_A"] & (rng.random((n, nb)) < 0.5)
     center = np.array([b.center for b in scene.rigid_bodies])
     moving = np.array([b.motion != "fixed" for b in scene.rigid_bodies])
+    spin = 2.0 * speed / (8.0 * dx)
     if scene.dim == 3:
-        return _random_state_3d(flat, rng, center, moving)
-    flat.update({"rigid_position": center + 0.01 * rng.standard_normal((nb, 2)),
+        return _random_state_3d(flat, rng, center, moving, 0.08 * dx, speed, spin)
+    flat.update({"rigid_position": center + 0.08 * dx * rng.standard_normal((nb, 2)),
                  "rigid_angle": 0.05 * rng.standard_normal(nb),
-                 "rigid_velocity": rng.standard_normal((nb, 2)) * moving[:, None],
-                 "rigid_angular_velocity": 2.0 * rng.standard_normal(nb) * moving, "rigid_impulse": np.zeros((nb, 2)),
-                 "rigid_angular_impulse": np.zeros(nb)})
+                 "rigid_velocity": speed * rng.standard_normal((nb, 2)) * moving[:, None],
+                 "rigid_angular_velocity": spin * rng.standard_normal(nb) * moving,
+                 "rigid_impulse": np.zeros((nb, 2)), "rigid_angular_impulse": np.zeros(nb)})
     return flat
 
 
-def _random_state_3d(flat, rng, center, moving):
+def _random_state_3d(flat, rng, center, moving, shift, speed, spin):
     """The bodies' part of :func:`random_cpic_state` in 3D."""
     nb = len(center)
-    flat.update({"rigid_position": center + 0.01 * rng.standard_normal((nb, 3)),
+    flat.update({"rigid_position": center + shift * rng.standard_normal((nb, 3)),
                  "rigid_angle": quaternion_from_rotation_vector(0.05 * rng.standard_normal((nb, 3))),
-                 "rigid_velocity": rng.standard_normal((nb, 3)) * moving[:, None],
-                 "rigid_angular_velocity": 2.0 * rng.standard_normal((nb, 3)) * moving[:, None],
+                 "rigid_velocity": speed * rng.standard_normal((nb, 3)) * moving[:, None],
+                 "rigid_angular_velocity": spin * rng.standard_normal((nb, 3)) * moving[:, None],
                  "rigid_impulse": np.zeros((nb, 3)), "rigid_angular_impulse": np.zeros((nb, 3))})
     return flat
 

@@ -5,7 +5,11 @@ and whether it is one uniform ratio.
   ``F``, ``J`` and ``Jp`` mean something only for the materials that carry them
   (:func:`mpmref.physics.materials.evolved_fields`: ``F`` for solids, ``J`` for the fluid, ``Jp`` for the plastic
   ones). A scene with a solid and the fluid allocates ``F`` and ``J`` for every particle, but a code that leaves
-  a fluid's ``F`` alone is right, so those rows are not compared.
+  a fluid's ``F`` alone is right, so those rows are not compared. Grid velocities (``grid_v``, ``grid_v_tilde``)
+  are compared on the nodes with mass only: G2P weights node :math:`i`'s velocity by :math:`w_{ip}`, and a node
+  without mass has :math:`m_i = \sum_p w_{ip} m_p = 0`, so :math:`w_{ip} = 0` for every particle (each has
+  :math:`m_p > 0`) and no particle reads it; a code may leave anything there (the 88-line program leaves
+  :math:`\Delta t\,g`).
 * **Where.** The row of the worst output with the largest absolute difference: a particle (its index and
   position ``x``) or a grid node (its index, its multi-index and its position ``origin + i dx``).
 * **Uniform ratio.** If the candidate's output is the reference's times one factor :math:`k` everywhere
@@ -21,15 +25,19 @@ from ..state import DEFORMATION_FIELDS
 
 #: output names whose rows are grid nodes
 NODE_PREFIXES = ("grid_", "cdf_")
+#: the grid velocities, compared on the nodes with mass only (module docstring)
+NODE_VELOCITIES = ("grid_v", "grid_v_tilde")
 
 
 def compared_rows(scene, inputs):
-    """``{field: boolean mask over particles}`` for the outputs ``F``, ``J``, ``Jp``: the particles whose material
-    evolves that field (all fields of a stage without particles: none)."""
-    if "material" not in inputs:
-        return {}
-    material = np.asarray(inputs["material"])
+    """``{output: boolean mask over rows}``: for ``F``, ``J``, ``Jp`` the particles whose material evolves that field;
+    for the grid velocities of a stage given the node masses (``grid_update``), the nodes with mass."""
     rows = {}
+    if "grid_mass" in inputs:
+        rows.update(dict.fromkeys(NODE_VELOCITIES, np.asarray(inputs["grid_mass"]) > 0))
+    if "material" not in inputs:
+        return rows
+    material = np.asarray(inputs["material"])
     for name in DEFORMATION_FIELDS:  # the fields only some materials carry (module docstring)
         ids = [i for i, m in enumerate(scene.material_list) if name in evolved_fields(m)]
         rows[name] = np.isin(material, ids)

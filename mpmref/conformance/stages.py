@@ -1,5 +1,5 @@
-"""The six stages a backend exposes and the energy ledger of a step, with their inputs and outputs as flat dicts
-of named arrays.
+"""The six stages a backend exposes, the energy ledger of a step and the stages asynchronous stepping adds, with their
+inputs and outputs as flat dicts of named arrays.
 
 A flat dict (``{"x": ..., "grid_mass": ..., "dt": ...}``) is the one form of a case's data: ``check``
 turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState` to call a stage, and
@@ -11,7 +11,12 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
   ``grid_force (N,d)``, ``grid_momentum_after_force (N,d)`` (the fused P2G's (mv)_i + Δt f_i),
   ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
-  P2G cases (for a P2G that takes the stress, :func:`takes_stress`);
+  P2G cases, fused or not (for a P2G that takes the stress, :func:`takes_stress`);
+* the stages of asynchronous stepping (:mod:`mpmref.physics.interface`): ``idx (m,) int64`` and the output
+  ``wave_speed (m,)`` of ``wave_speeds``; the particle ``classes (n,) int64`` (0 active, 1 finer ghost, 2 coarser
+  shadow), each class's node sums ``class_sums (K, N, 1 + 2d)`` (mass, momentum, force), ``kappa`` (0-d), the node
+  kicks ``kicks (2, N, d)`` and each particle's impulse and its moment about the origin, ``impulse_P (n, d)`` and
+  ``impulse_L (n, 1)`` in 2D or ``(n, 3)`` in 3D;
 * the ledger stage's outputs (0-d, float64): ``ledger_<column>`` for each column of
   :data:`mpmref.observe.ledger.COLUMNS` (the terms, flows, energy change and closure of one step, docs/energy_ledger.md)
   and ``energy_scale`` (:func:`mpmref.observe.ledger.energy_scale` of the input state, the denominator of the terms'
@@ -27,12 +32,22 @@ from ..observe.ledger import COLUMNS, EnergyLedger
 from ..state import EVOLVING_FIELDS, GridState, Particles, fields_with_role
 
 CONFORMANCE_STAGES = ("stress", "return_map", "p2g", "p2g_fused", "grid_update", "g2p", "step", "ledger")
+#: the stages asynchronous stepping adds (:mod:`mpmref.steppers.asynchronous`): the particles' wave speeds (the
+#: blocks' step limits), P2G by particle classes, the node kicks of conservative interfaces, and G2P gathering them
+ASYNC_CONFORMANCE_STAGES = ("wave_speeds", "p2g_classes", "interface_kicks", "g2p_kicks")
 #: the stages of backends that couple rigid bodies by CPIC (run through :mod:`mpmref.conformance.cpic`)
 CPIC_CONFORMANCE_STAGES = ("cpic_field", "cpic_tags", "cpic_p2g", "cpic_g2p", "cpic_step")
-#: the stages every backend has (the six of a step, and the step's energy ledger), then the CPIC stages of backends
-#: that couple rigid bodies (:mod:`mpmref.conformance.cpic`)
-ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
-#: the stages that take a time step ``dt``, and those that take the ``time`` (where the colliders are)
+#: the stages every backend has (the six of a step, and the step's energy ledger), then those of asynchronous
+#: stepping, then the CPIC stages of backends that couple rigid bodies (:mod:`mpmref.conformance.cpic`)
+ALL_CONFORMANCE_STAGES = CONFORMANCE_STAGES + ASYNC_CONFORMANCE_STAGES + CPIC_CONFORMANCE_STAGES
+#: the optional stages: a backend that lacks them still runs every scene (the steppers use ``p2g_fused`` where a
+#: backend has it)
+OPTIONAL_STAGES = ("p2g_fused",)
+#: the backend method each stage of asynchronous stepping calls (the others call the method of their own name)
+STAGE_METHODS = {"p2g_classes": "p2g", "g2p_kicks": "g2p"}
+#: the stages of every backend that take a time step ``dt``, and those that take the ``time`` (where the colliders
+#: are); of the stages of asynchronous stepping, ``interface_kicks`` and ``g2p_kicks`` take ``dt``, and every CPIC
+#: stage takes both
 STAGES_WITH_DT = ("p2g_fused", "grid_update", "g2p", "step", "ledger")
 STAGES_WITH_TIME = ("grid_update", "step", "ledger")
 #: the outputs of the ledger stage: one step's ledger columns, then the energy scale of its input state
@@ -60,11 +75,21 @@ def _particle_stage(fn, flat):
     return particle_outputs(fn(particles_from(flat)))
 
 
+def stage_method(stage):
+    """The name of the backend method that ``stage`` calls (``p2g`` for ``p2g_classes``, ``g2p`` for ``g2p_kicks``)."""
+    return STAGE_METHODS.get(stage, stage)
+
+
+def _given_stress(fn, flat):
+    """``{"stress": tau}`` for a P2G with a ``stress`` argument, given the reference's Kirchhoff stress ``tau`` of the
+    inputs, so that a code can check its transfer without every constitutive model (docs/conformance.md); else
+    ``{}``."""
+    return {"stress": np.array(flat["tau"])} if "tau" in flat and takes_stress(fn) else {}
+
+
 def _p2g(fn, flat):
-    """P2G of the particles; a P2G with a ``stress`` argument is given the reference's Kirchhoff stress ``tau`` of
-    the inputs, so that a code can check its transfer without every constitutive model (docs/conformance.md)."""
-    given = {"stress": np.array(flat["tau"])} if "tau" in flat and takes_stress(fn) else {}
-    gs = fn(particles_from(flat), **given)
+    """P2G of the particles (given the stress if it takes it, :func:`_given_stress`)."""
+    gs = fn(particles_from(flat), **_given_stress(fn, flat))
     return {"grid_mass": gs.mass, "grid_momentum": gs.momentum, "grid_force": gs.force}
 
 
@@ -77,8 +102,9 @@ def takes_stress(fn):
 
 
 def _p2g_fused(fn, flat):
-    """P2G with the force folded in: node mass and the momentum after the force, ``grid_momentum_after_force``."""
-    gs = fn(particles_from(flat), float(flat["dt"]))
+    """P2G with the force folded in: node mass and the momentum after the force, ``grid_momentum_after_force``
+    (given the stress if it takes it, :func:`_given_stress`)."""
+    gs = fn(particles_from(flat), float(flat["dt"]), **_given_stress(fn, flat))
     return {"grid_mass": gs.mass, "grid_momentum_after_force": gs.momentum}
 
 
@@ -117,9 +143,36 @@ def _flat_stage(fn, flat):
     return fn(flat)
 
 
+def _wave_speeds(fn, flat):
+    """``wave_speeds(particles, idx)``: the P-wave speed of the particles ``idx`` (float64)."""
+    return {"wave_speed": np.asarray(fn(particles_from(flat), np.array(flat["idx"])), dtype=np.float64)}
+
+
+def _p2g_classes(fn, flat):
+    """``p2g(particles, classes=classes)``: each class's node sums ``class_sums`` and their totals (given the stress if
+    it takes it, :func:`_given_stress`)."""
+    gs = fn(particles_from(flat), classes=np.array(flat["classes"]), **_given_stress(fn, flat))
+    return {"grid_mass": gs.mass, "grid_momentum": gs.momentum, "grid_force": gs.force, "class_sums": gs.class_sums}
+
+
+def _interface_kicks(fn, flat):
+    """``interface_kicks(grid_state, dt, kappa)`` of a P2G by classes: the node kicks (2, N, d)."""
+    gs = GridState(mass=np.array(flat["grid_mass"]), momentum=np.array(flat["grid_momentum"]),
+                   force=np.array(flat["grid_force"]), class_sums=np.array(flat["class_sums"]))
+    return {"kicks": fn(gs, float(flat["dt"]), float(flat["kappa"]))}
+
+
+def _g2p_kicks(fn, flat):
+    """``g2p(particles, v, v_tilde, dt, kicks=(classes, kicks))``: the particles and each one's impulse and moment."""
+    new, (impulse, moment) = fn(particles_from(flat), np.array(flat["grid_v"]), np.array(flat["grid_v_tilde"]),
+                                float(flat["dt"]), kicks=(np.array(flat["classes"]), np.array(flat["kicks"])))
+    return {**particle_outputs(new), "impulse_P": impulse, "impulse_L": moment}
+
+
 _CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "p2g_fused": _p2g_fused,
             "grid_update": _grid_update, "g2p": _g2p, "step": _step, "ledger": _ledger,
-            **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}
+            "wave_speeds": _wave_speeds, "p2g_classes": _p2g_classes, "interface_kicks": _interface_kicks,
+            "g2p_kicks": _g2p_kicks, **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}
 
 
 def composed_step(stages, particles, dt, time):

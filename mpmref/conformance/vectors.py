@@ -19,7 +19,10 @@ from ..physics.polypic import higher_modes
 from .cases import make_cases
 
 FORMAT = "mpmref-conformance"
-FORMAT_VERSION = 3  # 2: per-axis cells, dt and time per case, in_tau, materials' "evolves"; 3: the ledger stage
+#: 2: per-axis cells, dt and time per case, in_tau, materials' "evolves"; 3: the ledger stage; 4: the stages of
+#: asynchronous stepping, Δt and time of the CPIC cases per case, in_tau of p2g_fused, grid velocities compared on nodes
+#: with mass only, cases drawn from a scene (``scene``, each case's ``source`` and ``scales``)
+FORMAT_VERSION = 4
 MANIFEST = "manifest.json"
 CONVENTIONS = {
     "nodes": "grid arrays have one row per node in C order: node (i_0, ..., i_{d-1}), 0 <= i_a <= cells_a, "
@@ -29,10 +32,21 @@ CONVENTIONS = {
     "evolves": "resolved.materials[k].evolves lists the deformation fields (F, J, Jp) that material k's particles "
                "carry; out_F, out_J and out_Jp are compared only on the rows of particles whose material evolves them "
                "(a fluid's F, a solid's J mean nothing); x, v, C and modes on every row",
-    "dt": "dt and time of a case are also in the manifest entry (dt: the scene's time.dt); they vary from case to case "
-          "(dt over nearly four decades of CFL number), so a stage that ignores its dt argument fails",
-    "tau": "in_tau of a p2g case is the reference's Kirchhoff stress of the input particles: a P2G that takes the "
-           "stress as an input can use it instead of computing it (outputs are the same)",
+    "dt": "dt and time of a case are also in the manifest entry (dt: the scene's time.dt, or the case's own where the "
+          "scene steps asynchronously); they vary from case to case (dt over nearly four decades of CFL number), so a "
+          "stage that ignores its dt argument fails",
+    "tau": "in_tau of a p2g, p2g_fused or p2g_classes case is the reference's Kirchhoff stress of the input particles: "
+           "a P2G that takes the stress as an input can use it instead of computing it (outputs are the same)",
+    "massless": "out_grid_v and out_grid_v_tilde are compared on the nodes with in_grid_mass > 0 only: G2P weights a "
+                "node's velocity by w_ip, and a node without mass has w_ip = 0 for every particle, so no particle "
+                "reads it and a code may leave anything there",
+    "async": "the stages of asynchronous stepping: wave_speeds (in_idx, the particles asked; out_wave_speed), "
+             "p2g_classes (in_classes: 0 active, 1 finer ghost, 2 coarser shadow; out_class_sums (K, N, 1 + 2d): each "
+             "class's node mass, momentum and force, and their totals out_grid_*), interface_kicks (in_class_sums, "
+             "in_kappa, in_dt; out_kicks (2, N, d): per unit mass, row 0 for the active particles, row 1 for the "
+             "coarser shadows) and g2p_kicks (in_classes, in_grid_v, in_grid_v_tilde, in_kicks, in_dt; the particle "
+             "fields and out_impulse_P (n, d), out_impulse_L (n, 1) in 2D or (n, 3) in 3D, about the origin); their "
+             "scenes step asynchronously and have no time.dt: the case's dt is in_dt and the manifest's dt",
     "modes": "axis 1 of in_modes / out_modes follows resolved.polypic_modes (per-axis polynomial degrees)",
     "error": "max|candidate - reference| / max|reference| over every entry of an output array (denominator 1 "
              "where the reference is all zero); a case passes when its largest output error is <= rtol",
@@ -41,11 +55,13 @@ CONVENTIONS = {
               "advection, plastic, rigid_bodies, integration, the flows internal_work and gravity_work, energy_change "
               "and closure) and out_energy_scale, K + Psi + |U| of the input state; a term's error is "
               "|a - r| / out_energy_scale, the scale's own the usual one",
-    "cpic": "cpic_* cases (2D): in_tag_A / in_tag_T (n, nb) are the particles' previous tags; in_rigid_* the bodies' "
-            "state (position of the reference point, angle, velocity, angular velocity, impulses received), body r "
-            "being resolved.rigid_bodies[r] posed as x = position + R(angle) (x0 - center); out_cdf_d is 0 where "
-            "out_cdf_body is -1; out_compatible (K, n) follows the transfer stencil's offsets in C order; booleans "
-            "are compared as 0/1",
+    "scene": "cases drawn from a user's scene (export --scene) have a source (the scene's name) and the scales their "
+             "states were drawn at; the manifest's scene holds that scene as declared, its scales and its stages",
+    "cpic": "cpic_* cases (2D and 3D): in_tag_A / in_tag_T (n, nb) are the particles' previous tags; in_rigid_* the "
+            "bodies' state (position of the reference point, angle, velocity, angular velocity, impulses received), "
+            "body r being resolved.rigid_bodies[r] posed as x = position + R(angle) (x0 - center); out_cdf_d is 0 "
+            "where out_cdf_body is -1; out_compatible (K, n) follows the transfer stencil's offsets in C order; "
+            "booleans are compared as 0/1",
 }
 
 
@@ -74,9 +90,13 @@ def _collider_entry(collider):
 
 def resolved_scene(case):
     """What an implementation needs of ``case``'s scene, every default filled in (JSON-serialisable)."""
-    scene = case.scene()
+    return resolved(case.scene(), case.scene_dict["materials"])
+
+
+def resolved(scene, declared):
+    """What an implementation needs of ``scene`` (its materials ``declared`` as the scene file has them), every default
+    filled in (JSON-serialisable)."""
     grid, kernel = scene.grid, scene.kernel
-    declared = case.scene_dict["materials"]
     return {
         "grid": {"origin": grid.origin.tolist(), "dx": grid.dx, "cells": list(grid.cells),
                  "node_shape": list(grid.node_shape), "n_nodes": grid.n_nodes},
@@ -130,22 +150,25 @@ def write_case(out_dir, case):
     file = f"{case.name}.npz"
     _write_npz(Path(out_dir) / file, arrays)
     steps = {k: float(inputs[k]) for k in ("dt", "time") if k in inputs}
+    drawn = {"source": case.source, "scales": asdict(case.scales)} if case.source else {}
     return {"name": case.name, "file": file, "stage": case.stage, "dim": case.dim, "dtype": case.dtype,
-            "rtol": case.rtol, "seed": case.seed, **steps,
+            "rtol": case.rtol, "seed": case.seed, **steps, **drawn,
             "arrays": {k: {"shape": list(a.shape), "dtype": a.dtype.name} for k, a in arrays.items()},
             "scene": case.scene_dict, "resolved": resolved_scene(case)}
 
 
-def export(out_dir, cases=None):
+def export(out_dir, cases=None, scene=None):
     """Write every case (default: all float64 cases) to ``out_dir`` as ``.npz`` files and ``manifest.json``.
 
-    Every file is written atomically (temporary name, then rename); the manifest comes last. Returns the
-    path of the manifest.
+    ``scene`` is the record of the user's scene the cases were drawn from (:func:`.scenes.scene_record`), written
+    as the manifest's ``scene``. Every file is written atomically (temporary name, then rename); the manifest comes
+    last. Returns the path of the manifest.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cases = make_cases() if cases is None else list(cases)
     manifest = {"format": FORMAT, "version": FORMAT_VERSION, "conventions": CONVENTIONS,
+                **({"scene": _jsonable(scene)} if scene is not None else {}),
                 "cases": [write_case(out_dir, case) for case in cases]}
     write_text_atomic(out_dir / MANIFEST, json.dumps(manifest, indent=1))
     return out_dir / MANIFEST
