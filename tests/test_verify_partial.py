@@ -10,6 +10,7 @@
   feature is an error whose line names the scene and the backend's stage, also when raised in a worker process.
 """
 
+import argparse
 import json
 import os
 import pickle
@@ -199,3 +200,19 @@ def test_nothing_applicable_is_picklable_with_its_items():
     assert triage.scene("jelly", scene) is None
     sent = pickle.loads(pickle.dumps(triage.nothing_ran()))
     assert isinstance(sent, NothingApplicable) and sent.items == tuple(triage.not_applicable)
+
+
+def test_a_run_where_no_check_applies_says_nothing_was_verified_and_exits_1(tmp_path, capsys):
+    """``verify cpic`` on the partial example: the case is not applicable (never an error), and with no check run at
+    all the command does not claim a pass."""
+    from verification.framework.cli import add_parser
+
+    parser = argparse.ArgumentParser(prog="mpmref")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["verify", "cpic", "--quick", "--backend", PARTIAL, "--out", str(tmp_path), "--workers",
+                              "1", "--no-progress"])
+    assert args.func(args) == 1
+    captured = capsys.readouterr()
+    assert "0 of 0 checks pass, 0 fail, in 0 of 1 cases" in captured.out and "nothing was verified" in captured.err
+    assert "**NOTHING CHECKED**" in (tmp_path / "report.md").read_text()
+    assert "needs rigid bodies (CPIC coupling)" in (tmp_path / "cpic" / "report.md").read_text()

@@ -242,9 +242,11 @@ def ledger_run(sim, key, frames, t_end=None, steps=None, candidate=None):
     and a VTK frame with the per-particle shares; with a ``candidate`` backend, its ledger beside the reference's from
     the states half-way and at the end (``compared``, :func:`compare`; empty otherwise). ``left``: the particles the
     domain's edge deleted or clamped over the run (the ledger books steps, not those)."""
+    first = sim.step_count
+
     def done(fraction=1.0):
         if steps is not None:
-            return sim.step_count >= fraction * steps
+            return sim.step_count - first >= fraction * steps
         return sim.time >= fraction * t_end * (1.0 - 1e-12)
 
     terms = shared_terms(sim.scene)
@@ -268,8 +270,9 @@ def ledger_run(sim, key, frames, t_end=None, steps=None, candidate=None):
     if candidate:
         compared.append(compare_here(sim, candidate))
     h, e = np.array(rows), np.array(samples)
-    return {"key": key, "method": method_label(sim.scene), "n_particles": sim.n_particles, "steps": sim.step_count,
-            "wall_s": wall, "t": h[:, 0], "ledger": h[:, 1:], "sampled_steps": e[:, 0].astype(int),
+    return {"key": key, "method": method_label(sim.scene), "n_particles": sim.n_particles,
+            "steps": sim.step_count - first,
+            "wall_s": wall, "t": h[:, 0], "ledger": h[:, 1:], "sampled_steps": e[:, 0].astype(int) - first,
             "energies": e[:, 1:], "frames": shots, "compared": compared, "left": sim.deleted + sim.clamped - left,
             **signs_fixed(sim.scene)}
 

@@ -1,8 +1,9 @@
 r"""The energy ledger of the user's scene: its terms add up to the change of total energy, and keep their signs.
 
 The scene as declared (synchronously), with the energy ledger on (``[output] energy_ledger``), run on the backend for
-the budget's steps (:func:`verification.energy_ledger.runs.ledger_run`). The checks are those of each run of the
-energy-ledger case (:func:`verification.energy_ledger.reporting.run_checks`; docs/energy_ledger.md):
+the budget's steps from the last state kept along its own run (:func:`verification.scene.trajectory`: where the scene
+has done most of what it does; :func:`verification.energy_ledger.runs.ledger_run`). The checks are those of each run
+of the energy-ledger case (:func:`verification.energy_ledger.reporting.run_checks`; docs/energy_ledger.md):
 
 * **closure**: the cumulative terms add up to the change of total energy the diagnostics measure, to
   :math:`(n + 2)\cdot 10^{-12} S` after :math:`n` steps (:math:`S` the run's energy scale);
@@ -15,36 +16,36 @@ steps, not what the domain's edge removes: when particles are deleted or clamped
 applicable either (the run's report says how many left).
 """
 
-from mpmref import Simulation
 from mpmref.observe.ledger import ASYNC_COLUMNS
-from mpmref.scene.sampling import sample_particles
 
 from ..energy_ledger.reporting import run_checks
 from ..energy_ledger.runs import ledger_run, terms_of, total_energy
 from ..framework.applicable import NotApplicable
 from ..framework.case import VerificationCase
 from ..framework.report import ledger_figure
-from . import Params, as_run, load, what_ran, write_report
+from . import Params, as_run, resume, trajectory, what_ran, write_report
 from .momentum import step_text
 
 FRAMES = 10
 
 
 def run(params, backend="numpy", executor=None):
-    """The scene with its ledger on the backend for the budget's steps (``executor`` is not used: one run)."""
-    scene = load(params)
-    steps = params.steps(sample_particles(scene).n)
-    ledgered = as_run(scene, ledger=True)
-    r = ledger_run(Simulation(ledgered, backend=backend), scene.name, FRAMES, steps=steps)
+    """The scene with its ledger on the backend, from the last kept state of its run
+    (:func:`~verification.scene.trajectory`), for the budget's steps (``executor`` is not used: one run)."""
+    path = trajectory(params, backend)
+    ledgered = as_run(path.scene, ledger=True)
+    sim = resume(ledgered, backend, path.states[-1])
+    start = sim.step_count
+    r = ledger_run(sim, ledgered.name, FRAMES, steps=params.steps(sim.n_particles))
     why = []
     if ledgered.dtype.name != "float64":
         why.append(f"the bounds are float64 round-off (10^-12 of S); this scene is {ledgered.dtype.name}")
     if r["left"]:
         why.append(f"{r['left']} particles left through the domain's edge (deleted or clamped), which the ledger does "
                    "not book")
-    items = [NotApplicable(f"{scene.name}: the ledger's closure and signs", tuple(why))] if why else []
+    items = [NotApplicable(f"{ledgered.name}: the ledger's closure and signs", tuple(why))] if why else []
     return {"params": params, "backend": backend, "run": r, "checked": not why, "not_applicable": items,
-            "ran": what_ran(scene, r["steps"], step_text(ledgered))}
+            "ran": what_ran(ledgered, r["steps"], step_text(ledgered), (start, path.own))}
 
 
 def checks(result):

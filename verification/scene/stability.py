@@ -1,6 +1,7 @@
 r"""Stability of the user's scene at the extremes of the CFL number: bounded below the limit, caught above it.
 
-The scene as declared (synchronously) runs three times on the backend, each time step set anew:
+The scene as declared (synchronously) runs three times on the backend from the last state kept along its own run
+(:func:`verification.scene.trajectory`: where it has done most of what it does), each time step set anew:
 
 * **at CFL 0.3** (the engine's rule :math:`\Delta t = C\Delta x/(c + |v|)`), for the budget's steps. Symplectic Euler
   with lumped masses is stable up to the linear limit :math:`C_{crit}` of the kernel (:func:`linear_limit`:
@@ -30,16 +31,14 @@ import warnings
 import numpy as np
 from scipy.special import zeta
 
-from mpmref import Simulation
 from mpmref.backends.capabilities import material_type
 from mpmref.errors import DomainExitError, MpmrefError
 from mpmref.run.stability import StabilityWarning, first_unbounded, stable_cfl
-from mpmref.scene.sampling import sample_particles
 
 from ..framework.applicable import HYPERELASTIC, NotApplicable
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding
-from . import Params, as_run, figure_with, load, what_ran, write_report
+from . import Params, as_run, figure_with, resume, trajectory, what_ran, write_report
 
 SMALL_CFL = 0.3
 #: the fixed step above the limit, in units of the kernel's linear limit with exact quadrature
@@ -101,12 +100,12 @@ def stored(sim):
     return d["kinetic"] + d["kinetic_affine"] + d["kinetic_modes"] + d["elastic"]
 
 
-def probe(scene, backend, steps):
-    """Run ``scene`` for ``steps`` steps on ``backend``: the largest velocity change per step in cells (``jump``), the
-    largest :math:`(K + \Psi)/E_{avail}` (``energy``; ``nan`` without a bound), how many steps ran, and the step at
-    which the run was caught and how (``caught``, ``how``: ``None`` if never). A particle leaving the domain at a
-    bounded step ends the run (``left``): the scene's own motion, not an instability."""
-    sim = Simulation(scene, backend=backend)
+def probe(scene, backend, steps, state):
+    r"""Run ``scene`` for ``steps`` steps on ``backend`` from ``state``: the largest velocity change per step in cells
+    (``jump``), the largest :math:`(K + \Psi)/E_{avail}` (``energy``; ``nan`` without a bound), how many steps ran, and
+    the step at which the run was caught and how (``caught``, ``how``: ``None`` if never). A particle leaving the
+    domain at a bounded step ends the run (``left``): the scene's own motion, not an instability."""
+    sim = resume(scene, backend, state)
     scale = available_energy(scene, sim)
     out = {"jump": 0.0, "energy": math.nan if scale is None else stored(sim) / scale, "caught": None, "how": None,
            "steps": steps, "left": None}
@@ -139,33 +138,35 @@ def excited(scene, sim):
 
 
 def run(params, backend="numpy", executor=None):
-    """The three runs of the module docstring on ``backend`` (``executor`` is not used)."""
-    scene = load(params)
-    steps = params.steps(sample_particles(scene).n)
+    """The three runs of the module docstring on ``backend``, from the last state kept along the scene's run
+    (:func:`verification.scene.trajectory`; ``executor`` is not used)."""
+    path = trajectory(params, backend)
+    scene, state = path.scene, path.states[-1]
+    start = resume(scene, backend, state)
+    steps = params.steps(start.n_particles)
     degree = scene.kernel.support - 1
     limit, measured = linear_limit(degree), stable_cfl(scene.method.scheme)
     growth = growth_per_step(ABOVE)
     eps = float(np.finfo(scene.dtype).eps)
     above_steps = max(steps, math.ceil(CATCH_MARGIN * steps_to_catch(eps, growth)))
     dt_above = ABOVE * limit * scene.grid.dx / scene.max_wave_speed()
-    runs = {"small": probe(as_run(scene, time={"cfl": SMALL_CFL}), backend, steps),
-            "measured": probe(as_run(scene, time={"cfl": measured}), backend, steps),
-            "above": probe(as_run(scene, time={"dt": dt_above}), backend, above_steps)}
-    first = Simulation(as_run(scene), backend=backend)
+    runs = {"small": probe(as_run(scene, time={"cfl": SMALL_CFL}), backend, steps, state),
+            "measured": probe(as_run(scene, time={"cfl": measured}), backend, steps, state),
+            "above": probe(as_run(scene, time={"dt": dt_above}), backend, above_steps, state)}
     items = []
     if math.isnan(runs["small"]["energy"]):
         items.append(NotApplicable(f"{scene.name}: K + Ψ at CFL {SMALL_CFL:g} within {ENERGY_FACTOR:g} times the "
                                    "energy available", ("energy enters the scene (emitters, moving colliders, scripted "
                                                         "or dynamic rigid bodies): no bound on it",)))
-    if not excited(scene, first):
+    if not excited(scene, start):
         items.append(NotApplicable(f"{scene.name}: caught above the linear limit",
                                    ("nothing moves and nothing is stressed, and no gravity acts: no mode is excited",)))
     plastic = [material_type(m) for m in scene.materials.values() if material_type(m) not in HYPERELASTIC]
     return {"params": params, "backend": backend, "scene": scene.name, "runs": runs, "steps": steps,
             "above_steps": above_steps, "limit": limit, "measured": measured, "growth": growth,
             "n_star": steps_to_catch(eps, growth), "dt_above": dt_above, "scheme": scene.method.scheme,
-            "kernel": scene.method.kernel, "judged": not plastic and excited(scene, first), "plastic": plastic,
-            "not_applicable": items, "ran": what_ran(scene, steps, "Δt set by each run")}
+            "kernel": scene.method.kernel, "judged": not plastic and excited(scene, start), "plastic": plastic,
+            "not_applicable": items, "ran": what_ran(scene, steps, "Δt set by each run", (state.step, path.own))}
 
 
 # ------------------------------------------------------------------------------------------------------ checks
