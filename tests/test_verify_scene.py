@@ -48,10 +48,10 @@ def verify(argv):
 
 @pytest.fixture
 def small88(tmp_path):
-    """examples/mpm88.toml at 64 cells and 1024 particles (the same particle volume per cell)."""
+    """examples/mpm88.toml at 32 cells and 512 particles (its particle volume (dx/2)^2)."""
     text = (EXAMPLES / "mpm88.toml").read_text()
-    for old, new in (('name = "mpm88"', 'name = "small88"'), ("cells = 128", "cells = 64"),
-                     ("count = 8192", "count = 1024"), ("1.52587890625e-05", "6.103515625e-05")):
+    for old, new in (('name = "mpm88"', 'name = "small88"'), ("cells = 128", "cells = 32"),
+                     ("count = 8192", "count = 512"), ("1.52587890625e-05", "0.000244140625")):
         assert old in text
         text = text.replace(old, new)
     path = tmp_path / "small88.toml"
@@ -131,13 +131,14 @@ class NoGravity(Mpm88Backend):
 
 @pytest.mark.parametrize("bug", ["WrongTrace", pytest.param("NoGravity", marks=pytest.mark.slow)])
 def test_a_planted_bug_fails_the_comparison_naming_the_scene_the_field_and_where(bug, small88, tmp_path, capsys):
-    """The wrong trace grows J's error until the run blows up (past step 380): the comparison from a few steps
-    before names what differs; the missing gravity differs from the first step."""
+    """The wrong trace grows J's error until the run blows up (past step 400): the comparison from a few steps
+    before names what differs (and that the candidate's run stops where the reference's does not); the missing gravity
+    differs from the first step."""
     assert verify(["--scene", str(small88), "--quick", "--backend", f"test_verify_scene:{bug}", "--out",
                    str(tmp_path / "v"), "--no-progress"]) == 1
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("reference: FAIL")]
     assert lines and all(line.startswith(f"reference: FAIL small88 on test_verify_scene:{bug}: ") for line in lines)
-    assert all(re.search(r"max relative difference \(water\.[xvCJ], from step \d+\)", line) for line in lines)
+    assert any(re.search(r"max relative difference \(water\.[xvCJ], from step \d+\)", line) for line in lines)
 
 
 class RaisesInGridUpdate(Mpm88Backend):

@@ -34,7 +34,7 @@ from functools import lru_cache
 import numpy as np
 
 from mpmref import Scene, SceneBuilder
-from mpmref.backends import implements, label, make_backend, resolve
+from mpmref.backends import implements, make_backend, resolve
 from mpmref.backends.capabilities import EVERYTHING, material_type
 from mpmref.backends.capabilities import declared as declared_by
 from mpmref.errors import NotImplementedByBackend, SceneError
@@ -466,7 +466,3 @@ def require(backend, scenes, allow=Allow()):
     if triage.not_applicable:
         raise triage.nothing_ran()
 
-
-def describe_backend(reference):
-    """How the reports name the backend's declaration: its reference and what it implements."""
-    return f"{label(reference)} implements {declaration_of(reference).summary()}"

@@ -99,8 +99,3 @@ def _scene(frames):
             return scene.name
     return None
 
-
-def one_line(exc_text, where):
-    """The last line of a traceback text with its place: ``"scene 'S', stage ...: Error: message"``."""
-    last = exc_text.strip().splitlines()[-1] if exc_text else "?"
-    return f"{where.text()}: {last}" if where is not None else last

@@ -117,7 +117,7 @@ def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None,
     except Exception as exc:  # reported in the case's report.md and the index; the case fails
         where = locate(exc)
         outcome.error = traceback.format_exc()
-        outcome.error_line = f"{where.text()}: {type(exc).__name__}: {exc}"
+        outcome.error_line = f"{where.text()}: {type(exc).__name__}: " + " ".join(str(exc).split())
     outcome.wall_s = time.perf_counter() - start
     return outcome
 
