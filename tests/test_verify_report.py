@@ -50,7 +50,8 @@ def test_results_json_has_every_check_with_case_name_figure_bound_verdict_and_re
          "reason": "the toy's theory allows up to 2.5"},
         {"case": "toy", "name": "a value below an infinite bound", "figure": 1.0, "relation": "<", "bound": "inf",
          "verdict": "pass", "reason": "nothing is infinite here"}]
-    assert data["summary"] == {"cases": 1, "checks": 2, "failing": 1, "errors": 0, "findings": 1}
+    assert data["summary"] == {"cases": 1, "checks": 2, "failing": 1, "errors": 0, "findings": 1, "not_applicable": 0,
+                               "cases_not_applicable": 0}
     (case,) = data["cases"]
     assert case["verdict"] == "FAIL (1 of 2)" and case["passed"] is False and case["error"] is None
     assert not list(tmp_path.glob(".tmp-*"))  # written atomically: no temporary file left behind

@@ -26,6 +26,11 @@ Theory and bounds
   growth. A particle sitting on a branch point (the yield surface, a wall's separation test) to within
   round-off could still switch branches; over these short trajectories none does, which is part of what
   the check verifies.
+
+On a backend that implements a part (:mod:`verification.framework.applicable`): each scheme, kernel and dimension runs
+if the backend has it, the others are not applicable. The claim is made material by material, so a run keeps the
+disks of the materials the backend has (with the parameters it fixes) and leaves the others out; the walls may be a
+static wall it has and lose their friction if it has none. The bounds are the same: the same equations on both sides.
 """
 
 from dataclasses import dataclass
@@ -41,6 +46,7 @@ from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.diagnostics import polypic_mode_norms
 from mpmref.state import EVOLVING_FIELDS
 
+from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
 from .framework.common import Check, checks_table
 from .framework.executor import Executor
@@ -54,6 +60,8 @@ MAIN_FIGURE = "difference_growth.png"
 #: :func:`mode_difference`)
 COMPARED_FIELDS = tuple(name for name in EVOLVING_FIELDS if name != "modes")
 ONE_STEP_RTOL = 1e-12
+#: what the claim lets a backend that implements a part change (module docstring)
+ALLOWS = Allow(materials="subset", walls="static", friction=True)
 
 
 @dataclass(frozen=True)
@@ -97,8 +105,10 @@ def _scene(params, dim, kernel, variant):
 def compiled_scenes(params, backend="numpy"):
     """``[(backend, scene)]`` this case runs on a compiled backend (see :mod:`verification.framework.warmup`)."""
     candidate = params.candidate if backend == "numpy" else backend
-    return [(candidate, _scene(params, dim, kernel, VARIANT[key])) for dim in params.dims
-            for kernel in params.kernels for key in params.variants if candidate != "numpy"]
+    triage = Triage(candidate)
+    scenes = [triage.fit(key, _scene(params, dim, kernel, VARIANT[key]), ALLOWS) for dim in params.dims
+              for kernel in params.kernels for key in params.variants if candidate != "numpy"]
+    return [(candidate, scene) for scene in scenes if scene is not None]
 
 
 def mode_difference(candidate, reference, norms, velocity):
@@ -136,7 +146,7 @@ def _frame(ref, cand):
 def run_pair(job):
     """Step one scene on the reference and the candidate: differences after every step, wall times."""
     params, dim, kernel, key, candidate = job
-    scene = _scene(params, dim, kernel, VARIANT[key])
+    scene = fit(_scene(params, dim, kernel, VARIANT[key]), candidate, ALLOWS).scene
     ref = Simulation(scene, backend="numpy")
     cand = Simulation(scene, backend=candidate, particles=ref.particles.copy())
     history, frames, wall = [], [], {"numpy": 0.0, candidate: 0.0}
@@ -159,10 +169,15 @@ def run(params=Params(), backend="numpy", executor=None):
     """Compare ``backend`` (or ``params.candidate`` when ``backend`` is the reference) with NumPy."""
     executor = executor or Executor(workers=1)
     candidate = params.candidate if backend == "numpy" else backend
+    triage = Triage(candidate)
     jobs = [(params, dim, kernel, key, candidate) for dim in params.dims for kernel in params.kernels
-            for key in params.variants]
+            for key in params.variants
+            if triage.scene(f"{_label_of(dim, kernel, key)}: one step and trajectory",
+                            _scene(params, dim, kernel, VARIANT[key]), ALLOWS, run=_label_of(dim, kernel, key))]
+    if not jobs:
+        raise triage.nothing_ran()
     return {"params": params, "candidate": candidate, "executor": executor.describe(),
-            "runs": executor.map(run_pair, jobs)}
+            "runs": executor.map(run_pair, jobs), **triage.record()}
 
 
 def backends_run(result, backend):
@@ -177,7 +192,11 @@ def worst(step_diffs):
 
 
 def _label(r):
-    return f"{r['dim']}D {r['kernel']} {VARIANT[r['key']].label}"
+    return _label_of(r["dim"], r["kernel"], r["key"])
+
+
+def _label_of(dim, kernel, key):
+    return f"{dim}D {kernel} {VARIANT[key].label}"
 
 
 def checks(result):
@@ -195,13 +214,16 @@ def checks(result):
 
 
 def table(result):
-    materials = list(MATERIALS)
+    materials = [m for m in MATERIALS if any(m in r["history"][0] for r in result["runs"])]  # those that ran
     head = ["| dim | kernel | scheme | " + " | ".join(f"{m}: 1 step / trajectory" for m in materials)
             + " | s/step numpy | s/step candidate |", "|---|---|---|" + "---|" * (len(materials) + 2)]
     body = []
     for r in result["runs"]:
         cells = []
         for m in materials:
+            if m not in r["history"][0]:
+                cells.append("—")
+                continue
             one = max(r["history"][0][m].values())
             traj = max(max(h[m].values()) for h in r["history"])
             cells.append(f"{one:.1e} / {traj:.1e}")

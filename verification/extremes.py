@@ -27,6 +27,15 @@ Theory behind the checks:
 * **The cell-crossing detector measures** :math:`\max_p |x_p^{n+1} - x_p^n|/\Delta x`. On a block
   translating at speed :math:`V` every scheme transports the field exactly (partition of unity), so the
   detector must read :math:`C V/(c + V)`, more than one cell per step for :math:`V = 10c`, :math:`C = 1.5`.
+
+On a backend that implements a part (:mod:`verification.framework.applicable`): each scheme runs if the backend has it.
+The linear analysis holds for any material with its P-wave speed :math:`c`, which the CFL rule and the Mach number use,
+so the block may be of another hyperelastic material the backend has, of the density and P-wave speed of the condition's
+solid (a fluid then has :math:`K = \rho c^2/\gamma`: the E sweep scales it as it scales E, and the ν values only
+stiffen it); the slip walls may be another static wall the backend has (a static wall's projection never adds
+energy), the translating block's open walls the backend's walls on a padded domain. Where the backend fixes the
+substitute's stiffness, the E sweep changes nothing and its spread check is not applicable. The others are not
+applicable.
 """
 
 import math
@@ -39,6 +48,7 @@ import numpy as np
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
 from mpmref.run.stability import StabilityWarning
 
+from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
 from .framework.common import Check, Finding, checks_table
 from .framework.executor import Executor
@@ -56,6 +66,8 @@ SCHEMES = {
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "extremes.png"
+#: what the claims let a backend that implements a part change (module docstring)
+ALLOWS = Allow(materials="substitute", walls="static", friction=True)
 
 @dataclass(frozen=True)
 class Condition:
@@ -134,7 +146,8 @@ def perturbation(x, speed, seed):
 
 def block_simulation(params, scheme, condition, cfl, backend="numpy", out_dir=None):
     """A :class:`~mpmref.run.simulation.Simulation` of the test block with its initial :func:`perturbation`."""
-    sim = Simulation(block_scene(params, scheme, condition, cfl), backend=backend, out_dir=out_dir)
+    sim = Simulation(fit(block_scene(params, scheme, condition, cfl), backend, ALLOWS).scene, backend=backend,
+                     out_dir=out_dir)
     sim.v = perturbation(sim.x, params.mach * sim.scene.max_wave_speed(), params.seed)
     return sim
 
@@ -235,7 +248,7 @@ def crossing_scene(params, scheme):
 def crossing(item):
     """Run the translating block (``item = (params, scheme, backend)``); detector reading and prediction."""
     params, scheme, backend = item
-    sim = Simulation(crossing_scene(params, scheme), backend=backend)
+    sim = Simulation(fit(crossing_scene(params, scheme), backend, ALLOWS).scene, backend=backend)
     c = sim.scene.max_wave_speed()
     speed = params.crossing_speed * c
     sim.v = np.tile([speed, 0.0], (sim.n_particles, 1))
@@ -244,15 +257,44 @@ def crossing(item):
 
 
 def run(params=Params(), backend="numpy", executor=None):
-    """Bisect every scheme under every condition, run the translating block; ``executor`` default: this process."""
+    """Bisect every scheme under every condition, run the translating block; ``executor`` default: this process. A
+    scheme the backend does not implement is listed as not applicable, with its checks."""
     executor = executor or Executor(workers=1)
+    triage = Triage(backend)
     conditions = params.conditions()
-    items = [Bisection(params, s, cond, backend) for cond in conditions for s in params.schemes]
+    schemes = [s for s in params.schemes if _applicable(params, s, conditions, triage)]
+    if not schemes:
+        raise triage.nothing_ran()
+    items = [Bisection(params, s, cond, backend) for cond in conditions for s in schemes]
     limits = executor.map(bisect, items)
-    crossings = executor.map(crossing, [(params, s, backend) for s in params.schemes])
+    crossings = executor.map(crossing, [(params, s, backend) for s in schemes])
     rows = [{"condition": it.condition, "scheme": it.scheme, **lim} for it, lim in zip(items, limits)]
+    fixed = _fixed_stiffness(params, schemes, backend)
+    for s in fixed:
+        triage.skip(f"{s}: spread of the CFL limit over E", ["the backend fixes the stiffness of the material it runs: "
+                                                             "the E sweep varies nothing"])
     return {"params": params, "backend": backend, "executor": executor.describe(), "rows": rows,
-            "crossing": dict(zip(params.schemes, crossings))}
+            "crossing": dict(zip(schemes, crossings)), "fixed_stiffness": fixed, **triage.record()}
+
+
+def _applicable(params, scheme, conditions, triage):
+    """Whether the backend implements ``scheme``'s block under every condition and its translating block."""
+    name = f"{scheme}: every check (largest stable CFL per condition, its spread over E, cell-crossing detector)"
+    scenes = [(f"{scheme}, {c.label(params.base)}", block_scene(params, scheme, c, params.guaranteed_cfl))
+              for c in conditions] + [(f"{scheme}: translating block", crossing_scene(params, scheme))]
+    fitted = [triage.fit(run, scene, ALLOWS) for run, scene in scenes]
+    if any(f is None for f in fitted):
+        triage.skip(name, [r for run, _ in scenes for r in triage.reasons(run)])
+        return False
+    return True
+
+
+def _fixed_stiffness(params, schemes, backend):
+    """The schemes whose blocks across the E sweep have one wave speed: the backend fixes the stiffness of the
+    material it runs, so the sweep varies nothing (its spread check is not applicable)."""
+    youngs = [c for c in params.conditions() if c.nu == params.base.nu and c.ppc == params.base.ppc]
+    return [s for s in schemes if len({fit(block_scene(params, s, c, params.guaranteed_cfl), backend, ALLOWS)
+                                       .scene.max_wave_speed() for c in youngs}) == 1 < len(youngs)]
 
 
 def resolution(params):
@@ -277,7 +319,9 @@ def checks(result):
                          p.guaranteed_cfl, "linear stability of lumped-mass symplectic Euler: CFL_crit = sqrt(3) "
                          "(quadratic B-spline), 1 (one particle per cell); margin for quadrature, transfers, "
                          "nonlinearity"))
-    for s in p.schemes:
+    for s in result["crossing"]:
+        if s in result.get("fixed_stiffness", ()):
+            continue
         values, limits = zip(*sweep(result, s, "E"))
         out.append(Check(f"{s}: spread of the CFL limit over E = {min(values):g} .. {max(values):g}",
                          max(limits) - min(limits), "<=", resolution(p),
@@ -318,8 +362,9 @@ def _cell(row):
 def _by_condition(result, cell):
     """Markdown table: one row per condition, one column per scheme, ``cell(row)`` in each."""
     p = result["params"]
-    head = ["| condition | " + " | ".join(p.schemes) + " |", "|---" * (len(p.schemes) + 1) + "|"]
-    body = [f"| {cond.label(p.base)} | " + " | ".join(cell(r) for s in p.schemes for r in result["rows"]
+    schemes = list(result["crossing"])  # the schemes that ran
+    head = ["| condition | " + " | ".join(schemes) + " |", "|---" * (len(schemes) + 1) + "|"]
+    body = [f"| {cond.label(p.base)} | " + " | ".join(cell(r) for s in schemes for r in result["rows"]
                                                       if r["scheme"] == s and r["condition"] == cond) + " |"
             for cond in p.conditions()]
     return "\n".join(head + body)
@@ -351,7 +396,7 @@ def _plot(result, path):
               ("ppc", "particles per cell", "linear"))
     fig, axes = plt.subplots(1, 3, figsize=(13, 4))
     for ax, (key, title, scale) in zip(axes, sweeps):
-        for s in p.schemes:
+        for s in result["crossing"]:
             ax.plot(*zip(*sweep(result, s, key)), "o-", label=s)
         ax.axhline(p.guaranteed_cfl, color="k", ls="--", lw=1, label="checked bound")
         ax.set_xscale(scale)

@@ -25,6 +25,10 @@ asserted (they depend on the machine and its load); the checks concern the error
 * **Resolution does not buy PIC second-order accuracy.** PIC's transfer error is first order in
   :math:`\Delta x` (:func:`verification.convergence.pic_bound_constant`), so on PIC's finest grid its error
   is still larger than that of every second-order scheme on the coarsest grid.
+
+On a backend that implements a part (:mod:`verification.framework.applicable`): a series runs, on the reference and on
+the backend, if the backend implements its scene as the convergence case fits it (its material as declared: the
+errors are against that material's analytic solution); the others are not applicable.
 """
 
 import os
@@ -36,7 +40,8 @@ import numpy as np
 from mpmref.io.atomic import write_text_atomic
 
 from .backends import trajectory_bound
-from .convergence import LevelRun, Series, run_level
+from .convergence import ALLOWS, LevelRun, Series, run_level
+from .framework.applicable import Triage
 from .framework.case import VerificationCase
 from .framework.common import Check, Finding, checks_table
 from .framework.executor import Executor
@@ -86,9 +91,10 @@ def compiled_scenes(params, backend="numpy"):
     """``[(backend, scene)]`` this case runs on a compiled backend: each series' coarsest grid (see
     :mod:`verification.framework.warmup`)."""
     compared = ("numpy", backend) if backend != "numpy" else params.backends
-    return [(b, s.build_problem().scene(params.cells[0], s.method(), params.ppa)) for b in compared if b != "numpy"
-            for s in (_series(p, scheme, force, k) for p in params.problems for scheme, force in SCHEMES
-                      for k in params.kernels)]
+    scenes = [(b, Triage(b).fit(b, s.build_problem().scene(params.cells[0], s.method(), params.ppa), ALLOWS))
+              for b in compared if b != "numpy" for s in (_series(p, scheme, force, k) for p in params.problems
+                                                          for scheme, force in SCHEMES for k in params.kernels)]
+    return [(b, scene) for b, scene in scenes if scene is not None]
 
 
 def run_group(job):
@@ -133,8 +139,15 @@ def run(params=Params(), backend="numpy", executor=None):
     """
     executor = timing_executor(executor or Executor(workers=1))
     backends = params.backends if backend == "numpy" else ("numpy", backend)
-    jobs = [(_series(p, s, f, k), b, params.cells, params.cfl, params.ppa, params.threads) for p in params.problems
-            for s, f in SCHEMES for k in params.kernels if not (p == "mms" and s == "pic") for b in backends]
+    triage = Triage(backend)
+    series = [_series(p, s, f, k) for p in params.problems for s, f in SCHEMES for k in params.kernels
+              if not (p == "mms" and s == "pic")]
+    series = [s for s in series if triage.scene(f"{_label(s)} (its runs and checks)",
+                                                s.build_problem().scene(params.cells[0], s.method(), params.ppa),
+                                                ALLOWS, run=_label(s))]
+    if not series:
+        raise triage.nothing_ran()
+    jobs = [(s, b, params.cells, params.cfl, params.ppa, params.threads) for s in series for b in backends]
     load_before = os.getloadavg()[0]
     groups = executor.map(run_group, jobs)
     timing = {"conditions": timing_conditions(executor, len(jobs), params.threads),
@@ -150,7 +163,7 @@ def run(params=Params(), backend="numpy", executor=None):
     frames = run_level(LevelRun(best["series"], best["cells"], params.cfl, params.ppa, best["backend"],
                                 params.frames))["frames"]
     return {"params": params, "backends": backends, "points": points, "representative": (best, frames),
-            "timing": timing}
+            "timing": timing, **triage.record()}
 
 
 def backends_run(result, backend):

@@ -23,6 +23,12 @@ end time and the slope of :math:`\log e` against :math:`\log \Delta x` is fitted
   findings (:func:`findings`): their fitted slope is reported and plotted, never judged.
 
 See ``docs/convergence.md`` for the problems, the boundary treatment and how to read the plots.
+
+On a backend that implements a part (:mod:`verification.framework.applicable`): a series runs if the backend has its
+scheme, force, kernel and material as declared. The analytic solutions are those of their materials (the bar's of a
+fixed-corotated material with :math:`\nu = 0`, the MMS's of a Neo-Hookean one), so no material is substituted; only
+the open walls of zero width, which act on no node, may be the backend's own. The other series, with their checks or
+findings, are not applicable.
 """
 
 import math
@@ -36,6 +42,7 @@ from mpmref.backends import make_backend
 from mpmref.scene.sampling import sample_particles
 from mpmref.steppers.limits import cfl_time_step
 
+from ..framework.applicable import Allow, Triage, fit
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding, checks_table
 from ..framework.executor import Executor
@@ -48,6 +55,8 @@ MAIN_FIGURE = "convergence_bar.png"
 
 SCHEME_NAMES = {("apic", "classic"): "APIC", ("mls", "mls"): "MLS-MPM", ("pic", "classic"): "PIC"}
 CFL = 0.4
+#: what a backend that implements a part may change: its own walls for the open ones of zero width (module docstring)
+ALLOWS = Allow(walls="open")
 
 
 def pic_bound_constant(cfl):
@@ -241,7 +250,7 @@ def _snapshot(problem, particles, X, t):
 def run_level(item):
     """Run one :class:`LevelRun` to the problem's end time; errors, sizes, wall time (and frames if asked)."""
     series, problem = item.series, item.series.build_problem()
-    scene = problem.scene(item.cells, series.method(), item.ppa)
+    scene = fit(problem.scene(item.cells, series.method(), item.ppa), item.backend, ALLOWS).scene
     backend = make_backend(item.backend, scene)
     dt, n_steps = time_step(problem, scene, item.cfl)
     particles = sample_particles(scene)
@@ -274,10 +283,24 @@ def fit_slope(dx, err):
     return float(slope), float(intercept)
 
 
-def _items(params, backend):
+def series_name(series):
+    """A series as the not-applicable list names it: its label and what it carries (checks or a finding)."""
+    carries = "its finding" if series.expected_rate is None else "its checks"
+    return f"{series.problem}: {series.label} ({carries})"
+
+
+def applicable_series(params, backend, triage):
+    """The series of ``params`` whose scene ``backend`` implements (fitted on the coarsest grid); ``triage`` lists
+    the others."""
+    return [s for s in params.series
+            if triage.scene(series_name(s), s.build_problem().scene(params.cells(s.problem)[0], s.method(), params.ppa),
+                            ALLOWS, run=f"{s.problem}: {s.label}") is not None]
+
+
+def _items(params, backend, series_list):
     items = []
     first_of = {}
-    for series in params.series:
+    for series in series_list:
         if series.fixed_end not in TREATMENTS:
             raise ValueError(f"fixed_end {series.fixed_end!r}: allowed {TREATMENTS}")
         cells = params.cells(series.problem)
@@ -292,10 +315,14 @@ def _items(params, backend):
 def run(params=Params(), backend="numpy", executor=None):
     """Every series on every grid (through ``executor``; default: this process). Returns a result dict."""
     executor = executor or Executor(workers=1)
-    items = _items(params, backend)
+    triage = Triage(backend)
+    series_list = applicable_series(params, backend, triage)
+    if not series_list:
+        raise triage.nothing_ran()
+    items = _items(params, backend, series_list)
     levels = executor.map(run_level, items)
     rows, representative = [], {}
-    for series in params.series:
+    for series in series_list:
         mine = [lv for it, lv in zip(items, levels) if it.series == series]
         dx = np.array([lv["dx"] for lv in mine])
         slope_u, icpt_u = fit_slope(dx, [lv["error_u"] for lv in mine])
@@ -307,7 +334,7 @@ def run(params=Params(), backend="numpy", executor=None):
         rows.append({"series": series, "levels": mine, "slope_u": slope_u, "intercept_u": icpt_u,
                      "slope_v": slope_v, "intercept_v": icpt_v})
     return {"params": params, "backend": backend, "executor": executor.describe(), "rows": rows,
-            "representative": representative}
+            "representative": representative, **triage.record()}
 
 
 def checks(result):

@@ -48,15 +48,45 @@ r"""CPIC: thin rigid bodies that are not crossed, cut material, exchange momentu
   line removed, or softened (shear modulus 0) within 2 cells, as the talk's baselines. For each: particles
   that cross the line (below the blade's top), and mass lost.
 
+On a backend that implements a part (:mod:`verification.framework.applicable`): the claims are CPIC's on these
+materials and walls, so the case runs only on a backend that implements every scene it runs (:func:`scenes_on_backend`)
+as declared, and is not applicable, with the reasons, to any other.
+
 The case is a package: :mod:`.scenes` (its parameters and scene builders), :mod:`.measurements` (the simulations
 and what each measures, :func:`~verification.cpic.measurements.run`), :mod:`.results` (the records they return) and
 :mod:`.reporting` (checks, findings, figures and tables).
 """
 
+from ..framework.applicable import require
 from ..framework.case import VerificationCase
-from .measurements import components, parts, run, run_part
+from .measurements import components, parts, run_part
+from .measurements import run as run_parts
 from .reporting import backends_run, checks, findings, report
-from .scenes import Params
+from .scenes import (
+    Params,
+    ball_scene,
+    cut3d_scene,
+    cut_scene,
+    drop_scene,
+    friction_scene,
+    impact_scene,
+    sand_scene,
+    wheel_scene,
+)
+
+
+def scenes_on_backend(params):
+    """``[(name, scene)]``: a scene of each kind the case runs on the backend (the examples of its parts)."""
+    return [(f"the scene '{scene.name}'", scene) for scene in
+            (drop_scene(params), impact_scene(params), sand_scene(params), ball_scene(params, exact=True),
+             cut_scene(params), cut3d_scene(params), friction_scene(params), wheel_scene(params))]
+
+
+def run(params=Params(), backend="numpy", executor=None):
+    """:func:`.measurements.run` on a backend that implements every scene of the case
+    (:class:`~verification.framework.applicable.NothingApplicable` otherwise)."""
+    require(backend, scenes_on_backend(params))
+    return run_parts(params, backend, executor)
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "momentum.png"
@@ -66,4 +96,4 @@ CASE = VerificationCase(__doc__, Params, run, checks, report, findings=findings,
                         main_figure=MAIN_FIGURE)
 
 __all__ = ["CASE", "MAIN_FIGURE", "Params", "backends_run", "checks", "components", "findings", "parts", "report",
-           "run", "run_part"]
+           "run", "run_part", "scenes_on_backend"]

@@ -57,29 +57,43 @@ Theory and bounds
 
 Terms whose sign theory leaves open and that added energy over a run are findings (reported, not judged).
 
+On a backend that implements a part (:mod:`verification.framework.applicable`): each run, the friction block and the
+integration study run if the backend implements their scene, within what their claims allow: another hyperelastic
+material it has (the same density and P-wave speed: the closure and every sign hold for any stored energy), open walls
+as its walls on a domain padded by their band (nothing reaches them), an acting wall as a static wall it has and
+friction dropped (a static wall's projection, frictionless or not, never adds energy), the kernel it has. The plastic
+examples (snow88, sand: their claim is the return map's), CPIC (cut2d), asynchronous stepping (stork2d), and the
+friction block where the backend has no friction, are not applicable to a backend without them. The candidate is the
+backend itself, compared with the reference on the runs it implements.
+
 The case is a package: :mod:`.runs` (its parameters, scenes and simulations) and :mod:`.reporting` (checks,
 findings, tables and figures).
 """
 
+from ..framework.applicable import Triage
 from ..framework.case import VerificationCase
 from ..framework.executor import Executor
 from .reporting import checks, findings, report, tables
-from .runs import RUN, Params, candidate_of, compared_runs, example_scene, parts, run_part
+from .runs import ALLOWS, RUN, Params, candidate_of, compared_runs, example_scene, parts, run_part
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "ledger_terms.png"
 
 
 def run(params=Params(), backend="numpy", executor=None):
-    """Every run of the case on ``backend``, the independent ones through ``executor`` (default: in this process);
-    the compared runs book their steps on the candidate too (:func:`~.runs.run_example`)."""
-    jobs = parts(params, backend)
+    """Every run of the case that ``backend`` implements, the independent ones through ``executor`` (default: in this
+    process); the compared runs book their steps on the candidate too (:func:`~.runs.run_example`). The friction block
+    or the integration study, when not applicable, is ``None``."""
+    triage = Triage(backend)
+    jobs = parts(params, backend, triage)
+    if not jobs:
+        raise triage.nothing_ran()
     done = dict(zip(jobs, (executor or Executor(workers=1)).map(
         run_part, [(function, params, args, backend) for function, args in jobs.values()])))
-    runs = [done[f"run/{key}"] for key in params.runs]
+    runs = [done[f"run/{key}"] for key in params.runs if f"run/{key}" in done]
     return {"params": params, "backend": backend, "candidate": candidate_of(params, backend), "runs": runs,
-            "friction": done["friction"], "integration": done["integration"],
-            "compared": {r["key"]: r["compared"] for r in runs if r["compared"]}}
+            "friction": done.get("friction"), "integration": done.get("integration"),
+            "compared": {r["key"]: r["compared"] for r in runs if r["compared"]}, **triage.record()}
 
 
 def backends_run(result, backend):
@@ -92,7 +106,10 @@ def compiled_scenes(params, backend="numpy"):
     reference, the compared runs' scenes on the candidate; on another backend, every run's (the friction block and the
     integration study run the kernels of the jelly under MLS-MPM)."""
     keys = compared_runs(params) if backend == "numpy" else params.runs
-    return [(candidate_of(params, backend), example_scene(RUN[key], params)) for key in keys]
+    candidate = candidate_of(params, backend)
+    triage = Triage(candidate)
+    scenes = [triage.scene(key, example_scene(RUN[key], params), ALLOWS) for key in keys]
+    return [(candidate, scene) for scene in scenes if scene is not None]
 
 
 #: this case, for the registry

@@ -90,13 +90,16 @@ def checks(result):
     """Every run's checks (:func:`run_checks`), the friction block, the integration error's order, and the
     candidate's ledger against the reference's."""
     out = [c for r in result["runs"] for c in run_checks(r)]
-    out.append(Check("friction block: boundary / (mu m g d) - 1, magnitude",
-                     abs(friction_ratio(result["friction"]) - 1.0),
-                     "<=", FRICTION_TOLERANCE, "the floor's Coulomb friction mu m g does the work mu m g d over the "
-                     "distance d the block slides: boundary books it"))
-    out.append(Check("integration: fitted slope of sum |integration| against dt, distance from 1",
-                     abs(integration_slope(result["integration"]) - INTEGRATION_RATE), "<=", INTEGRATION_TOLERANCE,
-                     "symplectic Euler's energy error is O(dt^2) per step: summed to a fixed time, O(dt)"))
+    if result["friction"] is not None:  # None: not applicable to the backend
+        out.append(Check("friction block: boundary / (mu m g d) - 1, magnitude",
+                         abs(friction_ratio(result["friction"]) - 1.0),
+                         "<=", FRICTION_TOLERANCE, "the floor's Coulomb friction mu m g does the work mu m g d over "
+                         "the distance d the block slides: boundary books it"))
+    if result["integration"] is not None:
+        out.append(Check("integration: fitted slope of sum |integration| against dt, distance from 1",
+                         abs(integration_slope(result["integration"]) - INTEGRATION_RATE), "<=",
+                         INTEGRATION_TOLERANCE,
+                         "symplectic Euler's energy error is O(dt^2) per step: summed to a fixed time, O(dt)"))
     for key, books in result["compared"].items():
         worst = max(books, key=lambda b: b["error"])
         out.append(Check(f"{key}: {result['candidate']} ledger against the reference's, max |a - r| / S "
@@ -148,8 +151,9 @@ def tables(result):
             "candidate": [{"run": key, "state": state, "error": b["error"], "worst": b["worst"]}
                           for key, books in result["compared"].items() for state, b in zip(("half-way", "end"), books)],
             "friction": [{"mu": f["mu"], "mass": f["mass"], "g": f["g"], "distance": float(f["distance"][-1]),
-                          "boundary": float(f["boundary"][-1]), "ratio": float(friction_ratio(f))}],
-            "integration": [{"dt": float(dt), "sum_abs_integration": float(s)} for dt, s in zip(i["dt"], i["size"])]}
+                          "boundary": float(f["boundary"][-1]), "ratio": float(friction_ratio(f))}] if f else [],
+            "integration": [{"dt": float(dt), "sum_abs_integration": float(s)}
+                            for dt, s in zip(i["dt"], i["size"])] if i else []}
 
 
 def split_md(result):
@@ -293,19 +297,23 @@ def report(result, out_dir):
     ``energy_ledger.md``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    terms = plot_terms(result, out)
-    paths = [plot_split(result, out / "ledger_terms.png"), *terms, plot_friction(result, out / "friction.png"),
-             plot_integration(result, out / "integration_order.png")]
+    terms = plot_terms(result, out) if result["runs"] else []
+    paths = [plot_split(result, out / "ledger_terms.png"), *terms] if result["runs"] else []
+    paths += [plot_friction(result, out / "friction.png")] if result["friction"] else []
+    paths += [plot_integration(result, out / "integration_order.png")] if result["integration"] else []
     paths += [write_series(out / "vtk" / r["key"], r["frames"]) for r in result["runs"]]
-    f = tables(result)["friction"][0]
+    f = (tables(result)["friction"] or [None])[0]
+    sliding = (f"The sliding block: d = {f['distance']:.4g} m, boundary = {f['boundary']:.4g} J, -boundary / (mu m g "
+               f"d) = {f['ratio']:.4f}.\n\n![friction](friction.png)" if f else "The sliding block: not applicable.")
     text = (f"# Where the energy goes, run by run\n\nEach run's change of total energy split into the ledger's terms "
             f"(joules; in brackets, the share of the measured change ΔE; `closure` is the round-off of the terms' "
             f"sum against the ledger's own ΔE).\n\n{split_md(result)}\n\n![terms](ledger_terms.png)\n\n"
             + "".join(f"![terms over time]({p.name})\n\n" for p in terms) +
             f"## The candidate's ledger ({result['candidate']}) against the reference's\n\nOne step booked on both "
             f"from the same state, half-way through the run and at its end.\n\n{candidate_md(result)}\n\n"
-            f"## Friction and the integration error\n\nThe sliding block: d = {f['distance']:.4g} m, boundary = "
-            f"{f['boundary']:.4g} J, -boundary / (mu m g d) = {f['ratio']:.4f}.\n\n![friction](friction.png)\n\n"
-            f"![integration](integration_order.png)\n\n## Checks\n\n{checks_table(checks(result))}\n")
+            f"## Friction and the integration error\n\n{sliding}\n\n"
+            + ("![integration](integration_order.png)\n\n" if result["integration"] else
+               "The integration error's order: not applicable.\n\n")
+            + f"## Checks\n\n{checks_table(checks(result))}\n")
     write_text_atomic(out / "energy_ledger.md", text)
     return paths + [out / "energy_ledger.md"]

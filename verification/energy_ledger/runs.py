@@ -25,6 +25,7 @@ from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS, energy_scale
 from mpmref.rigid import dynamics as rigid_dynamics
 
 from .. import energy
+from ..framework.applicable import Allow, fit
 from ..framework.report import snapshot
 from ..momentum import VARIANT, VARIANTS
 
@@ -159,6 +160,12 @@ def example_scene(run, params):
     return Scene.from_dict(data, base_dir=EXAMPLES)
 
 
+#: what the claims let a backend that implements a part change in the examples and the friction block (the module
+#: docstring of :mod:`verification.energy_ledger`)
+ALLOWS = Allow(materials="substitute", walls="static", friction=True, kernel=True)
+FRICTION_ALLOWS = Allow(materials="substitute", kernel=True)
+
+
 def method_label(scene):
     """The scene's transfer scheme and force discretisation, for tables and figures."""
     m = scene.method
@@ -221,37 +228,52 @@ def compare_here(sim, candidate):
 
 
 def run_example(params, key, backend):
-    """One run to its end: per step its time and cumulative ledger (:func:`ledger_row`), at each frame the
-    diagnostics' energies (:func:`energies`) and a VTK frame with the per-particle shares; for a compared run
-    (:func:`compared_runs`), the candidate's ledger beside the reference's from the states half-way and at the end
-    (``compared``, :func:`compare`; empty otherwise)."""
+    """One run to its end (:func:`ledger_run`); for a compared run (:func:`compared_runs`), the candidate's ledger
+    beside the reference's from the states half-way and at the end."""
     data, t_end = example_data(RUN[key], params)
-    sim = Simulation(Scene.from_dict(data, base_dir=EXAMPLES), backend=backend)
+    sim = Simulation(fit(Scene.from_dict(data, base_dir=EXAMPLES), backend, ALLOWS).scene, backend=backend)
+    candidate = candidate_of(params, backend) if key in compared_runs(params) else None
+    return ledger_run(sim, key, params.frames, t_end=t_end, candidate=candidate)
+
+
+def ledger_run(sim, key, frames, t_end=None, steps=None, candidate=None):
+    """Run ``sim`` (its scene books the ledger) to ``t_end``, or for ``steps`` steps of its own: per step its time and
+    cumulative ledger (:func:`ledger_row`), at each of ``frames`` frames the diagnostics' energies (:func:`energies`)
+    and a VTK frame with the per-particle shares; with a ``candidate`` backend, its ledger beside the reference's from
+    the states half-way and at the end (``compared``, :func:`compare`; empty otherwise). ``left``: the particles the
+    domain's edge deleted or clamped over the run (the ledger books steps, not those)."""
+    first = sim.step_count
+
+    def done(fraction=1.0):
+        if steps is not None:
+            return sim.step_count - first >= fraction * steps
+        return sim.time >= fraction * t_end * (1.0 - 1e-12)
+
     terms = shared_terms(sim.scene)
     totals = {term: np.zeros(sim.n_particles) for term in terms}
-    rows, samples, frames, compared = [ledger_row(sim)], [energies(sim)], [frame(sim, totals)], []
-    candidate = candidate_of(params, backend) if key in compared_runs(params) else None
-    next_frame, start = t_end / params.frames, perf_counter()
-    while sim.time < t_end * (1.0 - 1e-12):
-        if candidate and not compared and sim.time >= 0.5 * t_end:
+    rows, samples, shots, compared = [ledger_row(sim)], [energies(sim)], [frame(sim, totals)], []
+    next_frame, start, left = 1.0 / frames, perf_counter(), sim.deleted + sim.clamped
+    while not done():
+        if candidate and not compared and done(0.5):
             paused = perf_counter()
             compared.append(compare_here(sim, candidate))
             start += perf_counter() - paused  # the run's wall time leaves the candidate's step out
-        sim.step_clipped(t_end)
+        sim.step() if steps is not None else sim.step_clipped(t_end)
         rows.append(ledger_row(sim))
         if totals:
             add_shares(totals, sim.stepper.ledger.shares)
-        if sim.time >= next_frame * (1.0 - 1e-12) or sim.time >= t_end * (1.0 - 1e-12):
+        if done(next_frame) or done():
             samples.append(energies(sim))
-            frames.append(frame(sim, totals))
-            next_frame += t_end / params.frames
+            shots.append(frame(sim, totals))
+            next_frame += 1.0 / frames
     wall = perf_counter() - start
     if candidate:
         compared.append(compare_here(sim, candidate))
     h, e = np.array(rows), np.array(samples)
-    return {"key": key, "method": method_label(sim.scene), "n_particles": sim.n_particles, "steps": sim.step_count,
-            "wall_s": wall, "t": h[:, 0], "ledger": h[:, 1:], "sampled_steps": e[:, 0].astype(int),
-            "energies": e[:, 1:], "frames": frames, "compared": compared,
+    return {"key": key, "method": method_label(sim.scene), "n_particles": sim.n_particles,
+            "steps": sim.step_count - first,
+            "wall_s": wall, "t": h[:, 0], "ledger": h[:, 1:], "sampled_steps": e[:, 0].astype(int) - first,
+            "energies": e[:, 1:], "frames": shots, "compared": compared, "left": sim.deleted + sim.clamped - left,
             **signs_fixed(sim.scene)}
 
 
@@ -301,7 +323,8 @@ def run_friction(params, backend):
     r"""The block given ``speed`` along the floor, ``friction_steps`` steps: per step the time, the distance its
     centre of mass slid and the cumulative ``boundary`` term; its mass, :math:`\mu` and :math:`g`."""
     f = FRICTION
-    sim = Simulation(friction_scene(f["mu"], f["g"], f["cells"], f["dt"]), backend=backend)
+    sim = Simulation(fit(friction_scene(f["mu"], f["g"], f["cells"], f["dt"]), backend, FRICTION_ALLOWS).scene,
+                     backend=backend)
     sim.v = np.broadcast_to([f["speed"], 0.0], sim.v.shape).copy()
     mass = float(sim.mass.sum())
     x0 = float(sim.mass @ sim.x[:, 0]) / mass
@@ -350,10 +373,23 @@ def compare(scene, state, candidate):
 
 
 # ---------------------------------------------------------------------------------------------- all
-def parts(params, backend):
-    """``{name: (function, args)}``: the case's independent runs, each ``function(params, *args, backend)``."""
-    jobs = {f"run/{key}": (run_example, (key,)) for key in params.runs}
-    return {**jobs, "friction": (run_friction, ()), "integration": (run_integration, ())}
+def parts(params, backend, triage=None):
+    """``{name: (function, args)}``: the case's independent runs, each ``function(params, *args, backend)``; with a
+    :class:`~verification.framework.applicable.Triage`, only those that ``backend`` implements (it lists the others)."""
+    f = FRICTION
+    scenes = {**{f"run/{key}": (f"{key} (the run and its checks)", example_scene(RUN[key], params), ALLOWS)
+                 for key in params.runs},
+              "friction": ("friction block: boundary / (mu m g d)", friction_scene(f["mu"], f["g"], f["cells"],
+                                                                                   f["dt"]), FRICTION_ALLOWS),
+              "integration": ("integration: fitted slope of sum |integration| against dt",
+                              energy.problem_scene(energy.Params.quick(), INTEGRATION["problem"],
+                                                   VARIANT[INTEGRATION["variant"]]), energy.ALLOWS)}
+    functions = {**{f"run/{key}": (run_example, (key,)) for key in params.runs},
+                 "friction": (run_friction, ()), "integration": (run_integration, ())}
+    if triage is None:
+        return functions
+    return {job: functions[job] for job, (name, scene, allow) in scenes.items()
+            if triage.scene(name, scene, allow, run=job.removeprefix("run/")) is not None}
 
 
 def run_part(job):

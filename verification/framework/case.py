@@ -4,6 +4,11 @@ A case module under ``verification/`` declares one :class:`VerificationCase`, na
 registry (:mod:`verification.framework.registry`) maps the case's name to its module and reads ``CASE`` when the case
 runs. Four members are required (``Params``, ``run``, ``checks``, ``report``); every other member has a
 default that says what a case without it means, so the framework calls each member directly.
+
+A case runs on what the backend implements: it builds every scene through
+:func:`verification.framework.applicable.fit` (or a :class:`~verification.framework.applicable.Triage`), and its
+result lists what did not apply under ``"not_applicable"`` and what it adapted under ``"adapted"``; a case none of
+whose runs applies raises :class:`~verification.framework.applicable.NothingApplicable`.
 """
 
 from collections.abc import Callable

@@ -1,18 +1,28 @@
-"""``mpmref verify [CASE ...] [--quick|--full] [--backend B] [--out DIR] [--scheduler A] [--workers N] [--no-progress]``
+"""``mpmref verify [CASE ...] [--scene SCENE.toml] [--quick|--full] [--backend B] [--out DIR] [--scheduler A]
+[--workers N] [--no-progress]``
 
 Runs the named verification cases (default: every available case) and writes, under ``DIR``, one folder per
 case (its VTK series, PNG plots, tables and ``report.md``) and an index (``report.md``, ``index.html``, and
 ``results.json`` for programs) with the findings, then every check's figure, bound and verdict. While it
 runs, a line per case on standard error says when the case starts and when it finishes (wall time,
-verdict); standard output gets the failing checks and the summary at the end. Exit code 0 when every
-check passes, 1 otherwise, 2 for an unknown case name or a backend reference that does not resolve or lacks
-a stage every scene needs (checked before any case runs).
+verdict); standard output gets the failing checks, each case that stopped with an error (with the scene and the
+backend's stage where it was raised) and the summary at the end. Exit code 0 when every check that ran passes,
+1 when one fails, a case stops with an error or no check applies at all, 2 for an unknown case name, a bad scene
+or option, or a backend reference that does not resolve or lacks a stage every scene needs (checked before any
+case runs).
 
 ``--backend`` takes any backend reference of :mod:`mpmref.backends` (``numpy``, ``numba``, a plugin's name or
 ``MODULE:ATTRIBUTE``): every simulation of every case runs on it, and the cases that compare two backends take it
-as the candidate and the NumPy reference as the truth. The report names it, with its version.
+as the candidate and the NumPy reference as the truth. The report names it, with its version. Each case runs on what
+the backend implements (:mod:`~verification.framework.applicable`): what it cannot do is listed as *not applicable*,
+with the reasons, and counted apart from the checks.
+
+``--scene SCENE.toml`` runs, instead of the cases, the checks of :mod:`verification.scene` on the user's own scene
+(momentum, the energy ledger, the backend against the reference, stability at the extremes of CFL), shortened by the
+preset; a scene the backend does not implement is refused before any work (exit 2).
 """
 
+import json
 import os
 import sys
 import time
@@ -23,7 +33,8 @@ from mpmref.backends import OPTION_HELP, make_backend, reference_argument
 from mpmref.cli import add_threads_option, apply_threads
 
 from . import registry, warmup
-from .common import failed
+from .applicable import Allow, Inapplicable, fit
+from .common import failed, summary_sentence, verdict_word
 from .executor import Executor
 from .report import case_record, machine, write_case_report, write_index
 
@@ -36,6 +47,9 @@ def add_parser(subparsers):
                               description=__doc__.splitlines()[0])
     p.add_argument("cases", nargs="*", metavar="CASE",
                    help=f"cases to run (default: all available: {', '.join(registry.available())})")
+    p.add_argument("--scene", type=Path, metavar="SCENE.toml",
+                   help="check your own scene instead of the cases: momentum, energy ledger, the backend against "
+                        "the reference, stability at the extremes of CFL (docs/verification.md)")
     preset = p.add_mutually_exclusive_group()
     preset.add_argument("--quick", dest="preset", action="store_const", const="quick",
                         help="small, fast preset (the one the tests run)")
@@ -53,7 +67,9 @@ def add_parser(subparsers):
 
 
 def cmd_verify(args):
-    """Run the cases of ``args`` and write the report; returns the exit code."""
+    """Run the cases of ``args`` (or the checks of its ``--scene``) and write the report; returns the exit code."""
+    if args.scene is not None:
+        return cmd_verify_scene(args)
     names = args.cases or registry.available()
     unknown = [n for n in names if n not in registry.CASES]
     if unknown:
@@ -74,33 +90,77 @@ def cmd_verify(args):
         warmup.stop(compiling)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
             "machine": machine(), "backend": backend}
+    return finish(args, records, meta)
+
+
+def cmd_verify_scene(args):
+    """``mpmref verify --scene``: the checks of :mod:`verification.scene` on the user's scene, after the scene and the
+    backend are checked (exit 2 before any work: a bad scene, a case named beside it, a backend that does not
+    implement the scene)."""
+    from mpmref.backends import describe
+    from mpmref.cli import OptionError
+
+    from .. import scene as scene_checks
+
+    if args.cases:
+        raise OptionError(f"--scene runs its own checks ({', '.join(scene_checks.CHECKS)}); give no CASE "
+                          f"(got {' '.join(args.cases)})")
+    params = scene_checks.Params.of(args.scene, args.preset)
+    declared = scene_checks.as_run(scene_checks.load(params))  # SceneError: exit 2
+    apply_threads(args.threads)
+    backend = describe(args.backend, make_backend(args.backend, declared))  # NotImplementedByBackend: exit 2
+    executor = Executor(scheduler=args.scheduler, workers=args.workers)
+    start = time.perf_counter()
+    names = list(scene_checks.CHECKS)
+    records = [_run_case(args, name, f"[{i}/{len(names)}] {name}", executor, params=params,
+                         case=scene_checks.case(name)) for i, name in enumerate(names, 1)]
+    meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
+            "machine": machine(), "backend": backend, "scene": str(args.scene)}
+    return finish(args, records, meta)
+
+
+def finish(args, records, meta):
+    """Write the index, print the failures, the errors and the summary line; the exit status: 0 when every check that
+    ran passes and at least one ran, 1 otherwise (a failing check, a case stopped with an error, or nothing checked)."""
     md, page, data = write_index(args.out, records, meta)
     for record in records:
         _print_problems(record.outcome)
-    outcomes = [r.outcome for r in records]
-    total = sum(len(o.checks) for o in outcomes)
-    n_failed = sum(len(failed(o.checks)) for o in outcomes)
-    errors = sum(o.error is not None for o in outcomes)
-    print(f"{total - n_failed} of {total} checks pass, {errors} case(s) stopped with an error, "
-          f"{meta['wall_s']:.1f} s; report: {md}, {page} and {data}")
-    return 0 if all(o.passed for o in outcomes) else 1
+    summary = json.loads(data.read_text())["summary"]
+    print(f"{summary_sentence(summary)}; {meta['wall_s']:.1f} s; report: {md}, {page} and {data}")
+    if not summary["checks"]:
+        print("mpmref verify: no check applies to this backend: nothing was verified", file=sys.stderr)
+    return 0 if verdict_word(summary) == "PASS" else 1
 
 
-def probe_scene():
-    """The smallest scene every backend must run: a 2D elastic block, synchronous, no walls or bodies."""
-    return (SceneBuilder(dim=2, name="backend_probe").grid(size=1.0, cells=8)
+def probe_scene(dim=2):
+    """The smallest scene every backend must run: an elastic block, synchronous, no walls or bodies."""
+    return (SceneBuilder(dim=dim, name="backend_probe").grid(size=1.0, cells=8)
             .material("solid", type="fixed_corotated", E=1.0e3, nu=0.3, rho=1.0)
-            .box("solid", lower=[0.25, 0.25], upper=[0.75, 0.75]).time(dt=1.0e-3, steps=1).build())
+            .box("solid", lower=[0.25] * dim, upper=[0.75] * dim).time(dt=1.0e-3, steps=1).build())
+
+
+#: what the probe may change to fit a backend that implements a part (:mod:`.applicable`)
+PROBE_ALLOWS = Allow(materials="substitute", walls="static", friction=True, kernel=True, dtype=True)
 
 
 def check_backend(reference):
     """The backend ``reference`` described for the report (:func:`mpmref.backends.describe`), once made for the
-    :func:`probe_scene` and checked: a backend without the stages every scene needs is refused
-    (:class:`~mpmref.errors.BackendError`, exit 2) before any case runs. Stages that only some scenes need
+    :func:`probe_scene` fitted to what it implements (:func:`.applicable.fit`; in 3D for a code without 2D) and
+    checked: a backend without the stages every scene needs is refused (:class:`~mpmref.errors.BackendError`, exit 2)
+    before any case runs, and so is one that implements no probe at all. Stages that only some scenes need
     (asynchronous stepping, rigid bodies) are checked where a case builds such a scene."""
     from mpmref.backends import describe
+    from mpmref.errors import NotImplementedByBackend
 
-    return describe(reference, make_backend(reference, probe_scene()))
+    reasons = []
+    for dim in (2, 3):
+        try:
+            scene = fit(probe_scene(dim), reference, PROBE_ALLOWS).scene
+        except Inapplicable as exc:
+            reasons += exc.reasons
+            continue
+        return describe(reference, make_backend(reference, scene))
+    raise NotImplementedByBackend(reference, "backend_probe", list(dict.fromkeys(reasons)))
 
 
 def _run_cases(args, names, executor, compiling):
@@ -123,16 +183,19 @@ def _run_cases(args, names, executor, compiling):
     return [records[n] for n in names]
 
 
-def _run_case(args, name, tag, executor):
-    """Run one case and write its report folder; the case's record."""
+def _run_case(args, name, tag, executor, params=None, case=None):
+    """Run one case (a check of ``--scene``: its ``case`` and ``params``) and write its report folder; the case's
+    record."""
     _progress(args, f"{tag}: started ({args.preset} preset, --backend {args.backend})")
     case_dir = args.out / name
-    outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir)
+    outcome = registry.run_case(name, args.preset, args.backend, executor, out_dir=case_dir, params=params,
+                                case=case)
     record = case_record(outcome, case_dir)
     write_case_report(record, case_dir)
     _progress(args, f"{tag}: finished in {outcome.wall_s:.1f} s, {outcome.verdict} "
                     f"({sum(c.passed for c in outcome.checks)} of {len(outcome.checks)} checks pass, "
-                    f"{len(record.findings)} findings; backends run: {', '.join(record.backends)})")
+                    f"{len(outcome.not_applicable)} not applicable, {len(record.findings)} findings; backends run: "
+                    f"{', '.join(record.backends)})")
     return record
 
 
@@ -142,8 +205,9 @@ def _progress(args, line):
 
 
 def _print_problems(outcome):
-    """The failing checks and the error of one case, on standard output."""
+    """The failing checks and the error of one case (the scene and stage it was raised in), on standard output."""
     for c in failed(outcome.checks):
         print(f"{outcome.name}: FAIL {c.name}: {c.value:.6g} (bound {c.relation} {c.bound:.6g})")
     if outcome.error is not None:
-        print(f"{outcome.name}: ERROR " + outcome.error.strip().splitlines()[-1] + f" (see {outcome.name}/report.md)")
+        line = outcome.error_line or outcome.error.strip().splitlines()[-1]
+        print(f"{outcome.name}: ERROR in {line} (see {outcome.name}/report.md)")

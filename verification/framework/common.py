@@ -67,4 +67,23 @@ def backend_sentence(meta):
     if not backend:
         return ""
     version = f"version {backend['version']}" if backend["version"] else "no version given"
-    return f"Backend under test: `{backend['backend']}` ({backend['class']}, {version})."
+    scene = f" The checks of the scene `{meta['scene']}` (`mpmref verify --scene`)." if meta.get("scene") else ""
+    return f"Backend under test: `{backend['backend']}` ({backend['class']}, {version}).{scene}"
+
+
+def verdict_word(summary):
+    """``PASS`` when every check that ran passes and no case stopped with an error, ``FAIL`` otherwise, ``NOTHING
+    CHECKED`` when no check applied at all."""
+    if summary["failing"] or summary["errors"]:
+        return "FAIL"
+    return "PASS" if summary["checks"] else "NOTHING CHECKED"
+
+
+def summary_sentence(summary):
+    """The counts of a report in words: checks passing and failing, not applicable items, errors, findings."""
+    passing = summary["checks"] - summary["failing"]
+    applicable = summary["cases"] - summary["cases_not_applicable"]
+    return (f"{passing} of {summary['checks']} checks pass, {summary['failing']} fail, in {applicable} of "
+            f"{summary['cases']} cases; {summary['not_applicable']} not applicable to this backend (checks or runs, "
+            f"each with its reason; {summary['cases_not_applicable']} cases wholly); {summary['errors']} cases "
+            f"stopped with an error; {summary['findings']} findings (measured, not judged)")

@@ -3,12 +3,17 @@
 Sweeps (convergence levels, stability bisections, speed-vs-accuracy grids, the runs of ``mpmref study``) are
 lists of independent runs. ``Executor.map(fn, items)`` runs ``fn(item)`` for each item and returns the results in
 the order of ``items`` (and can report each result as it arrives). ``fn`` must be a module-level function and ``items``
-picklable, so the same sweep runs unchanged in a local process pool or on a ``dask.distributed`` cluster.
+picklable, so the same sweep runs unchanged in a local process pool or on a ``dask.distributed`` cluster. An exception
+inside ``fn`` reaches the caller with the scene and the backend's stage where it was raised
+(:func:`~verification.framework.failure.locate`, found where it happened, before it leaves the worker).
 """
 
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import partial
+
+from .failure import locate
 
 #: Local workers start from a fork server, a clean process started once: forking the main process is
 #: unsafe after it has run a parallel Numba kernel (GNU OpenMP aborts the child), and spawning a fresh
@@ -49,6 +54,7 @@ class Executor:
 
     def _completed(self, fn, items):
         """``(index, fn(items[index]))`` pairs as the runs finish."""
+        fn = partial(located_call, fn)
         if self.scheduler is not None:
             from dask.distributed import Client
             from dask.distributed import as_completed as arrived
@@ -72,3 +78,12 @@ class Executor:
         if self.scheduler is not None:
             return f"dask.distributed scheduler {self.scheduler}"
         return "this process" if self.workers <= 1 else f"{self.workers} local processes"
+
+
+def located_call(fn, item):
+    """``fn(item)``; an exception is located (:func:`~verification.framework.failure.locate`) where it is raised."""
+    try:
+        return fn(item)
+    except Exception as exc:
+        locate(exc)
+        raise

@@ -10,7 +10,7 @@ only, nothing fetched from a network.
 import html
 from dataclasses import asdict
 
-from .common import backend_sentence, failed
+from .common import backend_sentence, failed, summary_sentence, verdict_word
 
 e = html.escape
 
@@ -33,6 +33,7 @@ nav.toc{display:flex;flex-wrap:wrap;gap:.4em;margin:.6em 0 0}
 border:1px solid var(--line);white-space:nowrap}
 .chip.pass{background:var(--ok-bg);color:var(--ok);border-color:#9fd3b2}
 .chip.fail{background:var(--bad-bg);color:var(--bad);border-color:#f0a9a3}
+.chip.na{background:#f1f2f4;color:var(--muted)} .verdict.na{background:#f1f2f4;border:1px solid var(--line)}
 .cases{display:grid;grid-template-columns:repeat(auto-fill,minmax(560px,1fr));gap:1.2em}
 @media (max-width:700px){.cases{grid-template-columns:1fr}}
 article.case{border:1px solid var(--line);border-radius:8px;padding:.9em 1em;background:#fff}
@@ -66,6 +67,13 @@ def _status(ok):
     return "pass" if ok else "fail"
 
 
+def _case_status(outcome):
+    """The style of a case: ``pass``, ``fail``, or ``na`` when nothing of it applies to the backend."""
+    if outcome.error is None and not outcome.applicable:
+        return "na"
+    return _status(outcome.passed)
+
+
 def figure_html(src, caption):
     """A figure that opens at full size when clicked, with its caption."""
     return (f"<figure><a href='{e(src)}'><img src='{e(src)}' alt='{e(caption)}' loading='lazy'></a>"
@@ -96,12 +104,30 @@ def _findings_table(findings, with_case):
 
 
 def _verdict_box(summary):
-    ok = summary["failing"] == 0 and summary["errors"] == 0
-    word = "PASS" if ok else "FAIL"
-    passing = summary["checks"] - summary["failing"]
-    return (f"<div class='verdict {_status(ok)}'><strong>{word}</strong> — {passing} of {summary['checks']} checks "
-            f"pass in {summary['cases']} cases; {summary['errors']} cases stopped with an error; "
-            f"{summary['findings']} findings (measured, not judged).</div>")
+    word = verdict_word(summary)
+    style = {"PASS": "pass", "FAIL": "fail"}.get(word, "na")
+    return f"<div class='verdict {style}'><strong>{word}</strong> — {e(summary_sentence(summary))}.</div>"
+
+
+def _not_applicable(records, with_case):
+    """The table of what was not applicable to the backend (``""`` when everything applied)."""
+    items = [(r.name, item) for r in records for item in r.outcome.not_applicable]
+    if not items:
+        return ""
+    head = "<th>case</th>" * with_case + "<th>not applicable</th><th>why</th>"
+    rows = "".join("<tr>" + (f"<td>{e(case)}</td>" if with_case else "") + f"<td>{e(item.name)}</td>"
+                   f"<td>{e(item.why)}</td></tr>" for case, item in items)
+    return (f"<h2 id='not-applicable'>Not applicable to this backend</h2><p>Checks, or runs and the checks they "
+            f"carry, that the backend does not implement: never a failure.</p><table><tr>{head}</tr>{rows}</table>")
+
+
+def _adapted(outcome):
+    """The table of the runs made on a scene fitted to the backend (``""`` when none)."""
+    if not outcome.adapted:
+        return ""
+    rows = "".join(f"<tr><td>{e(', '.join(a.names))}</td><td>{e(' '.join(a.changes))}</td></tr>"
+                   for a in outcome.adapted)
+    return (f"<h2>Adapted to this backend</h2><table><tr><th>runs</th><th>what changed</th></tr>{rows}</table>")
 
 
 def _failures(records):
@@ -114,7 +140,7 @@ def _failures(records):
     if rows:
         parts.append(_checks_table(rows, with_case=True))
     for r in errors:
-        last = r.outcome.error.strip().splitlines()[-1]
+        last = r.outcome.error_line or r.outcome.error.strip().splitlines()[-1]
         parts.append(f"<p><strong>{e(r.name)}</strong> stopped with an error: <code>{e(last)}</code> "
                      f"(<a href='{e(r.name)}/index.html'>its page</a> has the traceback).</p>")
     return "".join(parts)
@@ -128,14 +154,14 @@ def _case_card(record):
     n = len(record.figures)
     more = (f"All {n} figures, " if n > 1 else "") + "the checks, parameters, VTK series and tables"
     wide = " wide" if main is not None and main[2] > WIDE else ""
-    return (f"<article class='case {_status(o.passed)}{wide}' id='case-{e(o.name)}'><h3>{e(o.name)} "
-            f"<span class='chip {_status(o.passed)}'>{e(o.verdict)}</span></h3><p class='title'>{e(o.title)}</p>"
+    return (f"<article class='case {_case_status(o)}{wide}' id='case-{e(o.name)}'><h3>{e(o.name)} "
+            f"<span class='chip {_case_status(o)}'>{e(o.verdict)}</span></h3><p class='title'>{e(o.title)}</p>"
             f"{figure}<p class='more'><a href='{e(o.name)}/index.html'>{more} of this case →</a></p></article>")
 
 
 def index_html(records, meta, summary, backends):
     """``index.html``: verdict and failures, one figure per case, findings, then every check."""
-    toc = "".join(f"<a class='chip {_status(r.outcome.passed)}' href='#case-{e(r.name)}'>{e(r.name)}: "
+    toc = "".join(f"<a class='chip {_case_status(r.outcome)}' href='#case-{e(r.name)}'>{e(r.name)}: "
                   f"{e(r.outcome.verdict)}</a>" for r in records)
     machine = "".join(f"<li>{e(k)}: {e(str(v))}</li>" for k, v in meta["machine"].items())
     findings = [(r.name, f) for r in records for f in r.findings]
@@ -146,7 +172,7 @@ def index_html(records, meta, summary, backends):
             f"{e(backend_sentence(meta).replace('`', ''))} Also as <a href='report.md'>report.md</a> and "
             "<a href='results.json'>results.json</a>.</p>"
             f"<details class='meta'><summary>Machine</summary><ul>{machine}</ul></details>"
-            f"<nav class='toc'>{toc}</nav>{_failures(records)}"
+            f"<nav class='toc'>{toc}</nav>{_failures(records)}{_not_applicable(records, with_case=True)}"
             f"<h2 id='cases'>Cases: the figure that carries each claim</h2>"
             f"<div class='cases'>{''.join(_case_card(r) for r in records)}</div>"
             f"<h2 id='findings'>Findings (measured, not judged)</h2>{_findings_table(findings, True)}"
@@ -161,12 +187,13 @@ def case_html(record, series, tables):
     params = ("".join(f"<tr><td>{e(k)}</td><td>{e(str(v))}</td></tr>" for k, v in asdict(o.params).items())
               if o.params is not None else "")
     parts = ["<p class='meta'><a href='../index.html'>← the whole report</a></p>",
-             f"<h1>{e(o.name)} <span class='chip {_status(o.passed)}'>{e(o.verdict)}</span></h1>",
+             f"<h1>{e(o.name)} <span class='chip {_case_status(o)}'>{e(o.verdict)}</span></h1>",
              f"<p>{e(o.title)}</p><p class='meta'>Preset <code>{e(o.preset)}</code>, backends run: "
              f"{e(', '.join(record.backends))}, wall time {o.wall_s:.1f} s. Also as "
              "<a href='report.md'>report.md</a>.</p>"]
     if o.error is not None:
-        parts.append(f"<h2>Error</h2><pre>{e(o.error.rstrip())}</pre>")
+        where = f"<p><code>{e(o.error_line)}</code></p>" if o.error_line else ""
+        parts.append(f"<h2>Error</h2>{where}<pre>{e(o.error.rstrip())}</pre>")
     failing = failed(o.checks)
     if failing:
         parts.append("<h2>Failures</h2>" + _checks_table([_check_row(c) for c in failing], with_case=False))
@@ -178,6 +205,7 @@ def case_html(record, series, tables):
                      + _findings_table([(o.name, f) for f in record.findings], with_case=False))
     parts.append("<h2>Checks</h2>" + (_checks_table([_check_row(c) for c in o.checks], with_case=False)
                                       if o.checks else "<p>(none)</p>"))
+    parts.append(_not_applicable([record], with_case=False) + _adapted(o))
     if series:
         parts.append("<h2>VTK series (open in ParaView)</h2><ul>"
                      + "".join(f"<li><a href='{e(f.as_posix())}'>{e(f.as_posix())}</a></li>" for f in series) + "</ul>")

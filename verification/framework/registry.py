@@ -2,7 +2,9 @@
 
 A case module declares its :class:`~verification.framework.case.VerificationCase` as ``CASE``: ``Params``,
 ``run(params, backend="numpy", executor=None)``, ``checks(result) -> [Check]``, ``report(result, out_dir)``
-and the optional members, each with its default.
+and the optional members, each with its default. A case's runs that the backend cannot do are listed in its result
+(``result["not_applicable"]``, :mod:`~verification.framework.applicable`); a case none of whose runs applies raises
+:class:`~verification.framework.applicable.NothingApplicable` and is *not applicable*, never an error.
 """
 
 import importlib
@@ -11,7 +13,9 @@ import time
 import traceback
 from dataclasses import dataclass, field
 
+from .applicable import NothingApplicable
 from .common import failed
+from .failure import locate
 
 #: case name -> module; imported only when the case is run
 CASES = {
@@ -43,7 +47,9 @@ def load(name):
 
 @dataclass
 class Outcome:
-    """What running one case gave: its checks, timing, and the error if it stopped."""
+    """What running one case gave: its checks, what was not applicable and what was adapted to the backend, timing,
+    and the error if it stopped (its traceback in ``error``; in ``error_line``, one line naming the scene and the
+    stage where it was raised, :mod:`~verification.framework.failure`)."""
 
     name: str
     title: str
@@ -55,6 +61,15 @@ class Outcome:
     wall_s: float = 0.0
     error: str | None = None
     started: float = 0.0  # epoch seconds: the report lists only files written since
+    not_applicable: list = field(default_factory=list)  # NotApplicable items
+    adapted: list = field(default_factory=list)  # Adaptation items
+    error_line: str | None = None
+    case: object = None  # the VerificationCase run (a --scene check is not in the registry)
+
+    @property
+    def applicable(self):
+        """False when nothing of the case applies to the backend: it ran no check and lists what is not applicable."""
+        return bool(self.checks) or not self.not_applicable
 
     @property
     def passed(self):
@@ -62,30 +77,53 @@ class Outcome:
         return self.error is None and bool(self.checks) and all(c.passed for c in self.checks)
 
     @property
+    def ok(self):
+        """True when nothing failed: every check passes (or none applies) and the case stopped with no error."""
+        return self.error is None and (self.passed or not self.applicable)
+
+    @property
     def verdict(self):
         if self.error is not None:
             return "ERROR"
+        if not self.applicable:
+            return "not applicable"
         n_failed = len(failed(self.checks))
-        return "pass" if self.passed else f"FAIL ({n_failed} of {len(self.checks)})"
+        verdict = "pass" if self.passed else f"FAIL ({n_failed} of {len(self.checks)})"
+        return verdict + (f"; {len(self.not_applicable)} not applicable" if self.not_applicable else "")
 
 
-def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None, params=None):
-    """Run case ``name`` and evaluate its checks; with ``out_dir`` also write its report files.
+def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None, params=None, case=None):
+    """Run case ``name`` (``case``: a :class:`~verification.framework.case.VerificationCase` given directly, a check of
+    ``mpmref verify --scene``) and evaluate its checks; with ``out_dir`` also write its report files.
 
-    An exception inside the case is caught and kept (with its traceback) in ``Outcome.error`` so that a
-    long verification run still reports every other case; such a case counts as failed.
+    An exception inside the case is caught and kept (with its traceback) in ``Outcome.error``, its place in
+    ``Outcome.error_line``, so that a long verification run still reports every other case; such a case counts as
+    failed. A case that raises :class:`~verification.framework.applicable.NothingApplicable` is not applicable.
     """
-    case = load(name)
+    case = load(name) if case is None else case
     params = case.params(preset) if params is None else params
     outcome = Outcome(name=name, title=case.title, preset=preset, backend=backend, params=params,
-                      started=time.time())
+                      started=time.time(), case=case)
     start = time.perf_counter()
     try:
         outcome.result = case.run(params, backend=backend, executor=executor)
         outcome.checks = list(case.checks(outcome.result))
+        outcome.not_applicable, outcome.adapted = list(listed(outcome.result, "not_applicable")), \
+            list(listed(outcome.result, "adapted"))
         if out_dir is not None:
             case.report(outcome.result, out_dir)
-    except Exception:  # reported in the case's report.md and the index; the case fails
+    except NothingApplicable as nothing:
+        outcome.not_applicable = list(nothing.items)
+    except Exception as exc:  # reported in the case's report.md and the index; the case fails
+        where = locate(exc)
         outcome.error = traceback.format_exc()
+        outcome.error_line = f"{where.text()}: {type(exc).__name__}: " + " ".join(str(exc).split())
     outcome.wall_s = time.perf_counter() - start
     return outcome
+
+
+def listed(result, key):
+    """The items a case's result lists under ``key`` (``"not_applicable"`` or ``"adapted"``), or none."""
+    if isinstance(result, dict):
+        return result.get(key, ())
+    return getattr(result, key, ())

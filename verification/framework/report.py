@@ -26,7 +26,7 @@ from mpmref.io.atomic import atomic_path, write_text_atomic
 from mpmref.io.vtk import write_particles_vtu, write_pvd
 
 from . import html_report, registry
-from .common import backend_sentence, failed
+from .common import backend_sentence, failed, summary_sentence, verdict_word
 
 #: the outputs (names of ``[output] fields``, :data:`mpmref.scene.parsers.OUTPUT_FIELDS`) that the VTK frames of
 #: verification runs record
@@ -242,9 +242,9 @@ def case_record(outcome, case_dir):
     An exception in the case's ``backends_run``, ``findings`` or ``tables`` is kept in ``outcome.error`` (the case
     then counts as stopped with an error), like one in its ``run``.
     """
-    case = registry.load(outcome.name)
+    case = outcome.case if outcome.case is not None else registry.load(outcome.name)
     backends, findings, tables = (outcome.backend,), (), {}
-    if outcome.error is None:
+    if outcome.error is None and outcome.result is not None:
         try:
             backends = tuple(case.backends_run(outcome.result, outcome.backend))
             findings = tuple(case.findings(outcome.result))
@@ -285,11 +285,13 @@ def case_summary_md(record, case_dir):
              "| parameter | value |", "|---|---|"]
     lines += [f"| {k} | {_cell(v)} |" for k, v in asdict(outcome.params).items()] if outcome.params is not None else []
     if outcome.error is not None:
-        lines += ["", "## Error", "", "```text", outcome.error.rstrip(), "```"]
+        where = [f"Raised in {outcome.error_line}", ""] if outcome.error_line else []
+        lines += ["", "## Error", "", *where, "```text", outcome.error.rstrip(), "```"]
     if record.findings:
         lines += ["", "## Findings (measured, not judged)", ""]
         lines += _findings_md([(outcome.name, f) for f in record.findings], with_case=False)
     lines += ["", "## Checks", ""] + (_checks_md(outcome.checks) if outcome.checks else ["(none)"])
+    lines += _not_applicable_md(outcome)
     _, series, others = _files_by_kind(case_dir, outcome.started)
     if record.figures:
         lines += ["", "## Figures"]
@@ -300,6 +302,23 @@ def case_summary_md(record, case_dir):
     if others:
         lines += ["", "## Tables and details", ""] + [f"- [{f.as_posix()}]({f.as_posix()})" for f in others]
     return "\n".join(lines) + "\n"
+
+
+def _not_applicable_md(outcome):
+    """The case's sections on what did not apply to the backend and what was adapted to it (none: no lines)."""
+    lines = []
+    if outcome.not_applicable:
+        lines += ["", "## Not applicable to this backend", "",
+                  "Checks, or runs and the checks they carry, that the backend does not implement (never a failure):",
+                  "", "| not applicable | why |", "|---|---|"]
+        lines += [f"| {_cell(item.name)} | {_cell(item.why)} |" for item in outcome.not_applicable]
+    if outcome.adapted:
+        lines += ["", "## Adapted to this backend", "",
+                  "Runs made on a scene fitted to what the backend implements, within what the claim allows "
+                  "(the case's docstring says why each keeps its claim):", "", "| runs | what changed |", "|---|---|"]
+        lines += [f"| {_cell(', '.join(a.names))} | {_cell(' '.join(c.rstrip('.') + '.' for c in a.changes))} |"
+                  for a in outcome.adapted]
+    return lines
 
 
 def write_case_report(record, case_dir):
@@ -349,7 +368,9 @@ def _summary(records):
     return {"cases": len(outcomes), "checks": sum(len(o.checks) for o in outcomes),
             "failing": sum(len(failed(o.checks)) for o in outcomes),
             "errors": sum(o.error is not None for o in outcomes),
-            "findings": sum(len(r.findings) for r in records)}
+            "findings": sum(len(r.findings) for r in records),
+            "not_applicable": sum(len(o.not_applicable) for o in outcomes),
+            "cases_not_applicable": sum(not o.applicable and o.error is None for o in outcomes)}
 
 
 def _all_backends(records):
@@ -360,10 +381,7 @@ def index_md(records, meta):
     """Markdown of the top-level ``report.md``: the verdict and the failures, the cases, the findings, then every
     check (the order of ``index.html``)."""
     n = _summary(records)
-    verdict = "PASS" if n["failing"] == 0 and n["errors"] == 0 else "FAIL"
-    lines = ["# mpmref verification report", "",
-             f"**{verdict}**: {n['checks'] - n['failing']} of {n['checks']} checks pass in {n['cases']} cases; "
-             f"{n['errors']} cases stopped with an error; {n['findings']} findings (measured, not judged).", "",
+    lines = ["# mpmref verification report", "", f"**{verdict_word(n)}**: {summary_sentence(n)}.", "",
              f"Preset `{meta['preset']}`; backends run: {', '.join(_all_backends(records))} (per case below); "
              f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s. {backend_sentence(meta)}", "",
              "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "", "## Failures", ""]
@@ -376,6 +394,7 @@ def index_md(records, meta):
               "|---|---|---|---|---|"]
     lines += [f"| [{r.name}]({r.name}/report.md) | {', '.join(r.backends)} | {len(r.outcome.checks)} | "
               f"{r.outcome.verdict} | {r.outcome.wall_s:.1f} |" for r in records]
+    lines += _index_not_applicable_md(records)
     lines += ["", "## Findings (measured, not judged)", ""]
     findings = [(r.name, f) for r in records for f in r.findings]
     lines += _findings_md(findings, with_case=True) if findings else ["(none in these cases)"]
@@ -384,8 +403,19 @@ def index_md(records, meta):
     return "\n".join(lines) + "\n"
 
 
+def _index_not_applicable_md(records):
+    """The index's section on what was not applicable, case by case (nothing when everything applied)."""
+    items = [(r.name, item) for r in records for item in r.outcome.not_applicable]
+    if not items:
+        return []
+    return (["", "## Not applicable to this backend", "", "| case | not applicable | why |", "|---|---|---|"]
+            + [f"| {_cell(case)} | {_cell(item.name)} | {_cell(item.why)} |" for case, item in items])
+
+
 def _error_row(outcome):
-    return f"| {outcome.name} | (the case stopped with an error) | — | — | FAIL | see {outcome.name}/report.md |"
+    where = f"{outcome.error_line}; " if outcome.error_line else ""
+    return (f"| {outcome.name} | (the case stopped with an error) | — | — | FAIL | {_cell(where)}see "
+            f"{outcome.name}/report.md |")
 
 
 def index_html(records, meta):
@@ -409,21 +439,26 @@ def results(records, meta):
 
     Keys: ``schema``, ``created_utc``, ``preset``, ``backend`` (the backend under test: ``backend`` as given,
     ``class``, ``version``; ``null`` if not described), ``executor``, ``wall_s``, ``machine``, ``summary``
-    (counts of cases, checks, failing checks, cases stopped with an error, findings); ``cases`` (per case:
-    ``case``, ``title``, ``backends``, ``verdict``, ``passed``, ``wall_s``, ``error``: the traceback or
-    ``null``, ``figures``: ``path`` and ``caption``, ``tables``: its tables by name, each a list of rows, a row an
-    object of column to number or string); ``checks`` (every check: ``case``, ``name``,
-    ``figure``, ``relation``, ``bound``, ``verdict`` ``"pass"``/``"FAIL"``, ``reason``); ``findings``
-    (``case``, ``name``, ``figure``, ``sentence``). A non-finite figure or bound is the string ``"nan"``,
-    ``"inf"`` or ``"-inf"``.
+    (counts of cases, checks, failing checks, cases stopped with an error, findings, items not applicable to the
+    backend, cases wholly not applicable); ``cases`` (per case: ``case``, ``title``, ``backends``, ``verdict``,
+    ``passed``, ``applicable`` (false when no check of it applies), ``wall_s``, ``error``: the traceback or ``null``,
+    ``error_line``: the scene and stage it was raised in, and the error, or ``null``, ``not_applicable``: ``name`` and
+    ``reasons`` of each check or run the backend cannot do, ``adapted``: the ``runs`` made on a scene fitted to the
+    backend and its ``changes``, ``figures``: ``path`` and ``caption``, ``tables``: its tables by name, each a list of
+    rows, a row an object of column to number or string); ``checks`` (every check: ``case``, ``name``, ``figure``,
+    ``relation``, ``bound``, ``verdict`` ``"pass"``/``"FAIL"``, ``reason``); ``findings`` (``case``, ``name``,
+    ``figure``, ``sentence``); ``not_applicable`` (every item: ``case``, ``name``, ``reasons``). A non-finite figure or
+    bound is the string ``"nan"``, ``"inf"`` or ``"-inf"``.
     """
     return {
         "schema": SCHEMA, "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "preset": meta["preset"], "backend": meta.get("backend"), "executor": meta["executor"],
         "wall_s": meta["wall_s"], "machine": meta["machine"], "summary": _summary(records),
         "cases": [{"case": r.name, "title": r.outcome.title, "backends": list(r.backends),
-                   "verdict": r.outcome.verdict, "passed": r.outcome.passed, "wall_s": r.outcome.wall_s,
-                   "error": r.outcome.error,
+                   "verdict": r.outcome.verdict, "passed": r.outcome.passed, "applicable": r.outcome.applicable,
+                   "wall_s": r.outcome.wall_s, "error": r.outcome.error, "error_line": r.outcome.error_line,
+                   "not_applicable": [_na_json(item) for item in r.outcome.not_applicable],
+                   "adapted": [{"runs": list(a.names), "changes": list(a.changes)} for a in r.outcome.adapted],
                    "figures": [{"path": f"{r.name}/{p.as_posix()}", "caption": c} for p, c in r.figures],
                    "tables": {name: [_json_row(row) for row in rows] for name, rows in r.tables.items()}}
                   for r in records],
@@ -432,7 +467,12 @@ def results(records, meta):
                    for r in records for c in r.outcome.checks],
         "findings": [{"case": r.name, "name": f.name, "figure": json_number(f.value), "sentence": f.sentence}
                      for r in records for f in r.findings],
+        "not_applicable": [{"case": r.name, **_na_json(item)} for r in records for item in r.outcome.not_applicable],
     }
+
+
+def _na_json(item):
+    return {"name": item.name, "reasons": list(item.reasons)}
 
 
 def _json_row(row):

@@ -41,6 +41,10 @@ initial energy at every synchronised time, and bonded bodies stay within 1 % of 
 difference is a finding too, not a check: synchronous MPM on contact does not converge as Δt shrinks (its transfers
 dissipate per step, measured in the case), so no rate against it can be derived.
 
+On a backend that implements a part (:mod:`verification.framework.applicable`): the claims compare asynchronous with
+synchronous stepping on these solids, so the case runs only on a backend that implements every scene it runs on it
+(:func:`scenes_on_backend`) as declared, and is not applicable, with the reasons, to any other.
+
 The case is a package: :mod:`.scenes` (its parameters and scenes), :mod:`.levels` (one level, free fall, the schedule
 and its steppers), :mod:`.pairs` (the paired runs and their comparison), :mod:`.conservation` (the isolated disks'
 momentum and energy ledger), :mod:`.sweeps` (the sweeps: bonded, balls over steps, error against wall time) and
@@ -48,8 +52,10 @@ momentum and energy ledger), :mod:`.sweeps` (the sweeps: bonded, balls over step
 """
 
 from mpmref.backends import BACKENDS
+from mpmref.scene.factories import example_with_time
 from mpmref.steppers import AsynchronousStepper
 
+from ..framework.applicable import NothingApplicable, require
 from ..framework.case import VerificationCase
 from .conservation import isolated, ledger_split
 from .levels import ONE_LEVEL_BLOCK, ONE_LEVEL_TICK, WORKED_EXAMPLE, FrozenShadows, free_fall, one_level, schedule
@@ -62,18 +68,34 @@ from .sweeps import ball_series, bonded_at_cfls, trade
 MAIN_FIGURE = "trade.png"
 
 
+def scenes_on_backend(params):
+    """``[(name, scene)]`` that the case runs on the backend it is asked for: the two bodies (the one-level comparison,
+    free fall, the schedule), the pressed disks (isolated, ledger) and the 3D stork."""
+    return [("the two bodies (one level, free fall, schedule)", two_bodies(cfl=0.5, tick=ONE_LEVEL_TICK, levels=0,
+                                                                           steps=1, block=ONE_LEVEL_BLOCK)),
+            ("the pressed disks (isolated, ledger)", pressed_disks()),
+            ("the 3D stork", example_with_time("stork3d", params.stork3d_t_end, cells=params.stork3d_cells))]
+
+
 def compiled_scenes(params, backend="numpy"):
     """``[(backend, scene)]`` whose kernels this case needs compiled (see :mod:`verification.framework.warmup`), on
     Numba whatever ``backend`` is: the one-level comparison's two scenes and the census. Their kernels serve the 2D
     pairs and sweeps too, and their asynchronous bookkeeping (compiled with them) every asynchronous run of the
-    case: it depends only on which particle fields a scene allocates."""
+    case: it depends only on which particle fields a scene allocates. None when the case is not applicable to
+    ``backend``."""
+    try:
+        require(backend, scenes_on_backend(params))
+    except NothingApplicable:
+        return []
     return [("numba", two_bodies(cfl=0.5, tick=ONE_LEVEL_TICK, levels=0, steps=1, block=ONE_LEVEL_BLOCK)),
             ("numba", two_bodies(stepping="sync", dt=ONE_LEVEL_TICK, steps=1, block=ONE_LEVEL_BLOCK)),
             ("numba", census_scene())]
 
 
 def run(params=Params(), backend="numpy", executor=None):
-    """Every part of the case (see the module docstring), in this process (``executor`` is not used)."""
+    """Every part of the case (see the module docstring), in this process (``executor`` is not used);
+    :class:`~verification.framework.applicable.NothingApplicable` for a backend that does not implement its scenes."""
+    require(backend, scenes_on_backend(params))
     out = {"params": params, "backend": backend}
     out["one_level"] = [one_level(params, b) for b in ("numpy", "numba")]
     out["free_fall"] = free_fall(params, backend)
