@@ -146,10 +146,14 @@ def make_backend(reference, scene):
     return checked(backend, label(reference), scene)
 
 
-def implements(reference):
+def implements(reference, scenes=None):
     """What the backend ``reference`` names declares it implements (:class:`.capabilities.Implements`; everything
-    if it declares nothing)."""
-    return declared(resolve(reference))
+    if it declares nothing). A factory function that declares nothing itself is asked through the object it makes for
+    the first of ``scenes`` (default: :func:`.capabilities.probe_scenes`) it can make (:func:`.capabilities.probed`),
+    so a declaration on the backend's class is enough."""
+    from .capabilities import probe_scenes, probed
+
+    return probed(resolve(reference), probe_scenes() if scenes is None else scenes)
 
 
 def refuse_unimplemented(found, name, scene):

@@ -251,6 +251,17 @@ def declared(obj):
     return found
 
 
+def probe_scenes():
+    """Small synchronous scenes that a factory declaring nothing is tried on to find its objects' declaration
+    (:func:`probed`): an elastic and a fluid block, in 2D and 3D."""
+    from ..scene import SceneBuilder
+
+    return [(SceneBuilder(dim=dim, name="declaration_probe").grid(size=1.0, cells=8).material("m", **spec)
+             .box("m", lower=[0.25] * dim, upper=[0.75] * dim).time(dt=1e-3).build())
+            for dim in (2, 3) for spec in ({"type": "fixed_corotated", "E": 1e3, "nu": 0.3},
+                                           {"type": "fluid", "K": 1e3})]
+
+
 def probed(found, scenes):
     """What the backend ``found`` (a resolved backend reference) implements, where its declaration is on the objects
     it makes: :func:`declared` of ``found`` if it declares, else, for a factory function (not a class, which declares

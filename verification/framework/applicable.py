@@ -33,10 +33,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from mpmref import Scene, SceneBuilder
-from mpmref.backends import implements, make_backend, resolve
-from mpmref.backends.capabilities import EVERYTHING, material_type
-from mpmref.backends.capabilities import declared as declared_by
+from mpmref import Scene
+from mpmref.backends import implements, make_backend
+from mpmref.backends.capabilities import material_type
 from mpmref.errors import NotImplementedByBackend, SceneError
 from mpmref.physics.catalogue import MATERIALS
 from mpmref.physics.materials import evolved_fields
@@ -170,35 +169,14 @@ def fit(scene, backend, allow=Allow()):
 
 
 def declaration_of(backend):
-    """What ``backend`` declares it implements (:func:`mpmref.backends.implements`). A factory function that declares
-    nothing may make objects that do (the declaration on their class): then the declaration of an object it makes for
-    one of a few small probe scenes (:func:`_probes`), the first it makes."""
-    declaration = implements(backend)
-    if declaration is not EVERYTHING or not isinstance(backend, str):
-        return declaration
-    return _made_declaration(backend)
+    """What ``backend`` declares it implements (:func:`mpmref.backends.implements`: a factory function that declares
+    nothing is asked through an object it makes for a small probe scene)."""
+    return _declaration(backend) if isinstance(backend, str) else implements(backend)
 
 
 @lru_cache(maxsize=None)
-def _made_declaration(reference):
-    factory = resolve(reference)
-    if isinstance(factory, type) or not callable(factory):
-        return EVERYTHING
-    for scene in _probes():
-        try:
-            made = factory(scene)
-        except Exception:  # a factory may refuse a probe in any way: it is only asked for its declaration
-            continue
-        return declared_by(made)
-    return EVERYTHING
-
-
-def _probes():
-    """Small synchronous scenes, an elastic and a fluid block in 2D and 3D, that a factory is tried on."""
-    return [(SceneBuilder(dim=dim, name="declaration_probe").grid(size=1.0, cells=8).material("m", **spec)
-             .box("m", lower=[0.25] * dim, upper=[0.75] * dim).time(dt=1e-3).build())
-            for dim in (2, 3) for spec in ({"type": "fixed_corotated", "E": 1e3, "nu": 0.3},
-                                           {"type": "fluid", "K": 1e3})]
+def _declaration(reference):
+    return implements(reference)
 
 
 def _refuse_if_declined(backend, scene):
