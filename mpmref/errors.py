@@ -2,7 +2,21 @@
 
 
 class MpmrefError(Exception):
-    """Base class of every error raised on purpose by mpmref."""
+    """Base class of every error raised on purpose by mpmref.
+
+    Every one pickles with its message and attributes (worker processes of the verification cases and studies send
+    errors back), whatever its constructor's arguments: it is rebuilt without calling ``__init__`` again."""
+
+    def __reduce__(self):
+        return _rebuilt, (type(self), self.args, self.__dict__)
+
+
+def _rebuilt(cls, args, attributes):
+    """An error of class ``cls`` with the message arguments ``args`` and the attributes ``attributes``."""
+    error = cls.__new__(cls)
+    Exception.__init__(error, *args)
+    error.__dict__.update(attributes)
+    return error
 
 
 class SceneError(MpmrefError, ValueError):

@@ -1,4 +1,4 @@
-"""The conformance harness on codes that implement a part (issue 41): what a code implements is checked, and nothing
+"""The conformance harness on codes that implement a part: what a code implements is checked, and nothing
 else; the others are not applicable, with their reasons, never a failure.
 
 * The example partial code (examples/mpm88_backend.py: 2D, quadratic, MLS-MPM, one fluid with J only, frictionless

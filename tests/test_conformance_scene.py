@@ -229,7 +229,7 @@ def test_a_synchronous_backend_is_not_applicable_to_the_stages_of_asynchronous_s
 
 # ------------------------------------------------------------------------------------------ CPIC's Δt and time
 def test_cpic_cases_draw_dt_and_time_per_case_inside_the_stable_range():
-    """Issue 42 item 6: five or more Δt per CPIC stage (one per case), CFL numbers over decades, none past the
+    """Five or more Δt per CPIC stage (one per case), CFL numbers over decades, none past the
     penalty's bound k Δt <= 1, and the time varies too."""
     for stage in ("cpic_p2g", "cpic_g2p", "cpic_step"):
         cases = make_cases(dims=(2, 3), stages=(stage,))
