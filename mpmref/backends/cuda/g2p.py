@@ -28,6 +28,7 @@ def g2p_kernel(dtype, dim, kernel, affine, poly, flip, mls_gradient, tracks_F, t
     T, nb = real_types(dtype)
     D = dim
     st = make_stencil(dtype, kernel)
+    st_base, st_weight, st_slope, st_axis_basis = st.base, st.weight, st.slope, st.axis_basis
     S = st.S
     K = S**D
     M = max(K - 1 - D, 1)
@@ -47,16 +48,16 @@ def g2p_kernel(dtype, dim, kernel, affine, poly, flip, mls_gradient, tracks_F, t
         at = cuda.local.array(D, types.int64)
         for a in range(D):
             xi = (x[p, a] - origin[a]) / h
-            b = st.base(xi)
+            b = st_base(xi)
             f[a] = xi - T(b)
             base[a] = min(max(b, 0), node_shape[a] - S)  # a particle outside the valid region reads no other memory
             for k in range(S):
-                w[a, k] = st.weight(f[a], k)
+                w[a, k] = st_weight(f[a], k)
         q = cuda.local.array((D, S, S), nb)
         norm = cuda.local.array((D, S), nb)
         if poly:
             for a in range(D):
-                st.axis_basis(w[a], f[a], h, q[a], norm[a])
+                st_axis_basis(w[a], f[a], h, q[a], norm[a])
         v_pic = cuda.local.array(D, nb)
         dv_flip = cuda.local.array(D, nb)
         B = cuda.local.array((D, D), nb)
@@ -91,7 +92,7 @@ def g2p_kernel(dtype, dim, kernel, affine, poly, flip, mls_gradient, tracks_F, t
                     dv_flip[a] += weight * (vi - v_tilde[node, a])
             if not mls_gradient:
                 for b in range(D):
-                    g[b] = st.slope(f[b], at[b]) / h
+                    g[b] = st_slope(f[b], at[b]) / h
                     for c in range(D):
                         if c != b:
                             g[b] = g[b] * w[c, at[c]]

@@ -16,7 +16,7 @@ import numpy as np
 from numba import types
 
 from ...physics.colliders import Ball, Box, Cylinder, Plane
-from .launch import array, kernel_set, scalar
+from .launch import array, device_function, kernel_set, scalar
 from .runtime import cuda, load
 
 #: wall and collider types as the kernels code them
@@ -64,9 +64,8 @@ def grid_update_kernel(dtype, dim, folded, colliders):
     T = np.dtype(dtype).type
     D = dim
     one, zero = T(1.0), T(0.0)
-    device = cuda.jit(device=True, inline="always")
 
-    @device
+    @device_function
     def project_at_wall(v, i, axis, sign, kind, friction):
         r"""Talk Eq. 25 at an axis-aligned wall with inward normal ``sign`` :math:`e_{axis}`: sticky zeroes,
         slip removes the normal part, separate (only when approaching, :math:`v_n < 0`) sticks where
@@ -96,7 +95,7 @@ def grid_update_kernel(dtype, dim, folded, colliders):
             if a != axis:
                 v[i, a] *= scale
 
-    @device
+    @device_function
     def signed_distance(row, x, normal):
         r""":math:`\phi(x)` of collider ``row`` at ``x`` (float64, moved back by the collider's motion) and its
         gradient into ``normal`` (:mod:`mpmref.physics.colliders`: plane, ball, box, cylinder)."""
@@ -122,7 +121,7 @@ def grid_update_kernel(dtype, dim, folded, colliders):
             normal[a] = normal[a] / r if r > 0.0 else 0.0
         return r - row[9 if shape == 1 else 12]
 
-    @device
+    @device_function
     def box_distance(row, x, normal):
         r"""The exact distance of an axis-aligned box, :math:`|\max(q, 0)| + \min(\max_a q_a, 0)`,
         :math:`q = |x - c| - h`, and its gradient (the nearest face's normal inside)."""
@@ -146,7 +145,7 @@ def grid_update_kernel(dtype, dim, folded, colliders):
                 normal[a] = (1.0 if a == face else 0.0) * (1.0 if x[a] > c else (-1.0 if x[a] < c else 0.0))
         return outside + min(largest, 0.0)
 
-    @device
+    @device_function
     def project_at_collider(v, i, row, normal):
         r"""Talk Eq. 25 with the collider's normal, type, friction and velocity :math:`v_{co}` on the relative
         velocity :math:`v - v_{co}` (:func:`mpmref.physics.boundary.project_velocity`), in float64."""

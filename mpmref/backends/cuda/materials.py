@@ -17,7 +17,7 @@ import numpy as np
 
 from ...backends.capabilities import material_type
 from ...physics.plasticity import SIGMA_FLOOR
-from .launch import real_types
+from .launch import device_function, real_types
 from .runtime import cuda, load
 from .svd import make_svd
 
@@ -70,12 +70,12 @@ def make_materials(dtype, dim, present):
     one, zero, two = T(1.0), T(0.0), T(2.0)
     floor = T(SIGMA_FLOOR)
     svd = make_svd(dtype, dim)
+    svd_polar_rotation, svd_signed_svd = svd.polar_rotation, svd.signed_svd
     has = {code: code in present for code in RULES.values()}
     HAS_FC, HAS_NH, HAS_FLUID, HAS_SNOW, HAS_SAND = (has[c] for c in (FIXED_COROTATED, NEO_HOOKEAN, FLUID, SNOW,
                                                                         SAND))
-    device = cuda.jit(device=True, inline="always")
 
-    @device
+    @device_function
     def det(F):
         r""":math:`\det F` of a 2×2 or 3×3 local array by cofactors."""
         if D == 2:
@@ -83,7 +83,7 @@ def make_materials(dtype, dim, present):
         return (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
                 + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
 
-    @device
+    @device_function
     def corotated(F, mu, lam, scale, tau):
         r"""``tau`` = ``scale`` :math:`(2\mu(F - R)F^T + \lambda(J - 1)J\,I)` (fixed-corotated, Stomakhin et al. 2012
         §4), :math:`R` the polar rotation, :math:`J = \det F`."""
@@ -91,7 +91,7 @@ def make_materials(dtype, dim, present):
         U = cuda.local.array((D, D), nb)
         Vt = cuda.local.array((D, D), nb)
         sigma = cuda.local.array(D, nb)
-        svd.polar_rotation(F, R, U, sigma, Vt)
+        svd_polar_rotation(F, R, U, sigma, Vt)
         J = det(F)
         for a in range(D):
             for b in range(D):
@@ -100,7 +100,7 @@ def make_materials(dtype, dim, present):
                     s += (F[a, c] - R[a, c]) * F[b, c]
                 tau[a, b] = scale * (two * mu * s + (lam * (J - one) * J if a == b else zero))
 
-    @device
+    @device_function
     def neo_hookean(F, mu, lam, tau):
         r"""``tau`` = :math:`\mu(FF^T - I) + \lambda\ln J\,I` (Bonet & Wood 2008 §6.4.3)."""
         log_J = math.log(det(F))
@@ -111,7 +111,7 @@ def make_materials(dtype, dim, present):
                     s += F[a, c] * F[b, c]
                 tau[a, b] = mu * (s - (one if a == b else zero)) + (lam * log_J if a == b else zero)
 
-    @device
+    @device_function
     def fluid(J, K, gamma, tau):
         r"""``tau`` = :math:`-pJ\,I`, :math:`p = K(J^{-\gamma} - 1)` (Tait fluid)."""
         power = one / J if gamma == one else math.pow(J, -gamma)
@@ -120,7 +120,7 @@ def make_materials(dtype, dim, present):
             for b in range(D):
                 tau[a, b] = s if a == b else zero
 
-    @device
+    @device_function
     def compose(U, sigma, Vt, out):
         r"""``out`` = :math:`U\operatorname{diag}(\sigma)V^T`."""
         for a in range(D):
@@ -130,18 +130,18 @@ def make_materials(dtype, dim, present):
                     s += U[a, c] * sigma[c] * Vt[c, b]
                 out[a, b] = s
 
-    @device
+    @device_function
     def hencky(F, U, eps, Vt):
         r"""``U``, :math:`\epsilon = \ln\max(\sigma, \sigma_{floor})`, ``Vt`` of ``F`` (Klar et al. 2016 §4);
         returns :math:`\operatorname{tr}\epsilon`."""
-        svd.signed_svd(F, U, eps, Vt)
+        svd_signed_svd(F, U, eps, Vt)
         trace = zero
         for a in range(D):
             eps[a] = math.log(max(eps[a], floor))
             trace += eps[a]
         return trace
 
-    @device
+    @device_function
     def sand(F, mu, lam, tau):
         r"""``tau`` = :math:`U(2\mu\epsilon + \lambda\operatorname{tr}\epsilon\,I)U^T` (Klar et al. 2016 §4)."""
         U = cuda.local.array((D, D), nb)
@@ -154,7 +154,7 @@ def make_materials(dtype, dim, present):
                 Vt[a, b] = U[b, a]
         compose(U, eps, Vt, tau)
 
-    @device
+    @device_function
     def stress(rule, prm, F, J, Jp, tau):
         """The Kirchhoff stress of a particle of law ``rule`` into ``tau`` (see :func:`make_materials`)."""
         if HAS_FLUID and rule == FLUID:
@@ -168,7 +168,7 @@ def make_materials(dtype, dim, present):
         if HAS_SAND and rule == SAND:
             sand(F, prm[MU], prm[LAM], tau)
 
-    @device
+    @device_function
     def snow_return(prm, F, Jp):
         r"""Clamp :math:`\sigma_i` to :math:`[1-\theta_c, 1+\theta_s]` (Stomakhin et al. 2013 §4.1 step 7): ``F`` in
         place (unchanged, bit for bit, when already inside); returns
@@ -176,7 +176,7 @@ def make_materials(dtype, dim, present):
         U = cuda.local.array((D, D), nb)
         Vt = cuda.local.array((D, D), nb)
         sigma = cuda.local.array(D, nb)
-        svd.signed_svd(F, U, sigma, Vt)
+        svd_signed_svd(F, U, sigma, Vt)
         inside = True
         before, after = one, one
         for a in range(D):
@@ -189,7 +189,7 @@ def make_materials(dtype, dim, present):
             compose(U, sigma, Vt, F)
         return min(max(Jp * (before / after), prm[JP_MIN]), prm[JP_MAX])
 
-    @device
+    @device_function
     def sand_return(prm, F, Jp):
         r"""Drucker–Prager projection of the Hencky strain with the cohesion shift (Klar et al. 2016 Alg. 2;
         :meth:`mpmref.physics.plasticity.DruckerPragerSand.return_map`): ``F`` in place, returns the new
@@ -219,7 +219,7 @@ def make_materials(dtype, dim, present):
         compose(U, eps, Vt, F)
         return Jp * math.exp(trace - trace_new)
 
-    @device
+    @device_function
     def return_map(rule, prm, F, Jp):
         """The plastic projection of ``F`` (in place); returns the new :math:`J_P` (see :func:`make_materials`)."""
         if HAS_SNOW and rule == SNOW:
@@ -228,7 +228,7 @@ def make_materials(dtype, dim, present):
             return sand_return(prm, F, Jp)
         return Jp
 
-    @device
+    @device_function
     def wave_speed(rule, prm, F, J, Jp):
         r"""The current wave speed :math:`c_p` in float64, by the rules of
         :func:`mpmref.backends.numba.materials.wave_speeds_kernel` (elastic solids and sand, fluid, snow)."""

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import types
 
-from .launch import array, kernel_set, real_types, scalar
+from .launch import array, device_function, kernel_set, real_types, scalar
 from .materials import FLUID, make_materials
 from .runtime import cuda, load
 from .sort import INDEX
@@ -66,24 +66,26 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
     T, nb = real_types(dtype)
     D = dim
     st = make_stencil(dtype, kernel)
+    st_base, st_weight, st_slope, st_axis_basis = st.base, st.weight, st.slope, st.axis_basis
     S = st.S
     K = S**D  # nodes of a stencil
     M = K - 1 - D  # PolyPIC's higher modes
     mats = make_materials(dtype, dim, laws)
+    mats_stress = mats.stress
     row = row_layout(D, S, affine, poly, mls_force, fused)
     FX, MASS, MOM, AFF, QF, MODES = row.fx, row.mass, row.momentum, row.affine, row.force, row.modes
     one, zero = T(1.0), T(0.0)
     MLS_FOLDED = fused and mls_force
-    device = cuda.jit(device=True, inline="always")
+    SUMS = 1 + 2 * D  # a node's mass, momentum and force
 
-    @device
+    @device_function
     def digits(o, out):
         """The per-axis stencil index of the ``o``-th node of a stencil (C order) into ``out``."""
         for a in range(D - 1, -1, -1):
             out[a] = o % S
             o //= S
 
-    @device
+    @device_function
     def mode_momentum(p, f, h, m, modes, mode_index, rows, k):
         r"""PolyPIC: :math:`m_p \sum_r s_r(x_i)\,c_{pr}` at each stencil node into the row's mode columns."""
         w = cuda.local.array(S, nb)
@@ -92,8 +94,8 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         at = cuda.local.array(D, types.int64)
         for a in range(D):
             for j in range(S):
-                w[j] = st.weight(f[a], j)
-            st.axis_basis(w, f[a], h, q[a], norm[a])
+                w[j] = st_weight(f[a], j)
+            st_axis_basis(w, f[a], h, q[a], norm[a])
         for o in range(K):
             digits(o, at)
             for a in range(D):
@@ -116,7 +118,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         f = cuda.local.array(D, nb)
         for a in range(D):
             xi = (x[p, a] - origin[a]) / h
-            f[a] = xi - T(st.base(xi))
+            f[a] = xi - T(st_base(xi))
             rows[k, FX + a] = f[a]
         m = mass[p]
         rows[k, MASS] = m
@@ -128,7 +130,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         for a in range(D):
             for b in range(D):
                 Fp[a, b] = F[p, a, b] if law != FLUID else zero
-        mats.stress(law, params[material[p]], Fp, J[p] if J.shape[0] > 0 else one, Jp[p] if Jp.shape[0] > 0 else one,
+        mats_stress(law, params[material[p]], Fp, J[p] if J.shape[0] > 0 else one, Jp[p] if Jp.shape[0] > 0 else one,
                     tau)
         scale = -vol0[p] / T(inertia) if mls_force else -vol0[p] * (T(dt) if fused else one)
         for a in range(D):
@@ -142,7 +144,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         if poly:
             mode_momentum(p, f, h, m, modes, mode_index, rows, k)
 
-    @device
+    @device_function
     def contribution(rows, k, at, h, out):
         r"""What row ``k`` gives the node at stencil index ``at``, into ``out``: :math:`w_{ip} m_p`, then the momentum
         :math:`w_{ip}(m_p v_p + (m_pC_p) (x_i - x_p) [+ \text{modes}])` (fused classic: plus :math:`\Delta t\,Q_p
@@ -153,7 +155,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         w = one
         for a in range(D):
             fa = rows[k, FX + a]
-            wa[a] = st.weight(fa, at[a])
+            wa[a] = st_weight(fa, at[a])
             d[a] = (T(at[a]) - fa) * h
             w *= wa[a]
         if QF >= 0:
@@ -161,7 +163,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
                 if mls_force:
                     g[a] = w * d[a]
                 else:
-                    g[a] = st.slope(rows[k, FX + a], at[a]) / h
+                    g[a] = st_slope(rows[k, FX + a], at[a]) / h
                     for b in range(D):
                         if b != a:
                             g[a] = g[a] * wa[b]
@@ -195,13 +197,13 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         h = T(dx)
         node = cuda.local.array(D, types.int64)
         at = cuda.local.array(D, types.int64)
-        total = cuda.local.array(1 + 2 * D, nb)
-        part = cuda.local.array(1 + 2 * D, nb)
+        total = cuda.local.array(SUMS, nb)
+        part = cuda.local.array(SUMS, nb)
         rest = i
         for a in range(D - 1, -1, -1):
             node[a] = rest % node_shape[a]
             rest //= node_shape[a]
-        for c in range(1 + 2 * D):
+        for c in range(SUMS):
             total[c] = zero
         for o in range(K):
             digits(o, at)
@@ -231,7 +233,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         h = T(dx)
         base = cuda.local.array(D, types.int64)
         at = cuda.local.array(D, types.int64)
-        part = cuda.local.array(1 + 2 * D, nb)
+        part = cuda.local.array(SUMS, nb)
         rest = keys[p]
         for a in range(D - 1, -1, -1):
             base[a] = rest % node_shape[a]

@@ -12,7 +12,7 @@ from functools import lru_cache
 import numpy as np
 from numba import types
 
-from .launch import BLOCK, array, kernel_set, real_types
+from .launch import BLOCK, array, device_function, kernel_set, real_types
 from .materials import FLUID, make_materials
 from .runtime import cuda, load
 
@@ -35,11 +35,11 @@ def particle_kernels(dtype, dim, laws):
     D = dim
     one, zero = T(1.0), T(0.0)
     mats = make_materials(dtype, dim, laws)
+    mats_stress, mats_return_map, mats_wave_speed = mats.stress, mats.return_map, mats.wave_speed
     NQ = summary_size(dim)
     FLAGS = len(CHECKED_FIELDS)
-    device = cuda.jit(device=True, inline="always")
 
-    @device
+    @device_function
     def load_state(p, F, J, Jp, law, Fp):
         """Particle ``p``'s deformation gradient into the local ``Fp`` (the identity for a fluid) and its ``J``,
         ``Jp`` (1 where the scene has none)."""
@@ -57,7 +57,7 @@ def particle_kernels(dtype, dim, laws):
         out = cuda.local.array((D, D), nb)
         law = rules[material[p]]
         Jv, Jpv = load_state(p, F, J, Jp, law, Fp)
-        mats.stress(law, params[material[p]], Fp, Jv, Jpv, out)
+        mats_stress(law, params[material[p]], Fp, Jv, Jpv, out)
         for a in range(D):
             for b in range(D):
                 tau[p, a, b] = out[a, b]
@@ -72,22 +72,22 @@ def particle_kernels(dtype, dim, laws):
         for a in range(D):
             for b in range(D):
                 Fp[a, b] = F[p, a, b]
-        Jp_out[p] = mats.return_map(law, params[material[p]], Fp, Jp[p])
+        Jp_out[p] = mats_return_map(law, params[material[p]], Fp, Jp[p])
         for a in range(D):
             for b in range(D):
                 F_out[p, a, b] = Fp[a, b]
 
-    @device
+    @device_function
     def finite(value):
         """Whether ``value`` is neither infinite nor NaN."""
         return not (math.isinf(value) or math.isnan(value))
 
-    @device
+    @device_function
     def finite_1(values, p):
         """Whether ``values[p]`` of a 1-dimensional array (no rows: true) is finite."""
         return values.shape[0] == 0 or finite(values[p])
 
-    @device
+    @device_function
     def finite_2(values, p):
         """Whether every entry of row ``p`` of a 2-dimensional array (no rows: true) is finite."""
         ok = True
@@ -96,7 +96,7 @@ def particle_kernels(dtype, dim, laws):
                 ok = ok and finite(values[p, i])
         return ok
 
-    @device
+    @device_function
     def finite_3(values, p):
         """Whether every entry of row ``p`` of a 3-dimensional array (no rows: true) is finite."""
         ok = True
@@ -131,7 +131,7 @@ def particle_kernels(dtype, dim, laws):
             Fp = cuda.local.array((D, D), nb)
             law = rules[material[p]]
             Jv, Jpv = load_state(p, F, J, Jp, law, Fp)
-            signal = mats.wave_speed(law, params[material[p]], Fp, Jv, Jpv) + math.sqrt(speed2)
+            signal = mats_wave_speed(law, params[material[p]], Fp, Jv, Jpv) + math.sqrt(speed2)
             shared[FLAGS + 2 * D, t] = change if finite(change) else -math.inf
             shared[FLAGS + 2 * D + 1, t] = signal if finite(signal) else -math.inf
         cuda.syncthreads()

@@ -38,6 +38,7 @@ def sort_kernels(dtype, dim, kernel):
     load()
     T = np.dtype(dtype).type
     stencil = make_stencil(dtype, kernel)
+    stencil_base = stencil.base
     S = stencil.S
     D = dim
     ints = array(INDEX, 1)
@@ -51,7 +52,7 @@ def sort_kernels(dtype, dim, kernel):
         key = 0
         fits = True
         for a in range(D):
-            b = stencil.base((x[p, a] - origin[a]) / T(dx))
+            b = stencil_base((x[p, a] - origin[a]) / T(dx))
             fits = fits and 0 <= b and b + S <= node_shape[a]
             key = key * node_shape[a] + b
         if not fits:

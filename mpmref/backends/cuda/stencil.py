@@ -17,7 +17,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from ...physics.kernels import KERNELS
-from .runtime import cuda, load
+from .launch import device_function
+from .runtime import load
 
 
 @lru_cache(maxsize=None)
@@ -33,17 +34,16 @@ def make_stencil(dtype, kernel):
     half, one, two, six = T(0.5), T(1.0), T(2.0), T(6.0)
     three_halves, three_quarters, two_thirds = T(1.5), T(0.75), T(2.0 / 3.0)
     zero = T(0.0)
-    device = cuda.jit(device=True, inline="always")
     #: the (S-1)-th forward difference's coefficients and L = (S-1)! dx^(S-1) without dx (PolyPIC's top mode)
     difference = tuple(T((-1) ** (S - 1 - k) * comb(S - 1, k)) for k in range(S))
     top_factor = T(factorial(S - 1))
 
-    @device
+    @device_function
     def base(xi):
         """The lowest stencil node along an axis, :math:`\\lfloor \\xi - s \\rfloor`."""
         return int(math.floor(xi - shift))
 
-    @device
+    @device_function
     def weight(f, k):
         r""":math:`N_k(f)`: quadratic :math:`\tfrac12(\tfrac32 - f)^2, \tfrac34 - (f - 1)^2, \tfrac12(f - \tfrac12)^2`;
         cubic (:math:`a = f - 1`, :math:`b = 2 - f`) :math:`b^3/6, \tfrac12 a^3 - a^2 + \tfrac23,
@@ -65,7 +65,7 @@ def make_stencil(dtype, kernel):
             return a * a * a / six
         return one - f if k == 0 else f
 
-    @device
+    @device_function
     def slope(f, k):
         r""":math:`N'_k(f)` in grid units: quadratic :math:`f - \tfrac32, -2(f - 1), f - \tfrac12`; cubic
         :math:`-\tfrac12 b^2, \tfrac32 a^2 - 2a, -\tfrac32 b^2 + 2b, \tfrac12 a^2`; linear :math:`-1, 1`."""
@@ -86,7 +86,7 @@ def make_stencil(dtype, kernel):
             return half * (a * a)
         return -one if k == 0 else one
 
-    @device
+    @device_function
     def axis_basis(w, f, dx, q, norm):
         r"""PolyPIC's orthogonal polynomials of one axis at its stencil nodes
         (:func:`mpmref.physics.polypic.axis_basis`): ``q[j, k]`` = :math:`q_j(\delta_k)`, ``norm[j]`` =

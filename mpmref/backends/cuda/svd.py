@@ -19,6 +19,7 @@ import numpy as np
 from numba import from_dtype
 
 from ...physics.svd import MAX_SWEEPS, PAIRS_3D, TOL_ULPS
+from .launch import device_function
 from .runtime import cuda, load
 
 
@@ -30,11 +31,10 @@ def make_svd(dtype, dim):
     T = np.dtype(dtype).type
     one, zero, half, two = T(1.0), T(0.0), T(0.5), T(2.0)
     tol2 = T((TOL_ULPS * np.finfo(T).eps) ** 2)
-    device = cuda.jit(device=True, inline="always")
     first, second = tuple(p for p, _ in PAIRS_3D), tuple(q for _, q in PAIRS_3D)
     nb = from_dtype(np.dtype(dtype))
 
-    @device
+    @device_function
     def polar_2d(F, R):
         r"""Rotation of :math:`F = RS` into ``R``: :math:`\theta = \operatorname{atan2}(F_{10} - F_{01}, F_{00} +
         F_{11})` (:func:`mpmref.physics.svd.polar_2d`), :math:`R = I` where both are 0; returns
@@ -48,7 +48,7 @@ def make_svd(dtype, dim):
         R[0, 0], R[0, 1], R[1, 0], R[1, 1] = c, -s, s, c
         return c, s
 
-    @device
+    @device_function
     def svd_2d(F, U, sigma, Vt):
         r"""Closed-form signed SVD of a 2×2 ``F`` (:func:`mpmref.physics.svd.svd_2d`): :math:`S = R^TF`,
         :math:`\phi = \tfrac12\operatorname{atan2}(2S_{01}, S_{00} - S_{11})`, :math:`V = R(\phi)`,
@@ -69,7 +69,7 @@ def make_svd(dtype, dim):
         U[0, 0], U[0, 1] = c * cp - s * sp, -(c * sp + s * cp)
         U[1, 0], U[1, 1] = s * cp + c * sp, c * cp - s * sp
 
-    @device
+    @device_function
     def rotate_columns(A, p, q, c, s):
         r"""Columns :math:`a_p \leftarrow c\,a_p - s\,a_q`, :math:`a_q \leftarrow s\,a_p + c\,a_q` of a 3×3 ``A``."""
         for i in range(3):
@@ -77,12 +77,12 @@ def make_svd(dtype, dim):
             A[i, p] = c * ap - s * aq
             A[i, q] = s * ap + c * aq
 
-    @device
+    @device_function
     def column_dot(A, p, q):
         """The dot product of columns ``p`` and ``q`` of a 3×3 ``A``."""
         return A[0, p] * A[0, q] + A[1, p] * A[1, q] + A[2, p] * A[2, q]
 
-    @device
+    @device_function
     def jacobi_rotation(alpha, beta, gamma):
         r""":math:`(c, s)` of the one-sided Jacobi rotation (:func:`mpmref.physics.svd.jacobi_rotation`):
         :math:`u = \beta - \alpha`, :math:`w = 2\gamma`, :math:`(c, s) \propto (|u| + \operatorname{hypot}(u, w),
@@ -94,7 +94,7 @@ def make_svd(dtype, dim):
         norm = math.hypot(den, num)
         return den / norm, num / norm
 
-    @device
+    @device_function
     def givens(a, b):
         r""":math:`(c, s) = (a, b)/\operatorname{hypot}(a, b)`, :math:`(1, 0)` where both are 0
         (:func:`mpmref.physics.svd.givens`)."""
@@ -103,7 +103,7 @@ def make_svd(dtype, dim):
             return a / r, b / r
         return one, zero
 
-    @device
+    @device_function
     def svd_3d(F, U, sigma, Vt):
         r"""Signed SVD of a 3×3 ``F`` into ``U``, ``sigma``, ``Vt`` (:func:`mpmref.physics.svd.svd_3d`): Jacobi sweeps
         over the column pairs of :math:`B = FV` until none rotates (at most ``MAX_SWEEPS``), the columns sorted by
@@ -148,7 +148,7 @@ def make_svd(dtype, dim):
             for j in range(3):
                 Vt[i, j] = V[j, i]
 
-    @device
+    @device_function
     def polar_from_svd(F, R, U, sigma, Vt):
         r"""Rotation :math:`R = UV^T` of :math:`F = RS` into ``R`` from :func:`svd_3d` (``U``, ``sigma``, ``Vt`` are
         work arrays and hold the SVD afterwards)."""
@@ -157,7 +157,7 @@ def make_svd(dtype, dim):
             for j in range(3):
                 R[i, j] = U[i, 0] * Vt[0, j] + U[i, 1] * Vt[1, j] + U[i, 2] * Vt[2, j]
 
-    @device
+    @device_function
     def polar_closed_form(F, R, U, sigma, Vt):
         r"""Rotation :math:`R` of :math:`F = RS` into ``R`` by :func:`polar_2d` (the work arrays are unused)."""
         polar_2d(F, R)
