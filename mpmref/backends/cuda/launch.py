@@ -15,8 +15,9 @@ from numba import from_dtype, types
 
 from .runtime import cuda, load, simulated
 
-#: threads per block of every launch
-BLOCK = 128
+#: threads per block of every launch; the simulator, which runs each thread of a block as a Python thread, gets
+#: blocks of 32 (the kernels' reductions and scans work for any power of two)
+BLOCK = 32 if simulated() else 128
 
 #: the decorator of every device function: compiled once per argument types and inlined into each kernel that calls
 #: it by NVVM (``forceinline``). Inlining at Numba's IR level instead (``inline="always"``) types and lowers a
