@@ -32,12 +32,13 @@ def is_device(array):
 
 
 class Prepared(NamedTuple):
-    """What P2G and G2P of one step share: the particles on the device, their cells (``keys``) and, for the gathering
-    P2G, each cell's first slot (``start``) and the particles in cell order (``order``) (:mod:`.sort`). Valid until
-    the backend's next :meth:`CudaBackend.prepare`."""
+    """What P2G and G2P of one step share: the particles on the device, their cells (``keys``), the box of occupied
+    cells (``box``) and, for the gathering P2G, each cell's first slot (``start``) and the particles in cell order
+    (``order``) (:mod:`.sort`). Valid until the backend's next :meth:`CudaBackend.prepare`."""
 
     particles: Particles
     keys: object
+    box: object
     start: object
     order: object
 
@@ -190,16 +191,16 @@ class CudaBackend:
         n, N = p.n, self.n_nodes
         sort = self.kernels.sort
         keys, rank = self._work("keys", (n,)), self._work("rank", (n,))
-        count = self._work("count", (N + 1,))
-        sort.fill(N + 1, count, 0)
-        sort.cell_keys(n, p.x, self.origin, self.dx, self.node_shape, keys, count, rank)
+        count, box = self._work("count", (N + 1,)), self._work("box", (6,))
+        sort.reset(N + 1, count, box)
+        sort.cell_keys(n, p.x, self.origin, self.dx, self.node_shape, keys, count, rank, box)
         if self.p2g_mode == "atomic":
-            return Prepared(p, keys, None, None)
+            return Prepared(p, keys, box, None, None)
         start = exclusive_scan(sort, count, self._work("start", (N + 1,)), lambda kind, m: self._work(kind, (m,)))
         order = self._work("order", (n,))
         sort.scatter(n, keys, rank, start, order)
         sort.order_cells(N, start, order)
-        return Prepared(p, keys, start, order)
+        return Prepared(p, keys, box, start, order)
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle by its material's law."""
@@ -237,7 +238,7 @@ class CudaBackend:
             kernels.clear(N, mass, momentum, force)
             kernels.scatter(n, prep.keys, rows, self.node_shape, self.dx, mass, momentum, force)
         else:
-            kernels.gather(N, prep.start, rows, self.node_shape, self.dx, mass, momentum, force)
+            kernels.gather(N, prep.start, prep.box, rows, self.node_shape, self.dx, mass, momentum, force)
         state = GridState(mass=mass, momentum=momentum, force=None if fused else force,
                           layout=DeviceNodes(self.scene.grid))
         if is_device(particles.x):

@@ -13,17 +13,20 @@ from types import SimpleNamespace
 import numpy as np
 from numba import from_dtype, types
 
-from .runtime import cuda, load, simulated
+from .runtime import load, simulated
 
 #: threads per block of every launch; the simulator, which runs each thread of a block as a Python thread, gets
 #: blocks of 32 (the kernels' reductions and scans work for any power of two)
 BLOCK = 32 if simulated() else 128
 
-#: the decorator of every device function: compiled once per argument types and inlined into each kernel that calls
-#: it by NVVM (``forceinline``). Inlining at Numba's IR level instead (``inline="always"``) types and lowers a
-#: function again at every call site: a 3D step's kernels then compiled in about 60 s instead of 21 s (measured here
-#: with ``compile_ptx``, sand in 3D). The simulator, which runs them as Python, takes no such option.
-device_function = cuda.jit(device=True) if simulated() else cuda.jit(device=True, forceinline=True)
+# the decorator of every device function: compiled once per argument types and inlined into each kernel that calls
+# it by NVVM (``forceinline``). Inlining at Numba's IR level instead (``inline="always"``) types and lowers a
+# function again at every call site: a 3D step's kernels then compiled in about 60 s instead of 21 s (measured here
+# with ``compile_ptx``, sand in 3D). The simulator, which runs them as Python, takes no such option.
+def device_function(fn):
+    """``fn`` as a numba-cuda device function, inlined into its callers by NVVM (see above)."""
+    cuda = load()
+    return (cuda.jit(device=True) if simulated() else cuda.jit(device=True, forceinline=True))(fn)
 
 
 def array(dtype, ndim):

@@ -188,9 +188,10 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
                 else:
                     out[1 + D + a] = force
 
-    def gather(start, rows, node_shape, dx, mass, momentum, force):
+    def gather(start, box, rows, node_shape, dx, mass, momentum, force):
         """Node ``i``'s mass, momentum and force (or fused momentum): the sum over the cells whose stencil reaches it
-        (offsets in C order) of their particles' contributions, in the sort's order."""
+        (offsets in C order) of their particles' contributions, in the sort's order; zero outside the ``box`` of
+        occupied cells (:mod:`.sort`) widened by the stencil."""
         i = cuda.grid(1)
         if i >= mass.shape[0]:
             return
@@ -200,12 +201,14 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         total = cuda.local.array(SUMS, nb)
         part = cuda.local.array(SUMS, nb)
         rest = i
+        near = True
         for a in range(D - 1, -1, -1):
             node[a] = rest % node_shape[a]
             rest //= node_shape[a]
+            near = near and box[a] <= node[a] and node[a] < box[3 + a] + S
         for c in range(SUMS):
             total[c] = zero
-        for o in range(K):
+        for o in range(K if near else 0):
             digits(o, at)
             cell = 0
             inside = True
@@ -266,7 +269,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
     made = kernel_set(
         prelude=(prelude, (ints, real2, real2, real3, real3, real3, real1, real1, real1, real1, array(np.int32, 1),
                            array(np.int64, 1), real2, array(np.int64, 2), real1, f64, f64, f64, real2)),
-        gather=(gather, (ints, real2, shape, f64, real1, real2, real2)),
+        gather=(gather, (ints, ints, real2, shape, f64, real1, real2, real2)),
         scatter=(scatter, (ints, real2, shape, f64, real1, real2, real2)),
         clear=(clear, (real1, real2, real2)))
     made.row = row

@@ -22,15 +22,19 @@ if not hasattr(np, "row_stack"):
     np.row_stack = np.vstack
 
 # The kernels refer to ``cuda`` as a global of their module (``from .runtime import cuda``): the simulator swaps a
-# kernel's global ``cuda`` for its own while it runs it (closure variables it does not swap).
-from numba import cuda
+# kernel's global ``cuda`` for its own while it runs it (closure variables it does not swap). Where Numba has no
+# CUDA target at all, ``cuda`` is None and making the backend says what to install (:func:`load`).
+try:
+    from numba import cuda
+except ImportError:  # pragma: no cover - a Numba without any CUDA target
+    cuda = None
 
 
 def load():
     """The module ``numba.cuda`` of the package numba-cuda (its simulator where ``NUMBA_ENABLE_CUDASIM=1``);
     :class:`~mpmref.errors.BackendError` naming what is missing otherwise (Numba's own deprecated CUDA target,
     which Numba still ships, is not used)."""
-    if getattr(cuda, "implementation", "") == "Built-in":
+    if cuda is None or getattr(cuda, "implementation", "") == "Built-in":
         raise BackendError(f"backend 'cuda' needs the package numba-cuda, which is not installed: {INSTALL}")
     return cuda
 

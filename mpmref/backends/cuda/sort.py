@@ -5,7 +5,8 @@ cell by cell, and within a cell in the order of :func:`sort_by_cell`. A particle
 :math:`b = \lfloor (x_p - o)/\Delta x - s\rfloor` (one index per axis, C order over the grid's nodes). The sort:
 
 1. ``cell_keys``: each particle's cell, and its rank among the particles of that cell as an atomic counter gives it
-   (integer atomics: the counts are exact, the ranks depend on the order in which threads arrive);
+   (integer atomics: the counts are exact, the ranks depend on the order in which threads arrive); and the box of
+   cells that hold particles, so that P2G skips the nodes outside it at once;
 2. an exclusive prefix sum of the counts: each cell's first slot (:func:`exclusive_scan`, a block-wise scan in shared
    memory, recursively over the blocks' totals: integer sums, exact whatever the order);
 3. ``scatter``: each particle to its cell's first slot plus its rank;
@@ -28,12 +29,14 @@ from .runtime import cuda, load
 from .stencil import make_stencil
 
 INDEX = np.int32
+#: the lower corner of the empty box of cells (larger than any cell index)
+NO_CELL = np.iinfo(np.int32).max
 
 
 @lru_cache(maxsize=None)
 def sort_kernels(dtype, dim, kernel):
     """The sort's kernels for particles of ``dtype`` in ``dim`` dimensions with the kernel named ``kernel``: a
-    namespace of :class:`~.launch.DeviceKernel` ``cell_keys``, ``scatter``, ``order_cells``, ``fill``,
+    namespace of :class:`~.launch.DeviceKernel` ``cell_keys``, ``scatter``, ``order_cells``, ``reset``,
     ``scan_blocks`` and ``add_block_offsets``."""
     load()
     T = np.dtype(dtype).type
@@ -43,22 +46,46 @@ def sort_kernels(dtype, dim, kernel):
     D = dim
     ints = array(INDEX, 1)
 
-    def cell_keys(x, origin, dx, node_shape, keys, count, rank):
+    def cell_keys(x, origin, dx, node_shape, keys, count, rank, box):
         """``keys[p]``: particle ``p``'s cell (``n_nodes`` where its stencil does not fit); ``rank[p]``: its arrival
-        at the cell's counter ``count[keys[p]]``."""
+        at the cell's counter ``count[keys[p]]``; ``box``: the smallest (first three) and largest (last three) cell
+        index per axis of the particles that fit (a reduction in shared memory, then one atomic per block)."""
+        low = cuda.shared.array((3, BLOCK), types.int32)
+        high = cuda.shared.array((3, BLOCK), types.int32)
+        t = cuda.threadIdx.x
         p = cuda.grid(1)
-        if p >= x.shape[0]:
-            return
-        key = 0
-        fits = True
-        for a in range(D):
-            b = stencil_base((x[p, a] - origin[a]) / T(dx))
-            fits = fits and 0 <= b and b + S <= node_shape[a]
-            key = key * node_shape[a] + b
-        if not fits:
-            key = count.shape[0] - 1
-        keys[p] = key
-        rank[p] = cuda.atomic.add(count, key, 1)
+        for a in range(3):
+            low[a, t] = NO_CELL
+            high[a, t] = -1
+        if p < x.shape[0]:
+            key = 0
+            fits = True
+            for a in range(D):
+                b = stencil_base((x[p, a] - origin[a]) / T(dx))
+                fits = fits and 0 <= b and b + S <= node_shape[a]
+                key = key * node_shape[a] + b
+                low[a, t] = b
+                high[a, t] = b
+            if not fits:
+                key = count.shape[0] - 1
+                for a in range(D):
+                    low[a, t] = NO_CELL
+                    high[a, t] = -1
+            keys[p] = key
+            rank[p] = cuda.atomic.add(count, key, 1)
+        cuda.syncthreads()
+        step = BLOCK // 2
+        while step > 0:
+            if t < step:
+                for a in range(D):
+                    low[a, t] = min(low[a, t], low[a, t + step])
+                    high[a, t] = max(high[a, t], high[a, t + step])
+            cuda.syncthreads()
+            step //= 2
+        if t == 0:
+            for a in range(D):
+                cuda.atomic.min(box, a, low[a, 0])
+                cuda.atomic.max(box, 3 + a, high[a, 0])
 
     def scatter(keys, rank, start, order):
         """``order[start[keys[p]] + rank[p]] = p``."""
@@ -80,11 +107,14 @@ def sort_kernels(dtype, dim, kernel):
                 j -= 1
             order[j + 1] = p
 
-    def fill(values, value):
-        """Every entry of ``values`` set to ``value``."""
+    def reset(count, box):
+        """``count`` set to zero, ``box`` to the empty box (see ``cell_keys``)."""
         i = cuda.grid(1)
-        if i < values.shape[0]:
-            values[i] = value
+        if i < count.shape[0]:
+            count[i] = 0
+        if i < 3:
+            box[i] = NO_CELL
+            box[3 + i] = -1
 
     def scan_blocks(values, out, totals):
         """Exclusive prefix sums of ``values`` within each block of :data:`~.launch.BLOCK` entries into ``out``,
@@ -115,10 +145,11 @@ def sort_kernels(dtype, dim, kernel):
 
     x_type = array(dtype, 2)
     return kernel_set(
-        cell_keys=(cell_keys, (x_type, array(dtype, 1), scalar(np.float64), array(np.int64, 1), ints, ints, ints)),
+        cell_keys=(cell_keys, (x_type, array(dtype, 1), scalar(np.float64), array(np.int64, 1), ints, ints, ints,
+                               ints)),
         scatter=(scatter, (ints, ints, ints, ints)),
         order_cells=(order_cells, (ints, ints)),
-        fill=(fill, (ints, scalar(np.int64))),
+        reset=(reset, (ints, ints)),
         scan_blocks=(scan_blocks, (ints, ints, ints)),
         add_block_offsets=(add_block_offsets, (ints, ints)))
 
