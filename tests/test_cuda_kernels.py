@@ -170,3 +170,35 @@ def test_every_2d_case_and_a_3d_sample_in_the_simulator(dtype):
     out = simulate(cases)
     failed = {n: v for n, v in out["cases"].items() if not v[0] <= v[1]}
     assert len(out["cases"]) == len(cases) and not failed, failed
+
+
+DEVICE_CHECK = r'''
+import sys
+from mpmref.bench import device_check as dc, gpu
+from mpmref import Scene
+dc.DETERMINISM = (64, 8, 3)
+gpu.MIN_TIME = 0.01
+dc.conformance_chunks = lambda workers: [(["stress-2d-mixed", "step-2d-fluid"], "float64"),
+                                         (["grid_update-2d-mixed-f32"], "float32")]
+scene = Scene.from_dict({"name": "tiny", "dim": 2, "grid": {"size": [1.0, 1.0], "cells": 8},
+                         "materials": {"w": {"type": "fluid", "K": 400.0, "gamma": 1.0, "rho": 1.0}},
+                         "bodies": [{"shape": "box", "material": "w", "lower": [0.4, 0.4], "upper": [0.6, 0.6]}],
+                         "gravity": [0.0, -9.8], "time": {"dt": 1e-3}})
+dc.trajectory_scenes = lambda: [("tiny", scene, 2)]
+sys.exit(dc.main(["--workers", "2", "--skip", "verify", "--sizes", "2:64:8", "--out", sys.argv[1]]))
+'''
+
+
+@pytest.mark.slow
+def test_the_device_check_runs_in_the_simulator(tmp_path):
+    """The device check's parts, shrunk to the simulator's size (the harness to three cases, the runs to a few
+    steps of a few particles): every line it prints, and exit status 0."""
+    env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1"}
+    done = subprocess.run([sys.executable, "-c", DEVICE_CHECK, str(tmp_path)], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=3600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [json.loads(line) for line in (tmp_path / "device_check.jsonl").read_text().splitlines()]
+    checks = [line["check"] for line in lines]
+    assert checks[0] == "environment" and checks[-1] == "done" and lines[-1]["passed"]
+    assert {"conformance", "trajectory", "determinism", "bench", "goal"} <= set(checks)
+    assert all(line["identical"] for line in lines if line["check"] == "determinism" and line["p2g"] == "gather")

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mpmref.bench.gpu import YARDSTICK, gpu_missing
+
 #: the bench sizes of the device check by default: the goals' million-particle cases
 DEFAULT_SIZES = {2: ((1_048_576, 512),), 3: ((1_048_576, 160),)}
 #: the determinism runs: particles, cells, steps (gpu-facts: the yardstick's gather variant was checked so)
@@ -211,7 +213,7 @@ def main(argv=None):
     parser.add_argument("--out", help="folder for device_check.jsonl and the verify report (default: a temporary one)")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) - 2),
                         help="processes for the conformance harness (default: the cores less two)")
-    parser.add_argument("--yardstick", help="the GPU yardstick cuda_mls.py (default: ../shared/peers/cuda_mls.py)")
+    parser.add_argument("--yardstick", help="the GPU yardstick program, run beside the bench (see mpmref.bench.gpu)")
     parser.add_argument("--sizes", type=parse_sizes, default=DEFAULT_SIZES,
                         help="bench cases as DIM:PARTICLES:CELLS,... (default: 2:1048576:512,3:1048576:160)")
     parser.add_argument("--skip", nargs="*", default=(), choices=("conformance", "verify", "trajectory",
@@ -220,9 +222,7 @@ def main(argv=None):
     out_dir = Path(args.out or os.environ.get("OUT") or "reports/device_check")
     out = Lines(out_dir)
     if args.yardstick:
-        os.environ["MPMREF_GPU_YARDSTICK"] = str(Path(args.yardstick).resolve())
-    from mpmref.bench.gpu import gpu_missing
-
+        os.environ[YARDSTICK] = str(Path(args.yardstick).resolve())
     missing = gpu_missing()
     if missing:
         out("environment", available=False, message=missing)

@@ -1,5 +1,5 @@
-"""The ``cuda`` section of ``mpmref bench``: the GPU backend's throughput beside the GPU yardstick and the Numba
-backend on every core of the same machine, with the goals of issue 43.
+"""The ``cuda`` section of ``mpmref bench``: the GPU backend's throughput beside a hand-written GPU yardstick and the
+Numba backend on every core of the same machine, with the GPU backend's performance goals (docs/gpu.md).
 
 Cases: the MLS-MPM fluid of the yardstick (the 88-line program's physics: quadratic kernel, Tait fluid with
 :math:`\\gamma = 1`, :math:`K = 400`, separate walls three nodes thick) as an mpmref scene, a random block at about
@@ -8,9 +8,10 @@ four particles per cell, at 262 144, 1 048 576 and 4 194 304 particles in 2D (25
 
 * ``cuda``: whole steps of the GPU backend, the particles resident on the device (:func:`time_resident`);
   ``cuda-atomic``, the same with the opt-in atomic P2G;
-* ``yardstick-atomic`` and ``yardstick-gather``: the hand-written numba-cuda step (``cuda_mls.py``, not part of
-  mpmref; run as a subprocess from ``../shared/peers/cuda_mls.py`` or the path in ``MPMREF_GPU_YARDSTICK``) with
-  the same particle count and grid, its atomic and its deterministic gather P2G;
+* ``yardstick-atomic`` and ``yardstick-gather``: a hand-written numba-cuda step of the same physics (a single-file
+  program, not part of mpmref, given by its path in ``MPMREF_GPU_YARDSTICK``; run as a subprocess with
+  ``--dim --dtype --n-grid --n-particles --p2g atomic|gather --repeats --min-time``, printing a JSON line with
+  ``particle_steps_per_s``) with the same particle count and grid, its atomic and its deterministic gather P2G;
 * ``numba``: the Numba backend on every core of the machine.
 
 Each figure is particle-steps per second, the median of ``repeats`` runs of at least :data:`MIN_TIME` seconds after
@@ -36,8 +37,8 @@ SIZES = {2: ((262_144, 256), (1_048_576, 512), (4_194_304, 1024)), 3: ((262_144,
 QUICK_SIZES = {2: ((4096, 64),), 3: ((4096, 16),)}
 #: a timed run lasts at least this long (seconds)
 MIN_TIME = 0.5
-#: where the yardstick is looked for, relative to the current folder, unless ``MPMREF_GPU_YARDSTICK`` names it
-YARDSTICK = Path("..") / "shared" / "peers" / "cuda_mls.py"
+#: the environment variable that names the yardstick program
+YARDSTICK = "MPMREF_GPU_YARDSTICK"
 #: the goals: (name, figure's numerator, denominator, dim, dtype, bound)
 GOALS = (
     ("cuda / yardstick-gather", "cuda", "yardstick-gather", 2, "float32", 1.0),
@@ -100,9 +101,9 @@ def time_resident(backend, particles, dt, repeats, min_time=MIN_TIME):
 
 
 def yardstick_path():
-    """The yardstick program: ``MPMREF_GPU_YARDSTICK`` or :data:`YARDSTICK`, if it exists (else ``None``)."""
-    path = Path(os.environ.get("MPMREF_GPU_YARDSTICK", YARDSTICK))
-    return path if path.is_file() else None
+    """The yardstick program that :data:`YARDSTICK` names, if it names a file (else ``None``: no yardstick columns)."""
+    path = Path(os.environ.get(YARDSTICK, ""))
+    return path if os.environ.get(YARDSTICK) and path.is_file() else None
 
 
 def run_yardstick(path, dim, particles, cells, dtype, variant, repeats, min_time=MIN_TIME):
@@ -171,7 +172,7 @@ def _rate(results, code, dim, dtype, particles):
 
 
 def gpu_goals(results, particles=GOAL_PARTICLES):
-    """The goals of issue 43 at ``particles`` particles: ``name``, ``figure`` (``None`` when not measured), ``bound``,
+    """The GPU backend's goals at ``particles`` particles: ``name``, ``figure`` (``None`` when not measured), ``bound``,
     ``met``."""
     out = []
     for name, top, bottom, dim, dtype, bound in GOALS:
