@@ -212,3 +212,16 @@ def test_cuda_without_numba_cuda_names_the_package(monkeypatch):
     monkeypatch.setattr(runtime, "cuda", SimpleNamespace(implementation="Built-in"))
     with pytest.raises(BackendError, match=r"numba-cuda.*pip install -e '\.\[gpu\]'"):
         runtime.require_device()
+
+
+@pytest.mark.skipif(_gpu_usable(), reason="a GPU is usable here: the bench section would run")
+def test_the_bench_section_and_the_device_check_say_there_is_no_gpu(tmp_path):
+    from mpmref.bench import BenchOptions
+    from mpmref.bench.device_check import main as device_check
+    from mpmref.bench.gpu import render_cuda, run_cuda
+
+    section = run_cuda(BenchOptions(quick=True))
+    assert section["available"] is False and "GPU" in section["message"]
+    assert render_cuda(section).startswith("cuda: not run (")
+    assert device_check(["--out", str(tmp_path)]) == 2
+    assert '"available": false' in (tmp_path / "device_check.jsonl").read_text()
