@@ -18,6 +18,8 @@ from .runtime import load, simulated
 #: threads per block of every launch; the simulator, which runs each thread of a block as a Python thread, gets
 #: blocks of 32 (the kernels' reductions and scans work for any power of two)
 BLOCK = 32 if simulated() else 128
+#: whether the simulator runs the kernels (set before Numba is imported, so fixed for the process)
+SIMULATED = simulated()
 
 # the decorator of every device function: compiled once per argument types and inlined into each kernel that calls
 # it by NVVM (``forceinline``). Inlining at Numba's IR level instead (``inline="always"``) types and lowers a
@@ -68,7 +70,7 @@ class DeviceKernel:
     def __call__(self, threads, *args):
         if threads <= 0:
             return
-        if simulated():
+        if SIMULATED:
             self.check(args)
         self.compiled()[(threads + BLOCK - 1) // BLOCK, BLOCK](*args)
 

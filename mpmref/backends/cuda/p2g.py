@@ -208,19 +208,20 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
             near = near and box[a] <= node[a] and node[a] < box[3 + a] + S
         for c in range(SUMS):
             total[c] = zero
-        for o in range(K if near else 0):
-            digits(o, at)
-            cell = 0
-            inside = True
-            for a in range(D):
-                inside = inside and node[a] >= at[a]
-                cell = cell * node_shape[a] + node[a] - at[a]
-            if not inside:
-                continue
-            for k in range(start[cell], start[cell + 1]):
-                contribution(rows, k, at, h, part)
-                for c in range(1 + (1 if fused else 2) * D):
-                    total[c] += part[c]
+        if near:  # the stencil's offsets in a loop of constant count, which the compiler unrolls
+            for o in range(K):
+                digits(o, at)
+                cell = 0
+                inside = True
+                for a in range(D):
+                    inside = inside and node[a] >= at[a]
+                    cell = cell * node_shape[a] + node[a] - at[a]
+                if not inside:
+                    continue
+                for k in range(start[cell], start[cell + 1]):
+                    contribution(rows, k, at, h, part)
+                    for c in range(1 + (1 if fused else 2) * D):
+                        total[c] += part[c]
         mass[i] = total[0]
         for a in range(D):
             momentum[i, a] = total[1 + a]
