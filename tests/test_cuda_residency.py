@@ -130,6 +130,18 @@ def test_a_resident_run_gives_the_host_runs_bits(tmp_path, options):
     assert resumed.resident and np.array_equal(resumed.x, remote.x)
 
 
+def test_emitters_release_into_a_resident_run():
+    data = jelly(dt=1e-3, steps=8).source
+    data["emitters"] = [{"material": "jelly", "center": [0.7, 0.6], "radius": 0.02, "velocity": [-10.0, 0.0],
+                         "start": 0.002, "interval": 0.004, "until": 0.01}]
+    scene = Scene.from_dict(data)
+    host, remote = Simulation(scene), Simulation(scene, backend=RemoteBackend)
+    host.run()
+    remote.run()
+    assert remote.n_particles == host.n_particles > Simulation(scene).n_particles  # releases joined
+    assert np.array_equal(remote.id, host.id) and np.array_equal(remote.x, host.x)
+
+
 def test_assignment_reaches_a_resident_run():
     scene = jelly(dt=1e-3)
     host, remote = Simulation(scene), Simulation(scene, backend=RemoteBackend)
