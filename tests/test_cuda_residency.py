@@ -9,6 +9,7 @@ import pytest
 
 from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS, BUILTIN, DEVICE_BACKENDS, available, make_backend, residency
+from mpmref.backends.cuda import CudaBackend
 from mpmref.backends.numpy import NumpyBackend
 from mpmref.cli import main
 from mpmref.errors import BackendError, NotImplementedByBackend
@@ -38,9 +39,11 @@ def host_of(array):
 
 
 class RemoteBackend:
-    """The NumPy reference's stages, its particles and grid states in :class:`Remote` arrays (a resident backend)."""
+    """The NumPy reference's stages, its particles and grid states in :class:`Remote` arrays (a resident backend
+    that declares what the GPU backend declares)."""
 
     name = "remote"
+    implements = CudaBackend.implements
 
     def __init__(self, scene):
         self.scene, self.reference = scene, NumpyBackend(scene)
