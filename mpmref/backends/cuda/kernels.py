@@ -9,10 +9,9 @@ parameters and the time step are arguments: one compiled kernel serves every gri
 
 from typing import NamedTuple
 
-from ...backends.capabilities import material_type
 from .g2p import g2p_kernel
 from .grid_update import grid_update_kernel
-from .materials import RULES
+from .materials import laws
 from .p2g import p2g_kernels
 from .particles import particle_kernels
 from .sort import sort_kernels
@@ -38,10 +37,9 @@ class Config(NamedTuple):
     def of(cls, scene):
         """The configuration of ``scene``."""
         t = scene.transfer
-        laws = tuple(sorted({RULES[material_type(m)] for m in scene.material_list}))
         return cls(dtype=scene.dtype.name, dim=scene.dim, kernel=t.kernel, affine=t.affine, poly=t.polypic,
                    flip=t.flip, mls_force=t.mls_force, mls_gradient=t.mls_gradient, tracks_F=t.tracks_F,
-                   tracks_J=t.tracks_J, laws=laws, colliders=bool(scene.colliders))
+                   tracks_J=t.tracks_J, laws=laws(scene.material_list), colliders=bool(scene.colliders))
 
 
 class Kernels:

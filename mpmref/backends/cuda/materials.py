@@ -15,8 +15,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ...backends.capabilities import material_type
 from ...physics.plasticity import SIGMA_FLOOR
+from ..capabilities import material_type
 from .launch import device_function, real_types
 from .runtime import cuda, load
 from .svd import make_svd
@@ -29,8 +29,6 @@ FIXED_COROTATED, NEO_HOOKEAN, FLUID, SNOW, SAND = (RULES[k] for k in ("fixed_cor
 PARAMETERS = ("mu", "lam", "rho", "K", "gamma", "hardening", "theta_c", "theta_s", "Jp_min", "Jp_max", "alpha",
               "cohesion")
 (MU, LAM, RHO, BULK, GAMMA, HARDENING, THETA_C, THETA_S, JP_MIN, JP_MAX, ALPHA, COHESION) = range(len(PARAMETERS))
-#: laws whose particles carry F (the others carry J)
-TRACK_F = (FIXED_COROTATED, NEO_HOOKEAN, SNOW, SAND)
 #: laws with a return map
 PLASTIC = (SNOW, SAND)
 
