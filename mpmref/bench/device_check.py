@@ -4,7 +4,8 @@ Run on a machine with an NVIDIA GPU (docs/gpu.md, "Running the device check")::
 
     python -m mpmref.bench.device_check [--out DIR] [--workers N] [--yardstick PATH] [--sizes DIM:PARTICLES:CELLS,...]
 
-It prints one JSON line per result on standard output (and writes them to ``DIR/device_check.jsonl``):
+It prints one JSON line per result on standard output (and writes them to ``DIR/device_check.jsonl``; the verify
+report goes to a temporary folder unless ``--verify-out`` names one):
 
 1. ``environment``: the GPU, the versions;
 2. ``conformance``: the whole conformance harness on ``cuda`` (every stage of every backend, 2D and 3D, float64 at
@@ -27,6 +28,7 @@ import hashlib
 import json
 import os
 import sys
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
@@ -210,7 +212,9 @@ def parse_sizes(text):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m mpmref.bench.device_check", description=__doc__.split("\n")[0])
-    parser.add_argument("--out", help="folder for device_check.jsonl and the verify report (default: a temporary one)")
+    parser.add_argument("--out", help="folder for device_check.jsonl (default: $OUT, else reports/device_check)")
+    parser.add_argument("--verify-out", help="folder for the verify report (default: a temporary folder, so that the "
+                        "output folder holds only device_check.jsonl)")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) - 2),
                         help="processes for the conformance harness (default: the cores less two)")
     parser.add_argument("--yardstick", help="the GPU yardstick program, run beside the bench (see mpmref.bench.gpu)")
@@ -232,7 +236,8 @@ def main(argv=None):
     start = time.perf_counter()
     context = get_context("spawn")
     with ProcessPoolExecutor(max_workers=args.workers + 1, mp_context=context) as pool:
-        verify = None if "verify" in args.skip else pool.submit(_verify_job, out_dir / "verify", 4)
+        verify_out = Path(args.verify_out or tempfile.mkdtemp(prefix="mpmref_verify_"))
+        verify = None if "verify" in args.skip else pool.submit(_verify_job, verify_out, 4)
         if "conformance" not in args.skip:
             chunks = conformance_chunks(args.workers)
             results = [r for part in pool.map(_check_chunk, chunks) for r in part]
