@@ -143,7 +143,7 @@ def test_float32_step_matches_the_float32_reference_to_single_precision_round_of
 
 def test_unknown_backend_is_refused_with_the_list():
     with pytest.raises(BackendError, match="numpy, numba"):
-        make_backend("cuda", example("mpm88"))
+        make_backend("vulkan", example("mpm88"))
 
 
 def test_a_state_someone_holds_is_never_overwritten_and_a_plain_loop_swaps_two_buffers():

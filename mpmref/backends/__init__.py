@@ -3,7 +3,8 @@
 Everywhere a backend is asked for (``Simulation(scene, backend=...)``, ``--backend`` of the command line, the
 conformance harness, the verification cases, ``mpmref study``), it may be given as
 
-* a built-in name of :data:`BACKENDS`: ``"numpy"`` (the reference) or ``"numba"``;
+* a built-in name of :data:`BUILTIN`: ``"numpy"`` (the reference), ``"numba"`` or ``"cuda"`` (a GPU,
+  docs/gpu.md);
 * the name of an installed plugin: an entry point of the group :data:`ENTRY_POINT_GROUP` (``mpmref.backends``)
   whose object is a factory, declared in the plugin's ``pyproject.toml`` as
   ``[project.entry-points."mpmref.backends"] mine = "my_package.backend:factory"``;
@@ -26,20 +27,24 @@ from pathlib import Path
 from ..errors import BackendError, NotImplementedByBackend
 from .capabilities import declared, declined
 
-#: the built-in backends
+#: the built-in backends that run on every machine (the tests and benchmarks run each by default)
 BACKENDS = ("numpy", "numba")
+#: the built-in backends that need a device: ``cuda``, numba-cuda on a GPU (docs/gpu.md; the extra ``[gpu]``)
+DEVICE_BACKENDS = ("cuda",)
+#: every built-in backend name
+BUILTIN = BACKENDS + DEVICE_BACKENDS
 #: the entry-point group through which an installed package registers a backend by name
 ENTRY_POINT_GROUP = "mpmref.backends"
 
 
 def plugin_names():
     """Names of the backends that installed packages register (entry points of :data:`ENTRY_POINT_GROUP`)."""
-    return sorted(e.name for e in entry_points(group=ENTRY_POINT_GROUP) if e.name not in BACKENDS)
+    return sorted(e.name for e in entry_points(group=ENTRY_POINT_GROUP) if e.name not in BUILTIN)
 
 
 def available():
     """Every backend name: the built-in ones, then the installed plugins'."""
-    return list(BACKENDS) + plugin_names()
+    return list(BUILTIN) + plugin_names()
 
 
 def _builtin(name):
@@ -47,6 +52,10 @@ def _builtin(name):
         from .numpy import NumpyBackend
 
         return NumpyBackend
+    if name == "cuda":
+        from .cuda import CudaBackend
+
+        return CudaBackend
     from .numba import NumbaBackend
 
     return NumbaBackend
@@ -55,7 +64,7 @@ def _builtin(name):
 def _unknown(reference):
     plugins = plugin_names()
     installed = f"; installed plugins: {', '.join(plugins)}" if plugins else ""
-    return BackendError(f"unknown backend {reference!r}: the built-in backends are {', '.join(BACKENDS)}{installed}; "
+    return BackendError(f"unknown backend {reference!r}: the built-in backends are {', '.join(BUILTIN)}{installed}; "
                         "or give your own as MODULE:ATTRIBUTE (a factory f(scene) -> backend, e.g. a backend class)")
 
 
@@ -90,7 +99,7 @@ def resolve(reference):
     as a built-in name, a plugin name, then ``MODULE:ATTRIBUTE``. :class:`BackendError` if none fits."""
     if not isinstance(reference, str):
         return reference
-    if reference in BACKENDS:
+    if reference in BUILTIN:
         return _builtin(reference)
     if ":" in reference:
         return _import_attribute(reference)
@@ -244,7 +253,7 @@ def importable_from_here():
 
 
 #: the help of every ``--backend`` option
-OPTION_HELP = ("the backend: numpy (the reference), numba, an installed plugin's name, or your own as "
+OPTION_HELP = ("the backend: numpy (the reference), numba, cuda (a GPU), an installed plugin's name, or your own as "
                "MODULE:ATTRIBUTE, a factory f(scene) -> backend (docs/checking_your_code.md)")
 
 

@@ -35,6 +35,8 @@ Sections of the JSON document (each ``null`` when not run):
 * ``ledger``: ``cases`` (case, scene, particles, dt, steps) and ``results`` (case, backend, threads, particles, the
   ``off`` and ``on`` timing records of the same steps without and with the energy ledger, ``ratio`` on / off;
   :mod:`mpmref.bench.ledger`).
+* ``cuda`` (``--only cuda``): the GPU backend beside the GPU yardstick and Numba on every core, ``available``,
+  ``device``, ``results`` and its own ``goals`` (:mod:`mpmref.bench.gpu`).
 * ``yardstick``: the records given with ``--yardstick`` (a hand-written program's runs), as given.
 * ``goals``: one record per performance goal (:mod:`mpmref.bench.goals`): ``name``, ``figure`` (``null``
   when this run did not measure it), ``bound``, ``at_most``, ``where``, ``met``.

@@ -13,6 +13,7 @@ from .asynchronous import render_async, run_async
 from .busy import render_busy, run_busy
 from .cpic import render_cpic, run_cpic
 from .domain import render_domain, run_domain
+from .gpu import render_cuda, run_cuda
 from .ledger import render_ledger, run_ledger
 from .peer import run_peer
 from .report import render_peer, render_table2, render_throughput
@@ -92,6 +93,10 @@ def _ledger(o, log):
     return run_ledger(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
 
 
+def _cuda(o, log):
+    return run_cuda(o, log)
+
+
 #: every section, in the order of the JSON document, of ``--only``'s choices and of a run
 SECTIONS = (
     Section("table2", _table2, render_table2),
@@ -105,6 +110,7 @@ SECTIONS = (
     Section("cpic", _cpic, render_cpic),
     Section("busy", _busy, render_busy),
     Section("ledger", _ledger, render_ledger),
+    Section("cuda", _cuda, render_cuda, default=False),
 )
 
 #: the sections by name

@@ -55,6 +55,12 @@ def due(emitter, k, time):
     return t_k < emitter.until and time >= t_k - TIME_TOLERANCE * emitter.interval
 
 
+def due_now(scene, state):
+    """Whether a release of any emitter is due at ``state.time`` (what :func:`emit` would append something for)."""
+    releases = state.stepper[RELEASES]
+    return any(due(emitter, int(releases[e]), state.time) for e, emitter in enumerate(scene.emitters))
+
+
 def emit(scene, state, templates):
     """``state`` with the releases due at ``state.time`` appended (``templates``: :func:`release_template` of
     each emitter), each with new ids; unchanged if none is due."""

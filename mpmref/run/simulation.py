@@ -2,11 +2,12 @@
 
 import time as _time
 import warnings
+from dataclasses import replace
 from functools import cached_property
 
 import numpy as np
 
-from ..backends import describe, make_backend
+from ..backends import describe, make_backend, residency
 from ..errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from ..io.run_output import RunOutput
 from ..observe.diagnostics import diagnostics, polypic_mode_norms
@@ -15,10 +16,11 @@ from ..rigid.dynamics import current_shapes
 from ..rigid.trimesh import TriMesh
 from ..scene.sampling import sample_particles
 from ..steppers import make_stepper
+from ..steppers.limits import cfl_time_step
 from . import arguments
 from .domain import apply_domain_exit, outside
-from .emitters import emit, release_template, with_emitters
-from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit
+from .emitters import due_now, emit, release_template, with_emitters
+from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit, within_margin
 
 
 class Simulation:
@@ -49,6 +51,12 @@ class Simulation:
     synchronous step, or one synchronised interval of asynchronous stepping) builds a new state; the
     current one is replaced only when the new one is finite and inside the domain, so after an error
     ``sim`` holds the last good state.
+
+    With a backend that keeps the particles in its own memory (a GPU's: :mod:`mpmref.backends.residency`), a
+    synchronous run without step hooks keeps them there from step to step (``sim.resident``); ``sim.state``,
+    ``sim.particles`` and ``sim.x`` and the like are then host copies, made when read (once per step at most), and
+    a change reaches the run by assignment (``sim.x = ...``, ``sim.particles = ...``, ``sim.state = ...``), not by
+    writing into a copy's arrays.
     """
 
     def __init__(self, scene, backend="numpy", out_dir=None, particles=None, hooks=None):
@@ -56,6 +64,12 @@ class Simulation:
         self.backend = make_backend(backend, scene)
         self._backend_reference = backend
         self.stepper = make_stepper(scene, self.backend, hooks)
+        #: whether the particles stay in the backend's memory from step to step (mpmref.backends.residency): a
+        #: resident backend, a stepper with one Δt for every particle, no step hooks (Python functions of host arrays)
+        self.resident = residency.resident(self.backend) and self.stepper.uniform_step and hooks is None
+        if self.resident and getattr(self.stepper, "ledger", None) is not None:
+            self.stepper.ledger = residency.HostObserver(self.stepper.ledger, self.backend)
+        self._host = self._signal_speed = None  # a resident run's host copy of its state; its largest c_p + |v_p|
         state = self.stepper.initial_state(particles if particles is not None else sample_particles(scene))
         self.state = with_emitters(scene, state)
         self._releases = [release_template(scene, e) for e in scene.emitters]
@@ -71,33 +85,52 @@ class Simulation:
 
     # ------------------------------------------------------------------------ state access
     @property
+    def state(self):
+        """The whole :class:`~mpmref.state.State`, with NumPy particle arrays (a resident run's host copy)."""
+        if not self.resident:
+            return self._state
+        if self._host is None or self._host[0] is not self._state:
+            self._host = (self._state, replace(self._state, particles=self.backend.to_host(self._state.particles)))
+        return self._host[1]
+
+    @state.setter
+    def state(self, value):
+        if self.resident:
+            value = replace(value, particles=self.backend.to_device(value.particles))
+            self._signal_speed = None
+        self._state = value
+
+    @property
     def particles(self):
         return self.state.particles
 
     @particles.setter
     def particles(self, value):
-        self.state.particles = value
+        if self.resident:
+            self.state = replace(self._state, particles=value)
+        else:
+            self._state.particles = value
 
     @property
     def step_count(self):
-        return self.state.step
+        return self._state.step
 
     @property
     def time(self):
-        return self.state.time
+        return self._state.time
 
     @property
     def deleted(self):
-        return self.state.deleted
+        return self._state.deleted
 
     @property
     def clamped(self):
-        return self.state.clamped
+        return self._state.clamped
 
     @property
     def id(self):
         """Stable integer identity of each particle (kept through deletion, reordering and restarts)."""
-        return self.state.particles.id
+        return self._state.particles.id
 
     def _particle_field(name):
         def getter(self):
@@ -110,7 +143,10 @@ class Simulation:
             value = np.asarray(value, dtype=old.dtype)
             if value.shape != old.shape:
                 raise ValueError(f"'{name}' must have shape {old.shape}, got {value.shape}")
-            setattr(self.particles, name, value.copy())
+            if self.resident:
+                self.particles = self.particles.with_(**{name: value.copy()})
+            else:
+                setattr(self.particles, name, value.copy())
 
         return property(getter, setter)
 
@@ -125,7 +161,7 @@ class Simulation:
 
     @property
     def n_particles(self):
-        return self.particles.n
+        return self._state.particles.n
 
     @property
     def inertia(self):
@@ -155,22 +191,59 @@ class Simulation:
         """
         dt = None if dt is None else arguments.time_step(dt)
         t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
-        if self.scene.emitters:  # releases due now join before the step (docs/scenes.md, [[emitters]])
-            self.state = emit(self.scene, self.state, self._releases)
+        if self.scene.emitters and (not self.resident or due_now(self.scene, self._state)):
+            self.state = emit(self.scene, self.state, self._releases)  # releases due now join before the step
         if self.step_count == 0:
             first_dt = dt if dt is not None else self.stepper.time_step(self.particles)
             if first_dt is not None:
                 warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, first_dt))
-        new = self.stepper.advance(self.state, dt=dt, t_end=t_end)
-        dt = new.time - self.state.time
-        self.last_updates = self.stepper.updates(self.state, new)
-        self._check_finite(new.particles, dt)
-        if self.stepper.uniform_step:
-            self._check_bounded(new.particles, dt)
-        new.particles = self._apply_domain_policy(new)
-        self.state = new
+        if self.resident and dt is None:
+            dt = self._resident_time_step(t_end)
+        new = self.stepper.advance(self._state, dt=dt, t_end=t_end)
+        dt = new.time - self._state.time
+        self.last_updates = self.stepper.updates(self._state, new)
+        if self.resident:
+            new = self._checked_resident(new, dt)
+        else:
+            self._check_finite(new.particles, dt)
+            if self.stepper.uniform_step:
+                self._check_bounded(new.particles, dt)
+            new.particles = self._apply_domain_policy(new)
+        self._state = new
         self.last_dt = dt
         return dt
+
+    def _resident_time_step(self, t_end):
+        r"""A resident run's Δt by the CFL rule (``None`` with a fixed ``time.dt``, which the stepper takes): the
+        stepper's rule (:mod:`mpmref.steppers.limits`) with :math:`\max_p(c_p + |v_p|)` reduced where the particles
+        are (:meth:`~mpmref.backends.residency.Resident.summarize`), shortened so as not to pass ``t_end``."""
+        t = self.scene.time
+        if t.dt is not None:
+            return None
+        if self._signal_speed is None:
+            self._signal_speed = self.backend.summarize(self._state.particles).signal_speed
+        dt = cfl_time_step(t.cfl, self.scene.grid.dx, self._signal_speed)
+        return dt if t_end is None else min(dt, t_end - self.time)
+
+    def _checked_resident(self, new, dt):
+        """A resident run's checks of the step to ``new``: the backend's :class:`~mpmref.backends.residency.Summary`
+        of it (a reduction where the particles are) passes a finite, bounded step that stays inside the domain as it
+        is; any other goes through the host checks of every run (:meth:`_check_finite`, :meth:`_check_bounded`, the
+        domain policy) on host copies, with the same errors, warnings and last good state, and comes back to the
+        backend's memory."""
+        summary = self.backend.summarize(new.particles, self._state.particles)
+        lo, hi = self.scene.valid_region()
+        if (not summary.nonfinite and new.particles.n > 0 and summary.inside(lo, hi)
+                and within_margin(summary.velocity_change, self.scene.dim, dt, self.scene.grid.dx)):
+            self._last_bounded = None
+            self._signal_speed = summary.signal_speed
+            return new
+        host = replace(new, particles=self.backend.to_host(new.particles))
+        self._check_finite(host.particles, dt)
+        self._check_bounded(host.particles, dt)
+        host.particles = self._apply_domain_policy(host)
+        self._signal_speed = None
+        return replace(host, particles=self.backend.to_device(host.particles))
 
     def _check_finite(self, new, dt):
         for name, arr in new.arrays().items():
@@ -269,7 +342,7 @@ class Simulation:
         wall = _time.perf_counter() - start
         if done:
             self._write_due(series, end=True)
-        summary = _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self.state))
+        summary = _summary(first, self.diagnostics(), done, wall, particle_steps, self.stepper.summary(self._state))
         return summary if series is None else {**summary, "series": series}
 
     def _write_due(self, series, end=False):
@@ -297,7 +370,7 @@ class Simulation:
         from ..steppers.pipeline import substep
 
         if hasattr(self.backend, "warm_up"):
-            self.backend.warm_up(self.particles, substep)
+            self.backend.warm_up(self.particles, substep)  # host particles; a resident backend moves them itself
         self.stepper.warm_up(self.particles)
 
     def step_clipped(self, t_end):
@@ -394,7 +467,7 @@ class Simulation:
         the checkpoint if enabled (it carries every row written so far, so a resumed run writes the same rows)."""
         out = self.output
         if frame:
-            rigid = self.state.rigid
+            rigid = self._state.rigid
             polylines = None if rigid is None else [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
                                                     for b in current_shapes(self.scene.rigid_bodies, rigid)]
             out.write_frame(self.step_count, self.time, self.particles.x, self.point_data(),

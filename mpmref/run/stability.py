@@ -77,6 +77,15 @@ def warn_if_above_limit(scene, cfl):
                   f"most {safe_dt:.3g} keeps it below", StabilityWarning, stacklevel=3)
 
 
+def within_margin(largest, dim, dt, dx):
+    r"""Whether a step whose largest velocity change in one component is ``largest`` is bounded without looking
+    closer: :math:`|\Delta v| \le \sqrt d\,\max_a|\Delta v_a|`, so the change is bounded when
+    :math:`\sqrt d\,\max_a|\Delta v_a|\,\Delta t/\Delta x` is at most half of :data:`MAX_CELLS_PER_STEP` (the
+    margin of 2 covers the rounding of the dtype's subtraction). :func:`first_unbounded` looks closer otherwise, and
+    a resident run (:mod:`mpmref.backends.residency`) takes ``largest`` from its summary."""
+    return largest * np.sqrt(dim) * (dt / dx) <= 0.5 * MAX_CELLS_PER_STEP
+
+
 def first_unbounded(v_old, v_new, dt, dx):
     r"""The first particle whose velocity change in one step is unbounded, with that change in cells.
 
@@ -98,9 +107,9 @@ def first_unbounded(v_old, v_new, dt, dx):
     """
     if v_new.size == 0:
         return None
-    largest = float(np.max(np.abs(v_new - v_old)))  # |Δv| <= sqrt(d) times its largest component
-    if not np.isfinite(largest) or largest * np.sqrt(v_new.shape[1]) * (dt / dx) <= 0.5 * MAX_CELLS_PER_STEP:
-        return None  # the margin of 2 covers the rounding of the dtype's subtraction; non-finite is not ours
+    largest = float(np.max(np.abs(v_new - v_old)))
+    if not np.isfinite(largest) or within_margin(largest, v_new.shape[1], dt, dx):
+        return None  # non-finite is not ours
     jump = np.sqrt(np.sum((v_new.astype(np.float64) - v_old) ** 2, axis=1)) * (dt / dx)
     bad = jump > MAX_CELLS_PER_STEP
     if not bad.any():
