@@ -424,3 +424,79 @@ def apply_registers_at(idx, x, v, C, mass, dP, dL, inertia):
             dP[p, a] = 0.0
         for a in range(dL.shape[1]):
             dL[p, a] = 0.0
+
+
+@njit(cache=True)
+def misplaced_rows(dt_p, n_due, top):
+    """The rows ``0 .. n_due - 1``, whose particles have steps ``dt_p`` (powers of two up to ``2^top``), ordered by
+    step with the fewest moves: ``(src, dst, level_start)``, where the particles of step ``2^k`` are to occupy rows
+    ``level_start[k] .. level_start[k + 1] - 1`` and the particle in row ``src[i]`` moves to row ``dst[i]``.
+
+    Only the particles outside their step's run move: the ``i``-th of them with step ``2^k`` (in row order) takes
+    the ``i``-th row of the run of ``2^k`` held by a particle of another step (the moves are a permutation of
+    those rows, :func:`permute_rows`). A prefix already ordered by step gives no moves."""
+    level_start = np.zeros(top + 2, np.int64)
+    for r in range(n_due):
+        level_start[level_of(dt_p[r]) + 1] += 1
+    for k in range(top + 1):
+        level_start[k + 1] += level_start[k]
+    # rows of run k held by others ("holes") and particles of step k outside run k ("movers"): as many of each
+    holes = np.zeros(top + 2, np.int64)
+    run = 0
+    for r in range(n_due):
+        while r >= level_start[run + 1]:
+            run += 1
+        if level_of(dt_p[r]) != run:
+            holes[run + 1] += 1
+    for k in range(top + 1):
+        holes[k + 1] += holes[k]
+    m = holes[top + 1]
+    src = np.empty(m, np.int64)
+    dst = np.empty(m, np.int64)
+    next_hole = holes[:-1].copy()
+    next_mover = holes[:-1].copy()
+    run = 0
+    for r in range(n_due):
+        while r >= level_start[run + 1]:
+            run += 1
+        k = level_of(dt_p[r])
+        if k != run:
+            dst[next_hole[run]] = r  # a hole of run ``run``, in row order
+            next_hole[run] += 1
+            src[next_mover[k]] = r  # a mover into run ``k``, in row order: paired with run k's holes
+            next_mover[k] += 1
+    return src, dst, level_start
+
+
+@njit(cache=True)
+def permute_rows(views, src, dst):
+    """``a[dst[i]] = a[src[i]]`` at once for every row view ``a`` of ``views`` (``src`` and ``dst`` the same set of
+    rows, :func:`misplaced_rows`), through a copy of the rows that move."""
+    for a in literal_unroll(views):
+        moving = np.empty((src.shape[0], a.shape[1]), a.dtype)
+        for i in range(src.shape[0]):
+            for c in range(a.shape[1]):
+                moving[i, c] = a[src[i], c]
+        for i in range(src.shape[0]):
+            for c in range(a.shape[1]):
+                a[dst[i], c] = moving[i, c]
+
+
+@njit(cache=True)
+def same_ids(before, after):
+    """Whether ``after`` holds exactly the ids of ``before``, each once (ids are non-negative integers): one pass
+    over each and a mark per id, what the census of every synchronised time costs when the rows were reordered."""
+    if before.shape[0] != after.shape[0]:
+        return False
+    top = 0
+    for k in range(before.shape[0]):
+        top = max(top, before[k])
+    seen = np.zeros(top + 1, np.int8)
+    for k in range(before.shape[0]):
+        seen[before[k]] = 1
+    for k in range(after.shape[0]):
+        i = after[k]
+        if i < 0 or i > top or seen[i] != 1:
+            return False
+        seen[i] = 2
+    return True

@@ -64,10 +64,12 @@ class Blocks:
     """Particles sorted into the grid's blocks, the groups P2G hands to the threads colour by colour
     (``p2g_groups``: slabs, or single blocks when slabs are too few, see :data:`MIN_SLABS_PER_COLOUR`), the
     sparse grid's :class:`~.sparse.BlockLayout` of these particles, and the :math:`2^d` colour classes of
-    blocks (see :mod:`.blocks`)."""
+    blocks (see :mod:`.blocks`); of every particle, or of the particles ``rows`` only."""
 
-    def __init__(self, order, block_start, blocks_per_axis, layout):
+    def __init__(self, order, block_start, blocks_per_axis, layout, rows=None):
         self.order, self.block_start, self.blocks_per_axis = order, block_start, blocks_per_axis
+        #: the particles sorted (an index array), or ``None`` for every particle (:meth:`NumbaBackend.prepare_rows`)
+        self.rows = rows
         slab_start, slabs, colour_start = slab_colours(block_start, blocks_per_axis)
         enough = min(colour_start[1] - colour_start[0], colour_start[2] - colour_start[1]) >= MIN_SLABS_PER_COLOUR
         #: ``(group_start, groups, colour_start)``: ``order[group_start[g]:group_start[g + 1]]`` are group ``g``'s
@@ -131,6 +133,7 @@ class NumbaBackend:
         self.n_blocks = int(np.prod(grid.blocks_per_axis))
         #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
         self._last_sort = (None, None)
+        self._held_class_rows = NO_ROWS  # the class rows of a P2G of some rows (:meth:`_class_rows`), reused
 
     running = staticmethod(threads_for)
 
@@ -155,15 +158,30 @@ class NumbaBackend:
         particles' blocks alone (:func:`.blocks.counting_sort`), so when every particle is in the block it was in at
         the last sort, that sort is returned as it is (the particles' blocks are computed every time, in parallel:
         :func:`.blocks.block_keys`)."""
-        keys = block_keys(particles.x, self.origin, self.dx, self.shift, self.block, self.blocks_per_axis)
+        keys = self._keys(particles, NO_ROWS)
         last_keys, last_blocks = self._last_sort
         if last_keys is not None and np.array_equal(keys, last_keys):
             return last_blocks  # the sort depends on the blocks alone (counting_sort): the last one still holds
-        order, block_start = counting_sort(keys, self.n_blocks)
-        layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
-        blocks = Blocks(order, block_start, self.blocks_per_axis, layout)
+        blocks = self._sorted(keys, None)
         self._last_sort = (keys, blocks)
         return blocks
+
+    def prepare_rows(self, particles, rows):
+        """:meth:`prepare` of the particles ``rows`` (an int64 index array) of ``particles``: their block sort, whose
+        ``order`` lists particle indices, so P2G reads them where they are (the stage of
+        :class:`~mpmref.backends.base.RowBackend`). The sort of the rows is the sort of a group holding them in
+        the order of ``rows``, so the step gives the bits of that group's step."""
+        return self._sorted(self._keys(particles, rows), rows)
+
+    def _keys(self, particles, rows):
+        """Each particle's block (:func:`.blocks.block_keys`), of every particle or of ``rows``."""
+        return block_keys(particles.x, rows, self.origin, self.dx, self.shift, self.block, self.blocks_per_axis)
+
+    def _sorted(self, keys, rows):
+        """:class:`Blocks` of a counting sort of ``keys`` (those of ``rows``, or of every particle)."""
+        order, block_start = counting_sort(keys, self.n_blocks)
+        layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
+        return Blocks(order if rows is None else rows[order], block_start, self.blocks_per_axis, layout, rows)
 
     def wave_speeds(self, particles, idx):
         """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, in one compiled
@@ -181,6 +199,11 @@ class NumbaBackend:
     def return_map(self, particles):
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
         return self.materials.return_map(particles)
+
+    def return_map_rows(self, particles, rows):
+        """Plastic projection of the plastic materials' particles among ``rows``, in place (the stage of
+        :class:`~mpmref.backends.base.RowBackend`)."""
+        self.materials.return_map_rows(particles, rows)
 
     def p2g(self, particles, prepared=None, contact=None, classes=None):
         """Node mass, momentum and internal force (parallel by colour over slabs or blocks; bitwise
@@ -201,8 +224,7 @@ class NumbaBackend:
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
         n_classes = 1 if classes is None else N_CLASSES
-        class_rows = (NO_ROWS if classes is None
-                      else np.ascontiguousarray(classes, dtype=np.int64) * blocks.layout.n_rows)
+        class_rows = NO_ROWS if classes is None else self._class_rows(particles, blocks, classes)
         grid = self._scatter(self._p2g, particles, blocks, n_classes, class_rows, 0.0, 2)
         layout, d = blocks.layout, particles.dim
         class_sums = None
@@ -213,6 +235,18 @@ class NumbaBackend:
         state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
                           class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
+
+    def _class_rows(self, particles, blocks, classes):
+        """The first grid row of each particle's class, indexed by particle (of the sorted rows only, when
+        ``blocks`` sorts some rows: the kernel reads no other)."""
+        first = np.asarray(classes, dtype=np.int64) * blocks.layout.n_rows
+        if blocks.rows is None:
+            return first
+        held = self._held_class_rows
+        if held.shape[0] < particles.n:
+            held = self._held_class_rows = np.empty(particles.n, dtype=np.int64)
+        held[blocks.rows] = first
+        return held
 
     def p2g_fused(self, particles, dt, prepared=None):
         """P2G with the internal force folded into the momentum (:func:`.transfers2d.p2g_kernel` with ``FUSED``; the
@@ -230,7 +264,13 @@ class NumbaBackend:
         node (and per class); returns the rows."""
         layout = blocks.layout
         n, d = particles.x.shape
-        stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
+        if self.fluids_only:
+            stress = self._or_empty(None, 0, d, d)
+        elif blocks.rows is None:
+            stress = self.stress(particles)
+        else:  # the stress of the sorted rows only: the kernel reads no other
+            stress, = self.buffers.take("stress", (n, d, d))
+            self.materials.stress_into(particles, blocks.rows, stress)
         grid, = self.buffers.take("grid" if vectors == 2 else "grid_fused",
                                   (n_classes * layout.n_rows, 1 + vectors * d))
         grid.fill(0.0)  # a memset: memory-bound, so a parallel loop's launch costs more than its second thread gains
@@ -298,15 +338,14 @@ class NumbaBackend:
         own pass, so that no other run's G2P compiles it), and the result is ``(particles, (dP, dL))``.
         """
         n, d = particles.x.shape
-        if v_tilde is None:  # after a fused P2G (no FLIP): the kernel does not read it
-            v_tilde = v_grid
         if prepared is None:
             layout = self.prepare(particles).layout
-            v_grid, v_tilde = layout.from_dense(v_grid), layout.from_dense(v_tilde)
+            v_grid, v_tilde = layout.from_dense(v_grid), None if v_tilde is None else layout.from_dense(v_tilde)
             if kicks is not None:
                 kicks = (kicks[0], np.stack([layout.from_dense(k) for k in kicks[1]]))
         else:
             layout = prepared.layout
+        impulses = None if kicks is None else self._impulses(particles, NO_ROWS, layout, kicks)
 
         def shape(name, *full):
             return full if getattr(particles, name) is not None else (0,) * len(full)
@@ -314,22 +353,42 @@ class NumbaBackend:
         modes_shape = particles.modes.shape if particles.modes is not None else (0, 0, d)
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
-        self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde,
-                  x_new, v_new, C_new, F_new, J_new, modes_new)
-        changes = {"x": x_new, "v": v_new}
+        new = particles.with_(x=x_new, v=v_new)
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
-                changes[name] = array
-        new = particles.with_(**changes)
-        if kicks is None:
-            return new
+                setattr(new, name, array)
+        self._gather(particles, NO_ROWS, layout, v_grid, v_tilde, dt, new)
+        return new if kicks is None else (new, impulses)
+
+    def g2p_rows(self, particles, v_grid, v_tilde, dt, prepared, out, kicks=None):
+        """G2P of the particles ``prepared.rows`` (a :meth:`prepare_rows` sort) into the same rows of ``out``, which may
+        be ``particles`` (in place: each particle reads its own state before writing it); with ``kicks`` (see
+        :meth:`g2p`) the impulses and moments of the rows, in their order, gathered first (from the positions of
+        P2G). The stage of :class:`~mpmref.backends.base.RowBackend`."""
+        rows, layout = prepared.rows, prepared.layout
+        impulses = None if kicks is None else self._impulses(particles, rows, layout, kicks)
+        self._gather(particles, rows, layout, v_grid, v_tilde, dt, out)
+        return impulses
+
+    def _gather(self, particles, rows, layout, v_grid, v_tilde, dt, out):
+        """Run the G2P kernel over ``rows`` (empty: every particle) of ``particles``, writing ``out``'s arrays."""
+        d = particles.dim
+        self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
+                  rows, self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid,
+                  v_grid if v_tilde is None else v_tilde,  # after a fused P2G (no FLIP): the kernel does not read it
+                  out.x, out.v, self._or_empty(out.C, 0, d, d), self._or_empty(out.F, 0, d, d),
+                  self._or_empty(out.J, 0), self._or_empty(out.modes, 0, 0, d))
+
+    def _impulses(self, particles, rows, layout, kicks):
+        """Each particle's impulse and moment from the node kicks ``kicks = (classes, kick)`` (see :meth:`g2p`), of
+        every particle or of ``rows`` (empty: all), in that order (:func:`.transfers2d.kick_gather_kernel`)."""
+        n, d = (rows.shape[0] or particles.n), particles.dim
         row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
         first = row_of_class[kicks[0]]
         impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
-        self._kick_gather(particles.x, particles.mass, self.sparse_layout(layout),
+        self._kick_gather(particles.x, particles.mass, rows, self.sparse_layout(layout),
                           np.where(first >= 0, first * layout.n_rows, -1), kicks[1].reshape(-1, d), impulse, moment)
-        return new, (impulse, moment)
+        return impulse, moment
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):

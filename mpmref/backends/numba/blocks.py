@@ -23,25 +23,30 @@ from numba import njit, prange
 
 
 @njit(parallel=True, cache=True)
-def block_keys(x, origin, dx, shift, block, blocks_per_axis):
-    """The block (C-order number) of each particle: the block of its stencil's base node, in parallel.
+def block_keys(x, rows, origin, dx, shift, block, blocks_per_axis):
+    """The block (C-order number) of each particle: the block of its stencil's base node, in parallel; of every
+    particle when ``rows`` is empty, else of the particles ``rows`` (the ``k``-th key that of ``rows[k]``).
 
     Parameters
     ----------
     x : (n, d)                 particle positions
+    rows : (m,) int            the particles to key (empty: all)
     origin : (d,), dx : float  the grid
     shift : float              ``base = floor((x - origin)/dx - shift)`` (the kernel's base-node rule)
     block : int                cells per block edge
     blocks_per_axis : (d,) int
     """
-    n, d = x.shape
+    d = x.shape[1]
+    some = rows.shape[0] > 0
+    n = rows.shape[0] if some else x.shape[0]
     block_of = np.empty(n, dtype=np.int64)
-    for p in prange(n):
+    for k in prange(n):
+        p = rows[k] if some else np.int64(k)  # one integer type (prange counts unsigned)
         b = 0
         for a in range(d):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
             b = b * blocks_per_axis[a] + base // block
-        block_of[p] = b
+        block_of[k] = b
     return block_of
 
 

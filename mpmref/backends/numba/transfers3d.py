@@ -114,21 +114,23 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
+    def g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
             modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
         real = x_new.dtype.type
         inv_dx = 1.0 / dx
-        n = x.shape[0]
+        some = rows.shape[0] > 0
+        n = rows.shape[0] if some else x.shape[0]
         for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
             q = np.empty((3, S, S))
             qnorm = np.empty((3, S))
             w_arr = np.empty((3, S))
             fx_arr = np.empty(3)
             acc = np.empty((max(n_modes, 1), 3))
-            for p in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
+            for k in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
+                p = rows[k] if some else np.int64(k)
                 if POLY:
                     acc[:] = 0.0
                 v_pic, dv_flip = zeros(real, 3), zeros(real, 3)
@@ -167,7 +169,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                                 gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
                 move_particle(p, x, v, dt, inertia, flip_alpha, v_pic, dv_flip, B, acc, qnorm, mode_index, x_new,
                               v_new, C_new, modes_new, AFFINE, POLY, FLIP)
-                deform_particle(p, x, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
+                deform_particle(p, 3, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
                                 J_new.shape[0] > 0)
 
     return g2p
@@ -186,11 +188,14 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def gather(x, mass, layout, kick_rows, kicks, impulse, moment):
+    def gather(x, mass, rows, layout, kick_rows, kicks, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
-        for p in prange(x.shape[0]):
-            first = kick_rows[p]
+        some = rows.shape[0] > 0
+        n = rows.shape[0] if some else x.shape[0]
+        for k in prange(n):
+            p = rows[k] if some else np.int64(k)  # one integer type (prange counts unsigned)
+            first = kick_rows[k]
             if first < 0:
                 continue
             kp, kl = zeros(np.float64, 3), zeros(np.float64, 3)
@@ -216,7 +221,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             xp = (np.float64(x[p, 0]), np.float64(x[p, 1]), np.float64(x[p, 2]))
             about_origin = axpy(kl, 1.0, cross(xp, kp), 3)
             for a in range(3):
-                impulse[p, a] = m * kp[a]
-                moment[p, a] = m * about_origin[a]
+                impulse[k, a] = m * kp[a]
+                moment[k, a] = m * about_origin[a]
 
     return gather
