@@ -15,7 +15,16 @@ call loops over every field whatever its shape and dtype.
 """
 
 import numpy as np
-from numba import literal_unroll, njit
+from numba import literal_unroll, njit, prange
+
+#: particles per task of the parallel passes over the particles at a step boundary
+CHUNK = 512
+
+
+@njit(cache=True)
+def chunks(n):
+    """The number of :data:`CHUNK`-sized tasks covering ``n`` particles."""
+    return (n + CHUNK - 1) // CHUNK
 
 
 def row_views(arrays):
@@ -206,22 +215,20 @@ def base_node(x, origin, dx, shift, node_shape, base, a):
     return min(max(b, 0), node_shape[a] - 1)
 
 
-@njit(cache=True)
-def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, t, base, owner, shadow_base,
-                   shadow_t):
-    """At a step boundary (tick ``t``) of the particles ``idx``: their base nodes ``base``, owner blocks
-    ``owner`` (C order of the block lattice ``blocks_per_axis``), and their shadows' base node and tick."""
-    d = x.shape[1]
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        flat = 0
-        for a in range(d):
-            b = base_node(x[p, a], origin, dx, shift, node_shape, base, a)
-            base[p, a] = b
-            shadow_base[p, a] = b
-            flat = flat * blocks_per_axis[a] + b // block
-        owner[p] = flat
-        shadow_t[p] = t
+@njit(parallel=True, cache=True)
+def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner):
+    """At a step boundary of the particles ``idx``: their base nodes ``base`` and owner blocks ``owner`` (C order
+    of the block lattice ``blocks_per_axis``), in parallel."""
+    d, n = x.shape[1], idx.shape[0]
+    for c in prange(chunks(n)):
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p = idx[k]
+            flat = 0
+            for a in range(d):
+                b = base_node(x[p, a], origin, dx, shift, node_shape, base, a)
+                base[p, a] = b
+                flat = flat * blocks_per_axis[a] + b // block
+            owner[p] = flat
 
 
 @njit(cache=True)
@@ -239,20 +246,27 @@ def shadow_nodes(x, idx, origin, dx, shift, node_shape, end, shadow_base, shadow
     return drift
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def particle_steps(idx, block_dt, owner, alignment, limit, dt_p):
     """Each particle's step at its boundary: its block's step, capped by the tick's ``alignment`` and by the
-    largest power of two within its own ``limit`` (ticks, >= 1); returns the set of steps taken, as the bits
-    of an integer (steps are powers of two)."""
-    steps = 0
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        own = np.int64(1)
-        while 2 * own <= limit[k]:
-            own *= 2
-        dt = min(block_dt[owner[p]], alignment, own)
-        dt_p[p] = dt
-        steps |= dt
+    largest power of two within its own ``limit`` (ticks, >= 1), in parallel; returns the set of steps taken, as
+    the bits of an integer (steps are powers of two)."""
+    n = idx.shape[0]
+    taken = np.zeros(chunks(n), np.int64)
+    for c in prange(chunks(n)):
+        steps = np.int64(0)
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p = idx[k]
+            own = np.int64(1)
+            while 2 * own <= limit[k]:
+                own *= 2
+            dt = min(block_dt[owner[p]], alignment, own)
+            dt_p[p] = dt
+            steps |= dt
+        taken[c] = steps
+    steps = np.int64(0)
+    for c in range(taken.shape[0]):
+        steps |= taken[c]
     return steps
 
 
@@ -349,25 +363,27 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
     return due
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, max_units):
     r"""Step limit in ticks of the particles ``idx`` (Fang et al. 2018's rule; module docstring of
     :mod:`mpmref.steppers.asynchronous`):
     :math:`\min(\lfloor \min(S_p, A_p) \rfloor, 2^{levels})` with
     :math:`S_p = s \min(\Delta x / (c_p + |v_p|), t_{max}) / \Delta t_u` and
     :math:`A_p = a\, \Delta x / (|v_p|\, \Delta t_u)` (no advection limit at rest). ``wave_speed`` holds
-    :math:`c_p` of each particle of ``idx``; returns float64 (m,)."""
-    out = np.empty(idx.shape[0])
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        speed2 = 0.0
-        for a in range(v.shape[1]):
-            speed2 += np.float64(v[p, a]) ** 2
-        speed = np.sqrt(speed2)
-        limit = strength * min(dx / max(wave_speed[k] + speed, 1e-300), max_step_s) / tick
-        if speed > 0:
-            limit = min(limit, advection * dx / (max(speed, 1e-300) * tick))
-        out[k] = min(np.floor(limit), max_units)
+    :math:`c_p` of each particle of ``idx``; returns float64 (m,). In parallel."""
+    n = idx.shape[0]
+    out = np.empty(n)
+    for c in prange(chunks(n)):
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p = idx[k]
+            speed2 = 0.0
+            for a in range(v.shape[1]):
+                speed2 += np.float64(v[p, a]) ** 2
+            speed = np.sqrt(speed2)
+            limit = strength * min(dx / max(wave_speed[k] + speed, 1e-300), max_step_s) / tick
+            if speed > 0:
+                limit = min(limit, advection * dx / (max(speed, 1e-300) * tick))
+            out[k] = min(np.floor(limit), max_units)
     return out
 
 
@@ -500,3 +516,15 @@ def same_ids(before, after):
             return False
         seen[i] = 2
     return True
+
+
+@njit(cache=True)
+def boundary_steps(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, limit, t, alignment, room,
+                   max_units, block_dt, order, level_start, block_limit, base, owner, dt_p):
+    """Everything the particles ``idx`` at their step boundary (tick ``t``, step limits ``limit``) decide, in one
+    call: their base nodes and blocks (:func:`boundary_nodes`), the blocks due at ``t`` relevelled
+    (:func:`relevel_due`, with ``alignment`` and ``max_units``), and each particle's step, capped at ``room``
+    (:func:`particle_steps`). Returns ``(steps taken as bits, due blocks)``."""
+    boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner)
+    due = relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, max_units, block_limit)
+    return particle_steps(idx, block_dt, owner, room, limit, dt_p), due

@@ -59,14 +59,12 @@ from .async_kernels import (
     add_rows,
     apply_registers_at,
     blocks_by_level,
-    boundary_nodes,
+    boundary_steps,
     bucket_by_block,
     bucket_zone_members,
     misplaced_rows,
     move_rows,
-    particle_steps,
     permute_rows,
-    relevel_due,
     row_views,
     same_ids,
     shadow_nodes,
@@ -131,11 +129,17 @@ class AsyncSchedule:
     def of(cls, state):
         """The schedule held in ``state.stepper``."""
         held = state.stepper
-        return cls(np.asarray(held["block_dt"]), *(f.type(held[f.name]) for f in fields(cls)[1:]))
+        return cls(np.asarray(held["block_dt"]), int(held["updates"]), int(held["own_updates"]),
+                   float(held["sync_updates"]), int(held["stale_shadows"]), int(held["finest_dt"]),
+                   int(held["sync_times"]))
 
     def arrays(self):
         """The fields as arrays, for :attr:`mpmref.state.State.stepper`."""
-        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+        return {name: np.asarray(getattr(self, name)) for name in SCHEDULE_FIELDS}
+
+
+#: the fields of :class:`AsyncSchedule`, in order
+SCHEDULE_FIELDS = tuple(f.name for f in fields(AsyncSchedule))
 
 
 @dataclass(frozen=True)
@@ -179,13 +183,22 @@ class WorkRecord:
     trace: list | None = None
 
     def __add__(self, other):
-        trace = None if self.trace is None and other.trace is None else (self.trace or []) + (other.trace or [])
-        return WorkRecord({k: self.counts[k] + other.counts[k] for k in COUNTS},
-                          self.level_updates + other.level_updates,
-                          self.ghost_level_updates + other.ghost_level_updates,
-                          self.stage_seconds + other.stage_seconds,
-                          self.ghost_stage_seconds + other.ghost_stage_seconds,
-                          self.seconds + other.seconds, trace)
+        total = WorkRecord(dict(self.counts), self.level_updates, self.ghost_level_updates, self.stage_seconds,
+                           self.ghost_stage_seconds, self.seconds, None if self.trace is None else list(self.trace))
+        total.add(other)
+        return total
+
+    def add(self, other):
+        """Add ``other``'s work to this record, in place."""
+        for k, count in other.counts.items():
+            self.counts[k] += count
+        self.level_updates += other.level_updates
+        self.ghost_level_updates += other.ghost_level_updates
+        self.stage_seconds += other.stage_seconds
+        self.ghost_stage_seconds += other.ghost_stage_seconds
+        self.seconds += other.seconds
+        if other.trace is not None:
+            self.trace = (self.trace or []) + other.trace
 
 
 def alignment(t, cap):
@@ -287,8 +300,6 @@ class AsyncInterval:
         held = stepper.bookkeeping(n, self.P.dim)
         self.dt_p, self.base, self.owner, self.shadow_base, self.shadow_t = held
         self.cohorts = [_Cohort(0, self.t, 0, n)]  # all due at the first tick
-        self.names = tuple(self.P.arrays())
-        self.evolving = tuple(k for k in self.names if k in EVOLVING_FIELDS)
         self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
         self.schedule = AsyncSchedule.of(state)
         self.block_dt = self.schedule.block_dt.copy()
@@ -336,16 +347,16 @@ class AsyncInterval:
         at = np.arange(n_due, dtype=np.int64)
         self.close_registers(at)
         P = self.P
-        boundary_nodes(P.x, at, *s.lattice, t, self.base, self.owner, self.shadow_base, self.shadow_t)
         limit = s.particle_limits(P, at)
-        if (limit < 1).any():
+        if limit.min() < 1:
             bad = int(np.argmin(limit))
             raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
         align = alignment(t, s.max_units)
-        self.work.counts["due_blocks"] += relevel_due(self.block_dt, self.order, self.level_start, self.owner, at,
-                                                      limit, t, align, s.max_units, s.block_limit)
         room = align if self.deadline is None else min(align, within(self.deadline - t))
-        taken = particle_steps(at, self.block_dt, self.owner, room, limit, self.dt_p)
+        taken, due_blocks = boundary_steps(P.x, at, *s.lattice, limit, t, align, room, s.max_units, self.block_dt,
+                                           self.order, self.level_start, s.block_limit, self.base, self.owner,
+                                           self.dt_p)
+        self.work.counts["due_blocks"] += due_blocks
         chosen = None  # the levels the rule chose, where the deadline shortened the steps
         if room < align:
             own = np.exp2(np.floor(np.log2(limit))).astype(np.int64)
@@ -363,8 +374,7 @@ class AsyncInterval:
             # its shadow (the state at its step's start) can be a ghost only of a finer update, and every finer
             # update before its step ends is of particles that take a finer step now
             if taken & (cohort.D - 1):
-                for k in self.evolving:
-                    self.shadow[k][cohort.start:cohort.stop] = self.P_arrays[k][cohort.start:cohort.stop]
+                self.save_shadows(cohort)
         mid = list(self.cohorts)  # the cohorts mid-step, whose shadows may be ghosts; each update adds its own
         proposals = []  # (shadow indices, end tick) of each update, coarse first
         for k, cohort in enumerate(started):
@@ -373,6 +383,14 @@ class AsyncInterval:
         self.cohorts += started
         self.refresh_shadows(proposals)
         self.t = min(c.end for c in self.cohorts)
+
+    def save_shadows(self, cohort):
+        """The shadows of the ``cohort``'s particles: their state, base node and tick at their step's start."""
+        rows = slice(cohort.start, cohort.stop)
+        for k in self.evolving:
+            self.shadow[k][rows] = self.P_arrays[k][rows]
+        self.shadow_base[rows] = self.base[rows]
+        self.shadow_t[rows] = self.t
 
     def synchronous_step(self, D, chosen):
         """The interval's one update when every particle takes the step ``D`` at its first tick: no ghost, nothing
@@ -426,14 +444,14 @@ class AsyncInterval:
             self.store = s.stores.grown(self.store, spare)
         self.P = self.store.particles
         arrays = self.P_arrays = self.store.arrays
+        self.evolving = tuple(k for k in arrays if k in EVOLVING_FIELDS)
         self.shadow = s.store(self.P, self.evolving, "shadow", self.n)
         self.proposed = s.store(self.P, self.evolving, "proposed", self.n)
-        constant = tuple(k for k in self.names if k not in EVOLVING_FIELDS)
+        constant = tuple(k for k in arrays if k not in EVOLVING_FIELDS)
         self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
                      "proposed": row_views(self.proposed.values()),
                      "P_constant": row_views(arrays[k] for k in constant),
-                     "moving": row_views([*arrays.values(), self.dt_p, self.base, self.owner, self.shadow_base,
-                                          self.shadow_t])}
+                     "moving": row_views([*arrays.values(), self.dt_p, self.base, self.owner])}
 
     def pairs(self, src, dst):
         """``(source, destination)`` row views of every field between two stores."""
@@ -467,19 +485,19 @@ class AsyncInterval:
             drift = shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t, self.base)
             self.drift = max(self.drift, drift)
 
-    def group(self, cohort, level_ghosts, shadow_ghosts):
-        """The rows of a level update: the cohort's, and its ghosts copied into the store's spare rows after the
-        particles', the level ghosts (every field, from ``P``) then the shadow ghosts (from ``shadow``; their
+    def group(self, active, level_ghosts, shadow_ghosts):
+        """The rows of a level update: its ``active`` rows, and its ghosts copied into the store's spare rows after
+        the particles', the level ghosts (every field, from ``P``) then the shadow ghosts (from ``shadow``; their
         other fields from ``P``)."""
         n, n_level, n_shadow = self.n, level_ghosts.size, shadow_ghosts.size
         if n_level + n_shadow == 0:
-            return cohort.rows()
+            return active
         if self.store.capacity < n + n_level + n_shadow:
             self.take_store(n_level + n_shadow)
         tail = span(n, n_level + n_shadow)
         move_rows(self.pairs("P", "P") + self.pairs("P_constant", "P_constant"), level_ghosts, tail[:n_level])
         move_rows(self.pairs("shadow", "P") + self.pairs("P_constant", "P_constant"), shadow_ghosts, tail[n_level:])
-        return np.concatenate((cohort.rows(), tail))
+        return np.concatenate((active, tail))
 
     def ghosts(self, zone_, cohorts, node, drift):
         """The particles of ``cohorts`` whose node ``node[p]`` (base node, or their shadow's) lies in the ghost
@@ -505,8 +523,9 @@ class AsyncInterval:
         ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into ``proposed``.
         """
         s, t, D = self.s, self.t, cohort.D
+        active = cohort.rows()
         if waiting or mid:
-            zone_ = zone(cohort.rows(), self.base, s.reach, s.node_shape)
+            zone_ = zone(active, self.base, s.reach, s.node_shape)
             self.work.counts["zone_nodes"] += zone_[2].size
             level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
             shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
@@ -514,9 +533,8 @@ class AsyncInterval:
             level_ghosts = shadow_ghosts = NO_ROWS
         if shadow_ghosts.size:
             self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
-        rows = self.group(cohort, level_ghosts, shadow_ghosts)
-        n_active = cohort.size
-        first_shadow = n_active + level_ghosts.size
+        rows = self.group(active, level_ghosts, shadow_ghosts)
+        n_active = active.size
         start = perf_counter()
         kicks = s.conservative and n_active < rows.size  # with no ghost there is no exchange to reflux
         exchange = None
@@ -526,23 +544,22 @@ class AsyncInterval:
         substep(s.backend, self.P, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange,
                 rows=rows)
         if kicks:
-            self.add_impulses(cohort, shadow_ghosts, first_shadow, exchange.impulses)
+            self.add_impulses(active, shadow_ghosts, n_active + level_ghosts.size, exchange.impulses)
         self.count_update(perf_counter() - start, rows.size, n_active)
         if shadow_ghosts.size:
             move_rows(self.pairs("P", "proposed"), span(self.n + level_ghosts.size, shadow_ghosts.size), shadow_ghosts)
         if self.work.trace is not None:
             shadow_blocks = s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist()
-            self.work.trace.append(LevelUpdate(t, D, sorted(set(self.owner[cohort.start:cohort.stop].tolist())),
+            self.work.trace.append(LevelUpdate(t, D, sorted(set(self.owner[active].tolist())),
                                                sorted(set(self.owner[level_ghosts].tolist())),
                                                sorted(set(zip(shadow_blocks, self.shadow_t[shadow_ghosts].tolist())))))
         return shadow_ghosts, t + D
 
-    def add_impulses(self, cohort, shadow_ghosts, first_shadow, impulses):
+    def add_impulses(self, active, shadow_ghosts, first_shadow, impulses):
         """Add an update's impulses and moments (one row per row of the update, :class:`~.pipeline.LevelExchange`) to
-        the registers of its active particles and of its shadow ghosts' particles."""
+        the registers of its ``active`` particles and of its shadow ghosts' particles."""
         self.kicked = True
         dP, dL = impulses
-        active = cohort.rows()
         for register, impulse in zip(self.registers(), (dP, dL)):
             add_rows(register, active, impulse, 0)
             add_rows(register, shadow_ghosts, impulse, first_shadow)
@@ -680,12 +697,10 @@ class AsynchronousStepper:
         at Δt = 0: ``particles`` is not modified."""
         interval = self.interval_type(self, self.initial_state(particles.select(slice(0, 1))))
         one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
-        boundary_nodes(interval.P.x, one, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
-                       interval.shadow_t)
         step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-        particle_steps(one, interval.block_dt, interval.owner, 1, np.ones(1), interval.dt_p)
-        relevel_due(interval.block_dt, interval.order, interval.level_start, interval.owner, none, np.empty(0), 1, 1,
-                    self.max_units, self.block_limit)
+        boundary_steps(interval.P.x, one, *self.lattice, np.ones(1), 0, 1, 1, self.max_units, interval.block_dt,
+                       interval.order, interval.level_start, self.block_limit, interval.base, interval.owner,
+                       interval.dt_p)
         interval.take_store(1)
         permute_rows(interval.rows["moving"], *misplaced_rows(interval.dt_p, 1, self.levels)[:2])
         move_rows(interval.pairs("P", "shadow"), none, none)
@@ -693,12 +708,12 @@ class AsynchronousStepper:
                      interval.base)
         cohort = _Cohort(1, 1, 0, 1)
         interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [cohort], interval.base, 0)
-        rows = interval.group(cohort, one, none)  # the particle and a copy of it as a level ghost
+        rows = interval.group(one, one, none)  # the particle and a copy of it as a level ghost
         same_ids(interval.store.live().id, interval.store.live().id)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
             exchange = LevelExchange(CLASSES[:2].copy(), kicks=True)
             substep(self.backend, interval.P, 0.0, 0.0, exchange=exchange, rows=rows)
-            interval.add_impulses(cohort, none, 2, exchange.impulses)
+            interval.add_impulses(one, none, 2, exchange.impulses)
             interval.close_registers(one)
 
     # ------------------------------------------------------------------ stepping
@@ -713,7 +728,7 @@ class AsynchronousStepper:
             run.tick_once()
         new, work = run.finish()
         work.seconds = perf_counter() - start
-        self.work = self.work + work
+        self.work.add(work)
         return new
 
     def end_tick(self, t_end, tick):
@@ -732,7 +747,7 @@ class AsynchronousStepper:
 
     def updates(self, old, new):
         """Particle steps done between two states: the particles' own updates (ghost updates not counted)."""
-        return AsyncSchedule.of(new).own_updates - AsyncSchedule.of(old).own_updates
+        return int(new.stepper["own_updates"]) - int(old.stepper["own_updates"])
 
     def diagnostics(self, state):
         """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,

@@ -15,7 +15,7 @@ from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
 from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
-from .kicks import class_totals, node_kicks
+from .kicks import class_totals, kicked_blocks, node_kicks
 from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 from .threads import describe_threads, threads_for
@@ -23,6 +23,8 @@ from .threads import describe_threads, threads_for
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
 #: the empty row array that tells a transfer kernel it has no particle classes (or no kicks)
 NO_ROWS = np.empty(0, dtype=np.int64)
+#: the kick row of each particle class (-1: the class receives no kick)
+KICK_ROW_OF_CLASS = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
 
 
 def dense_with_classes(state):
@@ -383,11 +385,12 @@ class NumbaBackend:
         """Each particle's impulse and moment from the node kicks ``kicks = (classes, kick)`` (see :meth:`g2p`), of
         every particle or of ``rows`` (empty: all), in that order (:func:`.transfers2d.kick_gather_kernel`)."""
         n, d = (rows.shape[0] or particles.n), particles.dim
-        row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
-        first = row_of_class[kicks[0]]
+        first = KICK_ROW_OF_CLASS[kicks[0]]
         impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
+        node_kicks = kicks[1].reshape(-1, d)
         self._kick_gather(particles.x, particles.mass, rows, self.sparse_layout(layout),
-                          np.where(first >= 0, first * layout.n_rows, -1), kicks[1].reshape(-1, d), impulse, moment)
+                          np.where(first >= 0, first * layout.n_rows, -1), node_kicks,
+                          kicked_blocks(node_kicks, layout.block_nodes), impulse, moment)
         return impulse, moment
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)

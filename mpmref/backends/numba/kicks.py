@@ -5,6 +5,7 @@ dimension's kick gather, which hands the kicks to the particles, is its transfer
 (:mod:`.transfers2d`, :mod:`.transfers3d`).
 """
 
+import numpy as np
 from numba import njit
 
 
@@ -42,3 +43,18 @@ def node_kicks(class_sums, dt, kappa, kicks):
                     kicks[k, r, a] = -exchange / receiver
                 else:
                     kicks[k, r, a] = 0.0
+
+
+@njit(cache=True)
+def kicked_blocks(kicks, block_nodes):
+    """Whether each block of ``block_nodes`` rows of the node kicks ``kicks`` (rows, d) holds a non-zero kick (the
+    kicks of both receiving classes, :func:`node_kicks`, one block of rows after the other): the blocks the kick
+    gather (:func:`.transfers2d.kick_gather_kernel`) visits. One more entry, false, so that a block's next one
+    always exists."""
+    flags = np.zeros(kicks.shape[0] // block_nodes + 1, np.bool_)
+    for r in range(kicks.shape[0]):
+        for a in range(kicks.shape[1]):
+            if kicks[r, a] != 0.0:
+                flags[r // block_nodes] = True
+                break
+    return flags

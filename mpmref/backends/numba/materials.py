@@ -278,7 +278,7 @@ def wave_parameters(materials):
     return rules, params
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def wave_speeds_kernel(F, J, Jp, material, idx, rules, params, out):
     r"""Current wave speed :math:`c_p` (the CFL rule's) of the particles ``idx`` into ``out``, one particle at a
     time, by its material's rule (the ``wave_speeds`` methods of :mod:`mpmref.physics.materials` and
@@ -289,23 +289,30 @@ def wave_speeds_kernel(F, J, Jp, material, idx, rules, params, out):
     * fluid (rule 1): :math:`c^2 = \gamma K / (\rho_0 J^{\gamma - 1})`, :math:`J \ge 10^{-6}`;
     * snow (rule 2): :math:`c^2 = (\lambda + 2\mu)\, e^{\xi(1 - J_P)} J / \rho_0`,
       :math:`J = \max(\det F_E\, J_P, 10^{-6})`.
+
+    In parallel over chunks of :data:`CHUNK` particles (asynchronous stepping asks at every step boundary).
     """
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        m = material[p]
-        rule = rules[m]
-        if rule == 1:
-            K, gamma, rho = params[m, 0], params[m, 1], params[m, 2]
-            out[k] = np.sqrt(gamma * K / (rho * max(J[p], 1e-6) ** (gamma - 1.0)))
-            continue
-        mu, lam, rho = params[m, 0], params[m, 1], params[m, 2]
-        if rule == 2:
-            Jv = max(det_small(F[p]) * Jp[p], 1e-6)
-            out[k] = np.sqrt((lam + 2.0 * mu) * np.exp(params[m, 3] * (1.0 - Jp[p])) * Jv / rho)
-        else:
-            Jv = max(det_small(F[p]), 1e-6)
-            shear = 4.0 * mu * Jv / (3.0 * rho)
-            out[k] = np.sqrt(max(shear + (2.0 * mu / 3.0 + lam) * (1.0 - np.log(Jv)) / rho, shear))
+    n = idx.shape[0]
+    for chunk in prange(n_chunks(n)):
+        for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            out[k] = wave_speed_of(F, J, Jp, material, idx[k], rules, params)
+
+
+@njit(cache=True, inline="always")
+def wave_speed_of(F, J, Jp, material, p, rules, params):
+    """The wave speed of particle ``p`` (:func:`wave_speeds_kernel`)."""
+    m = material[p]
+    rule = rules[m]
+    if rule == 1:
+        K, gamma, rho = params[m, 0], params[m, 1], params[m, 2]
+        return np.sqrt(gamma * K / (rho * max(J[p], 1e-6) ** (gamma - 1.0)))
+    mu, lam, rho = params[m, 0], params[m, 1], params[m, 2]
+    if rule == 2:
+        Jv = max(det_small(F[p]) * Jp[p], 1e-6)
+        return np.sqrt((lam + 2.0 * mu) * np.exp(params[m, 3] * (1.0 - Jp[p])) * Jv / rho)
+    Jv = max(det_small(F[p]), 1e-6)
+    shear = 4.0 * mu * Jv / (3.0 * rho)
+    return np.sqrt(max(shear + (2.0 * mu / 3.0 + lam) * (1.0 - np.log(Jv)) / rho, shear))
 
 
 # --------------------------------------------------------------------------- fluid stress inside P2G

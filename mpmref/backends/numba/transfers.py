@@ -50,7 +50,7 @@ class DimensionTransfers(NamedTuple):
                             J_new, modes_new)``
                             (:func:`.transfers2d.g2p_kernel`)
     kick_gather_kernel : Callable   ``kick_gather_kernel(KERNEL, S, BLOCK)`` -> ``gather(x, mass, rows, layout,
-                            kick_rows, kicks, impulse, moment)`` (:func:`.transfers2d.kick_gather_kernel`)
+                            kick_rows, kicks, kicked, impulse, moment)`` (:func:`.transfers2d.kick_gather_kernel`)
     """
 
     p2g_kernel: Callable

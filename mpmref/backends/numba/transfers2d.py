@@ -215,14 +215,17 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     r"""The kick gather of conservative level interfaces (:mod:`mpmref.physics.interface`), a pass of its own
     after G2P, so that the G2P kernels of every other run compile without it.
 
-    The returned ``gather(x, mass, rows, layout, kick_rows, kicks, impulse, moment)`` (``layout`` a
+    The returned ``gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment)`` (``layout`` a
     :class:`~.kernel_args.SparseLayout`) writes, for the ``k``-th particle ``p`` of ``rows`` (``p = k`` when ``rows`` is
     empty) with ``kick_rows[k] >= 0`` (the first row of its class's kicks in ``kicks``), its impulse
     :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[k]`` and its moment about the origin
     :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)` into ``moment[k]``
     (one column: the moments of 3-vectors with zero third components have only a third), in float64; the nodes are the
-    rows of a :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`. It reads the positions of the step's
-    P2G, so it runs before a G2P in place.
+    rows of a :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`. ``kicked`` flags the blocks of
+    ``kicks`` (its rows in blocks of :math:`B^d`, :func:`.kicks.kicked_blocks`) that hold a non-zero kick: a particle
+    whose stencil reaches none is skipped (its rows of ``impulse`` and ``moment``, zero on entry, stay zero, which
+    is what the sums of zero kicks give), so the pass costs what the particles near an interface cost. It reads
+    the positions of the step's P2G, so it runs before a G2P in place.
 
     Docs: docs/async.md#conservative-interfaces
     """
@@ -230,7 +233,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     N = BLOCK**2
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def gather(x, mass, rows, layout, kick_rows, kicks, impulse, moment):
+    def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         some = rows.shape[0] > 0
@@ -240,11 +243,14 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             first = kick_rows[k]
             if first < 0:
                 continue
-            kp, kl = zeros(np.float64, 2), zeros(np.float64, 3)
             b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
             b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
             k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
+            s0, s1 = (first + k0) // N, (first + k1) // N  # the blocks the stencil reaches: these and the next
+            if not (kicked[s0] or kicked[s0 + 1] or kicked[s1] or kicked[s1 + 1]):
+                continue  # no kick there: the impulse and moment stay zero
+            kp, kl = zeros(np.float64, 2), zeros(np.float64, 3)
+            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
             l0, l1 = b0 % BLOCK, b1 % BLOCK
             c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
             r1 = local_rows(l1, BLOCK, 1, N, S)

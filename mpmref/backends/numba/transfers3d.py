@@ -178,9 +178,9 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
 @lru_cache(maxsize=None)
 def kick_gather_kernel(KERNEL, S, BLOCK):
     r"""The kick gather of conservative level interfaces in 3D, as the 2D :func:`~.transfers2d.kick_gather_kernel`
-    (same arguments): each particle's impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` and its moment about the
-    origin :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`, three
-    columns.
+    (same arguments, the same skipping of particles whose stencil reaches no kick): each particle's impulse
+    :math:`\delta P_p = m_p \sum_i w_{ip} k_i` and its moment about the origin
+    :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`, three columns.
 
     Docs: docs/async.md#conservative-interfaces
     """
@@ -188,7 +188,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def gather(x, mass, rows, layout, kick_rows, kicks, impulse, moment):
+    def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         some = rows.shape[0] > 0
@@ -198,13 +198,19 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             first = kick_rows[k]
             if first < 0:
                 continue
-            kp, kl = zeros(np.float64, 3), zeros(np.float64, 3)
             b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
             b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
             b2, f2, w2, _ = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
-            d2 = offsets(f2, dx, S)
             k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
+            reached = False  # whether a block the stencil reaches (these four and the next along z) has a kick
+            for start in (k00, k01, k10, k11):
+                s_ = (first + start) // N
+                reached = reached or kicked[s_] or kicked[s_ + 1]
+            if not reached:
+                continue  # no kick there: the impulse and moment stay zero
+            kp, kl = zeros(np.float64, 3), zeros(np.float64, 3)
+            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
+            d2 = offsets(f2, dx, S)
             l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
             c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
             r0, r1 = local_rows(l0, BLOCK, BLOCK * BLOCK, 0, S), local_rows(l1, BLOCK, BLOCK, 0, S)
