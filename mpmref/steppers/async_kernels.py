@@ -218,8 +218,10 @@ def base_node(x, origin, dx, shift, node_shape, base, a):
 @njit(parallel=True, cache=True)
 def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner):
     """At a step boundary of the particles ``idx``: their base nodes ``base`` and owner blocks ``owner`` (C order
-    of the block lattice ``blocks_per_axis``), in parallel."""
+    of the block lattice ``blocks_per_axis``), in parallel. ``block`` (cells per block edge) is a power of two, so
+    a node's block coordinate is a shift of its index."""
     d, n = x.shape[1], idx.shape[0]
+    bits = level_of(block)
     for c in prange(chunks(n)):
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             p = idx[k]
@@ -227,7 +229,7 @@ def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis
             for a in range(d):
                 b = base_node(x[p, a], origin, dx, shift, node_shape, base, a)
                 base[p, a] = b
-                flat = flat * blocks_per_axis[a] + b // block
+                flat = flat * blocks_per_axis[a] + (b >> bits)
             owner[p] = flat
 
 
@@ -276,7 +278,7 @@ def relevel_one(dt, limit, t):
     while the double fits and is aligned (``t mod 2 dt = 0``)."""
     while dt > limit:
         dt //= 2
-    while 2 * dt <= limit and t % (2 * dt) == 0:
+    while 2 * dt <= limit and t & (2 * dt - 1) == 0:  # t mod 2 dt = 0 (steps are powers of two)
         dt *= 2
     return dt
 
@@ -332,7 +334,7 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
         b = owner[idx[k]]
         if block_limit[b] == -np.inf:
             continue  # visited already
-        if t % block_dt[b] == 0:
+        if t & (block_dt[b] - 1) == 0:  # due: t mod dt = 0
             block_dt[b] = relevel_one(block_dt[b], np.int64(min(block_limit[b], max_units)), t)
         coarsest = max(coarsest, block_dt[b])
         block_limit[b] = -np.inf  # owns some: not an empty block below
@@ -370,9 +372,12 @@ def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, m
     :math:`\min(\lfloor \min(S_p, A_p) \rfloor, 2^{levels})` with
     :math:`S_p = s \min(\Delta x / (c_p + |v_p|), t_{max}) / \Delta t_u` and
     :math:`A_p = a\, \Delta x / (|v_p|\, \Delta t_u)` (no advection limit at rest). ``wave_speed`` holds
-    :math:`c_p` of each particle of ``idx``; returns float64 (m,). In parallel."""
+    :math:`c_p` of each particle of ``idx``; returns float64 (m,). In parallel, one division per limit (the
+    constant factors taken out once)."""
     n = idx.shape[0]
     out = np.empty(n)
+    strength_ticks, cap = strength * dx / tick, strength * max_step_s / tick
+    advection_ticks = advection * dx / tick
     for c in prange(chunks(n)):
         for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
             p = idx[k]
@@ -380,9 +385,9 @@ def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, m
             for a in range(v.shape[1]):
                 speed2 += np.float64(v[p, a]) ** 2
             speed = np.sqrt(speed2)
-            limit = strength * min(dx / max(wave_speed[k] + speed, 1e-300), max_step_s) / tick
+            limit = min(strength_ticks / max(wave_speed[k] + speed, 1e-300), cap)
             if speed > 0:
-                limit = min(limit, advection * dx / (max(speed, 1e-300) * tick))
+                limit = min(limit, advection_ticks / speed)
             out[k] = min(np.floor(limit), max_units)
     return out
 

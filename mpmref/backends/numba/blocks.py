@@ -33,19 +33,22 @@ def block_keys(x, rows, origin, dx, shift, block, blocks_per_axis):
     rows : (m,) int            the particles to key (empty: all)
     origin : (d,), dx : float  the grid
     shift : float              ``base = floor((x - origin)/dx - shift)`` (the kernel's base-node rule)
-    block : int                cells per block edge
+    block : int                cells per block edge (a power of two)
     blocks_per_axis : (d,) int
     """
     d = x.shape[1]
     some = rows.shape[0] > 0
     n = rows.shape[0] if some else x.shape[0]
+    bits = 0  # block is a power of two: a node's block coordinate is an arithmetic shift (a floor division)
+    while (1 << bits) < block:
+        bits += 1
     block_of = np.empty(n, dtype=np.int64)
     for k in prange(n):
         p = rows[k] if some else np.int64(k)  # one integer type (prange counts unsigned)
         b = 0
         for a in range(d):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
-            b = b * blocks_per_axis[a] + base // block
+            b = b * blocks_per_axis[a] + (base >> bits)
         block_of[k] = b
     return block_of
 
