@@ -326,14 +326,17 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
     Taking instead every particle whose stencil touches the block's nodes was tried: it cost 15 % of the
     stork's savings and did not reduce the error of colliding balls (docs/async.md), so the reference rule
     stays."""
+    owning = np.empty(min(idx.shape[0], block_dt.shape[0]), np.int64)  # the blocks owning some, once each
+    n_owning = 0
     for k in range(idx.shape[0]):
         b = owner[idx[k]]
+        if block_limit[b] == np.inf:
+            owning[n_owning] = b
+            n_owning += 1
         block_limit[b] = min(block_limit[b], limit[k])
     coarsest = 0
-    for k in range(idx.shape[0]):
-        b = owner[idx[k]]
-        if block_limit[b] == -np.inf:
-            continue  # visited already
+    for j in range(n_owning):
+        b = owning[j]
         if t & (block_dt[b] - 1) == 0:  # due: t mod dt = 0
             block_dt[b] = relevel_one(block_dt[b], np.int64(min(block_limit[b], max_units)), t)
         coarsest = max(coarsest, block_dt[b])
@@ -346,8 +349,8 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
         if block_limit[b] == -np.inf:
             continue
         block_dt[b] = relevel_one(block_dt[b], coarsest, t)
-    for k in range(idx.shape[0]):
-        block_limit[owner[idx[k]]] = np.inf
+    for j in range(n_owning):
+        block_limit[owning[j]] = np.inf
     # the due blocks, sorted by their new steps (all still at most ``alignment``)
     top = level_of(alignment)
     count = np.zeros(top + 2, np.int64)
