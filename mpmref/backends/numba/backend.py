@@ -15,7 +15,7 @@ from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
 from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
-from .kicks import class_totals, kicked_blocks, node_kicks
+from .kicks import class_first_rows, class_totals, kick_first_rows, kicked_blocks, node_kicks
 from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 from .threads import describe_threads, threads_for
@@ -240,15 +240,16 @@ class NumbaBackend:
 
     def _class_rows(self, particles, blocks, classes):
         """The first grid row of each particle's class, indexed by particle (of the sorted rows only, when
-        ``blocks`` sorts some rows: the kernel reads no other)."""
-        first = np.asarray(classes, dtype=np.int64) * blocks.layout.n_rows
+        ``blocks`` sorts some rows: the kernel reads no other; :func:`.kicks.class_first_rows`)."""
+        classes = np.asarray(classes, dtype=np.int64)
         if blocks.rows is None:
-            return first
-        held = self._held_class_rows
-        if held.shape[0] < particles.n:
-            held = self._held_class_rows = np.empty(particles.n, dtype=np.int64)
-        held[blocks.rows] = first
-        return held
+            out = np.empty(particles.n, dtype=np.int64)
+        else:
+            out = self._held_class_rows
+            if out.shape[0] < particles.n:
+                out = self._held_class_rows = np.empty(particles.n, dtype=np.int64)
+        class_first_rows(classes, NO_ROWS if blocks.rows is None else blocks.rows, blocks.layout.n_rows, out)
+        return out
 
     def p2g_fused(self, particles, dt, prepared=None):
         """P2G with the internal force folded into the momentum (:func:`.transfers2d.p2g_kernel` with ``FUSED``; the
@@ -385,11 +386,10 @@ class NumbaBackend:
         """Each particle's impulse and moment from the node kicks ``kicks = (classes, kick)`` (see :meth:`g2p`), of
         every particle or of ``rows`` (empty: all), in that order (:func:`.transfers2d.kick_gather_kernel`)."""
         n, d = (rows.shape[0] or particles.n), particles.dim
-        first = KICK_ROW_OF_CLASS[kicks[0]]
         impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
         node_kicks = kicks[1].reshape(-1, d)
-        self._kick_gather(particles.x, particles.mass, rows, self.sparse_layout(layout),
-                          np.where(first >= 0, first * layout.n_rows, -1), node_kicks,
+        first = kick_first_rows(np.asarray(kicks[0], dtype=np.int64), KICK_ROW_OF_CLASS, layout.n_rows)
+        self._kick_gather(particles.x, particles.mass, rows, self.sparse_layout(layout), first, node_kicks,
                           kicked_blocks(node_kicks, layout.block_nodes), impulse, moment)
         return impulse, moment
 

@@ -58,3 +58,23 @@ def kicked_blocks(kicks, block_nodes):
                 flags[r // block_nodes] = True
                 break
     return flags
+
+
+@njit(cache=True)
+def class_first_rows(classes, rows, n_rows, out):
+    """The first grid row of each particle's class in a P2G by classes: ``out[rows[k]] = classes[k] * n_rows``
+    (``out[k]`` when ``rows`` is empty: every particle, in order)."""
+    some = rows.shape[0] > 0
+    for k in range(classes.shape[0]):
+        out[rows[k] if some else k] = classes[k] * n_rows
+
+
+@njit(cache=True)
+def kick_first_rows(classes, kick_row_of_class, n_rows):
+    """The first row of each particle's kicks in the node kicks (classes' kick rows ``kick_row_of_class``, one block
+    of ``n_rows`` rows each), or -1 for a class that receives none."""
+    out = np.empty(classes.shape[0], np.int64)
+    for k in range(classes.shape[0]):
+        row = kick_row_of_class[classes[k]]
+        out[k] = row * n_rows if row >= 0 else -1
+    return out
