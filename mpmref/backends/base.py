@@ -38,6 +38,9 @@ A backend may also have ``p2g_fused(particles, dt, prepared=None)`` (:class:`Fus
 internal force folded into the momentum, (mv)_i + Δt f_i, in one scatter, returned as a
 :class:`~mpmref.state.GridState` whose ``force`` is ``None`` (``grid_update`` then reads the momentum as folded and
 returns no ``v_tilde``). The steppers use it where the scheme allows it and nothing in the run reads the force apart.
+One that also takes ``classes`` (``p2g_fused(particles, dt, prepared=None, classes=None)``, the Numba backend's) sums
+particle classes apart as ``p2g`` does, and ``interface_kicks`` then takes such a folded state: a level update of
+conservative interfaces folds its force too (:func:`mpmref.steppers.pipeline.fuses_classes`).
 
 A backend may also step **rows of persistent particle arrays** (:class:`RowBackend`, the optional stages
 :data:`ROW_BACKEND_STAGES`), which asynchronous stepping's level updates use: the particles of a level are
@@ -140,7 +143,7 @@ class FusedBackend(Backend, Protocol):
     """A backend that can also fold the step's internal force into P2G (optional: the steppers use it when the
     backend has it and nothing in the run reads the force apart; :func:`mpmref.steppers.pipeline.substep`)."""
 
-    def p2g_fused(self, particles, dt, prepared=None):
+    def p2g_fused(self, particles, dt, prepared=None, classes=None):
         """-> GridState(mass (N,), momentum (N, d) = (mv)_i + dt f_i, force None)"""
 
 

@@ -536,3 +536,10 @@ def boundary_steps(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis
     boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner)
     due = relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, max_units, block_limit)
     return particle_steps(idx, block_dt, owner, room, limit, dt_p), due
+
+
+@njit(cache=True)
+def levels_of(dt_p, n, level):
+    """``level[r] = log2 dt_p[r]`` for the rows ``0 .. n - 1`` (the particles' levels, from their steps)."""
+    for r in range(n):
+        level[r] = level_of(dt_p[r])

@@ -62,6 +62,7 @@ from .async_kernels import (
     boundary_steps,
     bucket_by_block,
     bucket_zone_members,
+    levels_of,
     misplaced_rows,
     move_rows,
     permute_rows,
@@ -419,7 +420,7 @@ class AsyncInterval:
             permute_rows(self.rows["moving"], src, dst)
         level = self.P_arrays["level"]
         if chosen is None:
-            level[:n_due] = np.log2(self.dt_p[:n_due])
+            levels_of(self.dt_p, n_due, level)
         else:
             level[:n_due] = chosen if not src.size else self.unpermuted(chosen, src, dst)
         t = self.t

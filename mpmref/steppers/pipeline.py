@@ -13,7 +13,9 @@ scene with rigid bodies couples them by CPIC (Hu et al. 2018 §4–5; docs/cpic.
 stages, and P2G and G2P that respect compatibility.
 """
 
+import inspect
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -119,14 +121,7 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
         if rigid is not None:
             rigid = begin_step(scene.rigid_bodies, rigid, time, dt)
             particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
-        if contact is not None:
-            grid_state = backend.p2g(particles, prepared, contact)
-        elif exchange is not None:
-            grid_state = backend.p2g(particles, prepared, classes=exchange.classes)
-        elif folds_force(backend, hooks, ledger):
-            grid_state = backend.p2g_fused(particles, dt, prepared)
-        else:
-            grid_state = backend.p2g(particles, prepared)
+        grid_state = _p2g(backend, particles, prepared, dt, hooks, ledger, contact, exchange)
         if hooks.body_force is not None or hooks.grid_folds:
             apply_hooks(hooks, grid_state, particles, scene, time, exchange)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
@@ -155,6 +150,19 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
         return new if contact is None else (new, rigid)
 
 
+def _p2g(backend, particles, prepared, dt, hooks, ledger, contact, exchange):
+    """The P2G of :func:`substep`: CPIC's to compatible nodes, by classes for a level update, fused where
+    :func:`folds_force` allows (for a level update, where also :func:`fuses_classes`), else plain."""
+    if contact is not None:
+        return backend.p2g(particles, prepared, contact)
+    fused = folds_force(backend, hooks, ledger)
+    if exchange is None:
+        return backend.p2g_fused(particles, dt, prepared) if fused else backend.p2g(particles, prepared)
+    if fused and fuses_classes(backend):
+        return backend.p2g_fused(particles, dt, prepared, classes=exchange.classes)
+    return backend.p2g(particles, prepared, classes=exchange.classes)
+
+
 def gathered_substep(backend, particles, rows, dt, time, hooks=NO_HOOKS, ledger=None, exchange=None, out=None):
     """:func:`substep` of the particles ``rows`` of ``particles`` through the plain stages: the rows gathered into
     new particles (in the order of ``rows``), one step of them, and their evolving fields written into the same
@@ -176,6 +184,20 @@ def folds_force(backend, hooks, ledger):
     coupled P2G is never fused). The result is the same up to round-off (docs/performance.md#the-fused-p2g)."""
     return (callable(getattr(backend, FUSED_BACKEND_STAGES[0], None)) and not backend.scene.transfer.flip
             and ledger is None and hooks.body_force is None and not hooks.grid_folds)
+
+
+def fuses_classes(backend):
+    """Whether ``backend``'s ``p2g_fused`` also sums particle classes apart (it takes ``classes``, as the Numba
+    backend's does): then a level update by classes folds the force too when :func:`folds_force` allows, and the
+    kicks of conservative interfaces come from the folded momentum (the scheme's G2P hands out all of it: not
+    FLIP). Looked up once per backend class."""
+    return _fused_takes_classes(type(backend))
+
+
+@lru_cache(maxsize=None)
+def _fused_takes_classes(cls):
+    fused = getattr(cls, FUSED_BACKEND_STAGES[0], None)
+    return callable(fused) and "classes" in inspect.signature(fused).parameters
 
 
 def _observed(ledger, trial, return_map):

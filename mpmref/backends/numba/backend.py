@@ -225,17 +225,23 @@ class NumbaBackend:
         blocks = prepared or self.prepare(particles)
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
+        return self._grid_state(self._p2g, particles, blocks, prepared, classes, 0.0, 2)
+
+    def _grid_state(self, kernel, particles, blocks, prepared, classes, dt, vectors):
+        """Run the P2G ``kernel`` (1 + ``vectors`` d values per node) and give its :class:`~mpmref.state.GridState`,
+        with the classes' sums apart when ``classes`` is given; in ``blocks``' layout, or dense without ``prepared``."""
         n_classes = 1 if classes is None else N_CLASSES
         class_rows = NO_ROWS if classes is None else self._class_rows(particles, blocks, classes)
-        grid = self._scatter(self._p2g, particles, blocks, n_classes, class_rows, 0.0, 2)
+        grid = self._scatter(kernel, particles, blocks, n_classes, class_rows, dt, vectors)
         layout, d = blocks.layout, particles.dim
+        width = 1 + vectors * d
         class_sums = None
         if classes is not None:
-            class_sums = grid.reshape(N_CLASSES, layout.n_rows, 1 + 2 * d)
-            grid, = self.buffers.take("grid_totals", (layout.n_rows, 1 + 2 * d))
+            class_sums = grid.reshape(N_CLASSES, layout.n_rows, width)
+            grid, = self.buffers.take(f"grid_totals_{vectors}", (layout.n_rows, width))
             class_totals(class_sums, grid)
-        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
-                          class_sums=class_sums)
+        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:] if vectors == 2 else None,
+                          layout=layout, class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
 
     def _class_rows(self, particles, blocks, classes):
@@ -251,16 +257,15 @@ class NumbaBackend:
         class_first_rows(classes, NO_ROWS if blocks.rows is None else blocks.rows, blocks.layout.n_rows, out)
         return out
 
-    def p2g_fused(self, particles, dt, prepared=None):
+    def p2g_fused(self, particles, dt, prepared=None, classes=None):
         """P2G with the internal force folded into the momentum (:func:`.transfers2d.p2g_kernel` with ``FUSED``; the
         reference is :func:`mpmref.backends.numpy.transfers.p2g_fused`): node rows of mass and momentum after the
         force, (1 + d) values where :meth:`p2g` scatters (1 + 2d); a :class:`~mpmref.state.GridState` with
-        ``force = None``, in ``prepared``'s layout or, without it, dense."""
+        ``force = None``, in ``prepared``'s layout or, without it, dense. With ``classes``, each class's sums apart
+        as in :meth:`p2g` (``class_sums`` (K, rows, 1 + d)): what the kicks of conservative interfaces need when the
+        G2P takes the whole node momentum (:meth:`interface_kicks`)."""
         blocks = prepared or self.prepare(particles)
-        grid = self._scatter(self._p2g_fused, particles, blocks, 1, NO_ROWS, dt, 1)
-        d = particles.dim
-        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=None, layout=blocks.layout)
-        return state if prepared is not None else state.dense()
+        return self._grid_state(self._p2g_fused, particles, blocks, prepared, classes, dt, 1)
 
     def _scatter(self, kernel, particles, blocks, n_classes, class_rows, dt, vectors):
         """Run a P2G ``kernel`` over the particles by colour into zeroed pool rows of 1 + ``vectors`` d values per
@@ -299,9 +304,10 @@ class NumbaBackend:
 
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
-        (:func:`.kicks.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`)."""
+        (:func:`.kicks.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`), also from a
+        fused P2G by classes (``kappa`` then 1: the folded momentum is what the G2P hands out)."""
         sums = grid_state.class_sums
-        kicks = np.empty((2, sums.shape[1], (sums.shape[2] - 1) // 2))
+        kicks = np.empty((2, sums.shape[1], grid_state.momentum.shape[1]))
         node_kicks(sums, dt, kappa, kicks)
         return kicks
 

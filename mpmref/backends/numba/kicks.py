@@ -25,11 +25,14 @@ def node_kicks(class_sums, dt, kappa, kicks):
     :func:`mpmref.physics.interface.interface_kicks`): ``kicks[0]`` :math:`= -I_i(A \leftarrow F)/m^A_i` for
     the active particles, ``kicks[1]`` :math:`= -I_i(A \leftarrow S)/m^S_i` for the coarser shadows, with
     :math:`I_i(A \leftarrow Y) = (\kappa (m^A (mv)^Y - m^Y (mv)^A) + \Delta t (m^A f^Y - m^Y f^A)) / m_i`;
-    zero where the receiving class (or the node) has no mass.
+    zero where the receiving class (or the node) has no mass. From a fused P2G by classes (rows of 1 + d values:
+    mass and :math:`q = (mv) + \Delta t f`, and :math:`\kappa = 1`) the same exchange is
+    :math:`(m^A q^Y - m^Y q^A) / m_i`.
 
     Docs: docs/async.md#what-is-conserved-at-level-interfaces
     """
     d = kicks.shape[2]
+    folded = class_sums.shape[2] == 1 + d
     for r in range(kicks.shape[1]):
         mA, mF, mS = class_sums[0, r, 0], class_sums[1, r, 0], class_sums[2, r, 0]
         m = mA + mF + mS
@@ -38,9 +41,10 @@ def node_kicks(class_sums, dt, kappa, kicks):
             mY = class_sums[y, r, 0]
             for a in range(d):
                 if m > 0 and receiver > 0:
-                    exchange = (kappa * (mA * class_sums[y, r, 1 + a] - mY * class_sums[0, r, 1 + a])
-                                + dt * (mA * class_sums[y, r, 1 + d + a] - mY * class_sums[0, r, 1 + d + a])) / m
-                    kicks[k, r, a] = -exchange / receiver
+                    exchange = kappa * (mA * class_sums[y, r, 1 + a] - mY * class_sums[0, r, 1 + a])
+                    if not folded:
+                        exchange += dt * (mA * class_sums[y, r, 1 + d + a] - mY * class_sums[0, r, 1 + d + a])
+                    kicks[k, r, a] = -(exchange / m) / receiver
                 else:
                     kicks[k, r, a] = 0.0
 
