@@ -145,3 +145,22 @@ def colour_classes(block_start, blocks_per_axis):
         colour_blocks[placed[colour[i]]] = blocks[i]
         placed[colour[i]] += 1
     return colour_blocks, colour_start
+
+
+@njit(cache=True)
+def runs_of(rows):
+    """The runs of consecutive particles in ``rows`` (an index array): ``(starts, stops)``, run ``r`` being
+    ``starts[r] .. stops[r] - 1``, in the order of ``rows``."""
+    n_runs = 0
+    for k in range(rows.shape[0]):
+        if k == 0 or rows[k] != rows[k - 1] + 1:
+            n_runs += 1
+    starts = np.empty(n_runs, np.int64)
+    stops = np.empty(n_runs, np.int64)
+    r = -1
+    for k in range(rows.shape[0]):
+        if k == 0 or rows[k] != rows[k - 1] + 1:
+            r += 1
+            starts[r] = rows[k]
+        stops[r] = rows[k] + 1
+    return starts, stops
