@@ -451,9 +451,9 @@ def apply_registers_at(idx, x, v, C, mass, dP, dL, inertia):
 
 
 @njit(cache=True)
-def misplaced_rows(dt_p, n_due, top):
-    """The rows ``0 .. n_due - 1``, whose particles have steps ``dt_p`` (powers of two up to ``2^top``), ordered by
-    step with the fewest moves: ``(src, dst, level_start)``, where the particles of step ``2^k`` are to occupy rows
+def misplaced_rows(level, n_due, top):
+    """The rows ``0 .. n_due - 1``, whose particles have steps ``2^level`` (``level`` up to ``top``), ordered by step
+    with the fewest moves: ``(src, dst, level_start)``, where the particles of step ``2^k`` are to occupy rows
     ``level_start[k] .. level_start[k + 1] - 1`` and the particle in row ``src[i]`` moves to row ``dst[i]``.
 
     Only the particles outside their step's run move: the ``i``-th of them with step ``2^k`` (in row order) takes
@@ -461,7 +461,7 @@ def misplaced_rows(dt_p, n_due, top):
     those rows, :func:`permute_rows`). A prefix already ordered by step gives no moves."""
     level_start = np.zeros(top + 2, np.int64)
     for r in range(n_due):
-        level_start[level_of(dt_p[r]) + 1] += 1
+        level_start[level[r] + 1] += 1
     for k in range(top + 1):
         level_start[k + 1] += level_start[k]
     # rows of run k held by others ("holes") and particles of step k outside run k ("movers"): as many of each
@@ -470,7 +470,7 @@ def misplaced_rows(dt_p, n_due, top):
     for r in range(n_due):
         while r >= level_start[run + 1]:
             run += 1
-        if level_of(dt_p[r]) != run:
+        if level[r] != run:
             holes[run + 1] += 1
     for k in range(top + 1):
         holes[k + 1] += holes[k]
@@ -483,7 +483,7 @@ def misplaced_rows(dt_p, n_due, top):
     for r in range(n_due):
         while r >= level_start[run + 1]:
             run += 1
-        k = level_of(dt_p[r])
+        k = level[r]
         if k != run:
             dst[next_hole[run]] = r  # a hole of run ``run``, in row order
             next_hole[run] += 1

@@ -415,13 +415,12 @@ class AsyncInterval:
         stepper's: :meth:`take_store`); record the levels the rule chose. Returns the new cohorts, coarse first."""
         if self.store is None:
             self.take_store(0)
-        src, dst, level_start = misplaced_rows(self.dt_p, n_due, self.s.levels)
+        level = self.P_arrays["level"]
+        levels_of(self.dt_p, n_due, level)  # the steps' levels, which order the rows
+        src, dst, level_start = misplaced_rows(level, n_due, self.s.levels)
         if src.size:
             permute_rows(self.rows["moving"], src, dst)
-        level = self.P_arrays["level"]
-        if chosen is None:
-            levels_of(self.dt_p, n_due, level)
-        else:
+        if chosen is not None:  # the particles' levels are those the rule chose, not the shortened steps
             level[:n_due] = chosen if not src.size else self.unpermuted(chosen, src, dst)
         t = self.t
         return [_Cohort(1 << k, t + (1 << k), level_start[k], level_start[k + 1])
@@ -703,7 +702,8 @@ class AsynchronousStepper:
                        interval.order, interval.level_start, self.block_limit, interval.base, interval.owner,
                        interval.dt_p)
         interval.take_store(1)
-        permute_rows(interval.rows["moving"], *misplaced_rows(interval.dt_p, 1, self.levels)[:2])
+        levels_of(interval.dt_p, 1, interval.P_arrays["level"])
+        permute_rows(interval.rows["moving"], *misplaced_rows(interval.P_arrays["level"], 1, self.levels)[:2])
         move_rows(interval.pairs("P", "shadow"), none, none)
         shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
                      interval.base)

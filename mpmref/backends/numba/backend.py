@@ -5,30 +5,23 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from ...physics.interface import KICK_ROW, N_CLASSES
+from ...physics.interface import N_CLASSES
 from ...physics.materials import WeaklyCompressibleFluid, material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable
 from . import cpic, materials, transfers
-from .blocks import block_keys, colour_classes, counting_sort, runs_of, slab_colours
+from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
 from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
-from .kicks import class_first_rows, class_totals, kick_first_rows, kicked_blocks, node_kicks
+from .kicks import class_first_rows, class_totals, node_kicks
+from .rows import NO_ROWS, RowStages
 from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 from .threads import describe_threads, threads_for
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
-#: the empty row array that tells a transfer kernel it has no particle classes (or no kicks)
-NO_ROWS = np.empty(0, dtype=np.int64)
-#: G2P of some rows runs on views of each run of consecutive rows when they are at most this many runs (a level
-#: update's rows are two: its level's and the ghosts'), through the index of the rows otherwise: the kernel reads
-#: its particles through an index array about a quarter slower
-MAX_RUNS = 4
-#: the kick row of each particle class (-1: the class receives no kick)
-KICK_ROW_OF_CLASS = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
 
 
 def dense_with_classes(state):
@@ -89,7 +82,7 @@ class Blocks:
         return colour_classes(self.block_start, self.blocks_per_axis)
 
 
-class NumbaBackend:
+class NumbaBackend(RowStages):
     """Optimised implementation of the reference stages for ``scene`` (same methods as ``NumpyBackend``).
 
     Only what the scene declares is compiled: the transfer kernels for its dimension, kernel, scheme and
@@ -172,13 +165,6 @@ class NumbaBackend:
         self._last_sort = (keys, blocks)
         return blocks
 
-    def prepare_rows(self, particles, rows):
-        """:meth:`prepare` of the particles ``rows`` (an int64 index array) of ``particles``: their block sort, whose
-        ``order`` lists particle indices, so P2G reads them where they are (the stage of
-        :class:`~mpmref.backends.base.RowBackend`). The sort of the rows is the sort of a group holding them in
-        the order of ``rows``, so the step gives the bits of that group's step."""
-        return self._sorted(self._keys(particles, rows), rows)
-
     def _keys(self, particles, rows):
         """Each particle's block (:func:`.blocks.block_keys`), of every particle or of ``rows``."""
         return block_keys(particles.x, rows, self.origin, self.dx, self.shift, self.block, self.blocks_per_axis)
@@ -205,11 +191,6 @@ class NumbaBackend:
     def return_map(self, particles):
         """Plastic projection of every plastic material's particles (a new state; others untouched)."""
         return self.materials.return_map(particles)
-
-    def return_map_rows(self, particles, rows):
-        """Plastic projection of the plastic materials' particles among ``rows``, in place (the stage of
-        :class:`~mpmref.backends.base.RowBackend`)."""
-        self.materials.return_map_rows(particles, rows)
 
     def p2g(self, particles, prepared=None, contact=None, classes=None):
         """Node mass, momentum and internal force (parallel by colour over slabs or blocks; bitwise
@@ -372,47 +353,6 @@ class NumbaBackend:
                 setattr(new, name, array)
         self._gather(particles, NO_ROWS, layout, v_grid, v_tilde, dt, new)
         return new if kicks is None else (new, impulses)
-
-    def g2p_rows(self, particles, v_grid, v_tilde, dt, prepared, out, kicks=None):
-        """G2P of the particles ``prepared.rows`` (a :meth:`prepare_rows` sort) into the same rows of ``out``, which may
-        be ``particles`` (in place: each particle reads its own state before writing it); with ``kicks`` (see
-        :meth:`g2p`) the impulses and moments of the rows, in their order, gathered first (from the positions of
-        P2G). The stage of :class:`~mpmref.backends.base.RowBackend`."""
-        rows, layout = prepared.rows, prepared.layout
-        impulses = None if kicks is None else self._impulses(particles, rows, layout, kicks)
-        starts, stops = runs_of(rows)
-        if starts.shape[0] > MAX_RUNS:
-            self._gather(particles, rows, layout, v_grid, v_tilde, dt, out)
-            return impulses
-        for a, b in zip(starts.tolist(), stops.tolist()):  # a run of rows: the kernel on views, no index
-            self._gather(particles, NO_ROWS, layout, v_grid, v_tilde, dt, out, slice(a, b))
-        return impulses
-
-    def _gather(self, particles, rows, layout, v_grid, v_tilde, dt, out, run=slice(None)):
-        """Run the G2P kernel over ``rows`` (empty: every particle) of ``particles``, writing ``out``'s arrays; on
-        the rows ``run`` of both (a slice) only."""
-        d = particles.dim
-
-        def arrays(p, name, *empty):
-            a = getattr(p, name)
-            return a[run] if a is not None else np.empty(empty, dtype=self.dtype)
-
-        self._g2p(particles.x[run], particles.v[run], arrays(particles, "F", 0, d, d), arrays(particles, "J", 0),
-                  rows, self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid,
-                  v_grid if v_tilde is None else v_tilde,  # after a fused P2G (no FLIP): the kernel does not read it
-                  out.x[run], out.v[run], arrays(out, "C", 0, d, d), arrays(out, "F", 0, d, d), arrays(out, "J", 0),
-                  arrays(out, "modes", 0, 0, d))
-
-    def _impulses(self, particles, rows, layout, kicks):
-        """Each particle's impulse and moment from the node kicks ``kicks = (classes, kick)`` (see :meth:`g2p`), of
-        every particle or of ``rows`` (empty: all), in that order (:func:`.transfers2d.kick_gather_kernel`)."""
-        n, d = (rows.shape[0] or particles.n), particles.dim
-        impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
-        node_kicks = kicks[1].reshape(-1, d)
-        first = kick_first_rows(np.asarray(kicks[0], dtype=np.int64), KICK_ROW_OF_CLASS, layout.n_rows)
-        self._kick_gather(particles.x, particles.mass, rows, self.sparse_layout(layout), first, node_kicks,
-                          kicked_blocks(node_kicks, layout.block_nodes), impulse, moment)
-        return impulse, moment
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):
