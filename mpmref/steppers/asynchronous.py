@@ -83,13 +83,16 @@ CLASSES = np.array([ACTIVE, FINER, COARSER], dtype=np.int64)
 NO_ROWS = np.empty(0, dtype=np.int64)
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
-#: what :attr:`AsynchronousStepper.counts` counts: ticks with work; particles at a step
-#: boundary (their clocks, limits and blocks); blocks due for relevelling; candidate ghosts examined (the
+#: what :attr:`WorkRecord.counts` counts: ticks with work; particles at a step
+#: boundary (their limits, blocks and steps); blocks due for relevelling; candidate ghosts examined (the
 #: particles of the blocks near an update); nodes of the updates' ghost zones (their bounding boxes); rows of
-#: the updates' groups (particle updates, ghosts included); intervals, and the particles of each (the only
-#: work over every particle: the interval's set-up, the registers' last application and the census)
+#: the updates (particle updates, ghosts included); intervals, and the particles of each (the only
+#: work over every particle: the copy into the store, the registers' last application and the census); rows
+#: copied one by one (ghosts into spare rows, the shadows they propose and commit), rows copied as runs (the state's
+#: particles into a store, a cohort's shadows kept at its step's start) and rows moved to keep the particles
+#: ordered by step (:meth:`AsyncInterval.arrange`)
 COUNTS = ("ticks", "boundary_particles", "due_blocks", "ghost_candidates", "zone_nodes",
-          "group_rows", "intervals", "interval_particles")
+          "group_rows", "intervals", "interval_particles", "ghost_rows_copied", "run_rows_copied", "moved_rows")
 
 
 @dataclass(frozen=True)
@@ -388,6 +391,7 @@ class AsyncInterval:
     def save_shadows(self, cohort):
         """The shadows of the ``cohort``'s particles: their state, base node and tick at their step's start."""
         rows = slice(cohort.start, cohort.stop)
+        self.work.counts["run_rows_copied"] += cohort.size
         for k in self.evolving:
             self.shadow[k][rows] = self.P_arrays[k][rows]
         self.shadow_base[rows] = self.base[rows]
@@ -420,6 +424,7 @@ class AsyncInterval:
         src, dst, level_start = misplaced_rows(level, n_due, self.s.levels)
         if src.size:
             permute_rows(self.rows["moving"], src, dst)
+            self.work.counts["moved_rows"] += src.size
         if chosen is not None:  # the particles' levels are those the rule chose, not the shortened steps
             level[:n_due] = chosen if not src.size else self.unpermuted(chosen, src, dst)
         t = self.t
@@ -440,6 +445,7 @@ class AsyncInterval:
         s = self.s
         if self.store is None:
             self.store = s.stores.take(self.P, spare)
+            self.work.counts["run_rows_copied"] += self.n
         else:
             self.store = s.stores.grown(self.store, spare)
         self.P = self.store.particles
@@ -482,6 +488,7 @@ class AsyncInterval:
         s = self.s
         for idx, end in proposals:
             move_rows(self.pairs("proposed", "shadow"), idx, idx)
+            self.work.counts["ghost_rows_copied"] += idx.size
             drift = shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t, self.base)
             self.drift = max(self.drift, drift)
 
@@ -495,6 +502,7 @@ class AsyncInterval:
         if self.store.capacity < n + n_level + n_shadow:
             self.take_store(n_level + n_shadow)
         tail = span(n, n_level + n_shadow)
+        self.work.counts["ghost_rows_copied"] += n_level + n_shadow
         move_rows(self.pairs("P", "P") + self.pairs("P_constant", "P_constant"), level_ghosts, tail[:n_level])
         move_rows(self.pairs("shadow", "P") + self.pairs("P_constant", "P_constant"), shadow_ghosts, tail[n_level:])
         return np.concatenate((active, tail))
@@ -548,6 +556,7 @@ class AsyncInterval:
         self.count_update(perf_counter() - start, rows.size, n_active)
         if shadow_ghosts.size:
             move_rows(self.pairs("P", "proposed"), span(self.n + level_ghosts.size, shadow_ghosts.size), shadow_ghosts)
+            self.work.counts["ghost_rows_copied"] += shadow_ghosts.size
         if self.work.trace is not None:
             shadow_blocks = s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist()
             self.work.trace.append(LevelUpdate(t, D, sorted(set(self.owner[active].tolist())),
