@@ -79,6 +79,23 @@ def test_the_row_stages_give_the_bits_of_the_gathering_adapter(dim, method, mate
         assert np.any(native_exchange.impulses[0] != 0.0)
 
 
+@needs_numba
+def test_the_numba_backend_has_the_row_stages_with_the_protocols_arguments():
+    """:class:`~mpmref.backends.base.RowBackend`'s stages, as declared; the NumPy reference has none (it steps rows
+    through the adapter)."""
+    import inspect
+
+    from mpmref.backends import make_backend
+    from mpmref.backends.base import RowBackend
+
+    scene = case.pressed_disks()
+    backend = make_backend("numba", scene)
+    assert isinstance(backend, RowBackend) and steps_rows(backend) and not steps_rows(make_backend("numpy", scene))
+    for stage in ROW_BACKEND_STAGES:
+        declared = list(inspect.signature(getattr(RowBackend, stage)).parameters)[1:]
+        assert list(inspect.signature(getattr(backend, stage)).parameters)[:len(declared)] == declared
+
+
 def _plain_numba(scene):
     """The Numba backend without its row stages (as a user's plain backend is): asynchronous stepping gathers for
     it."""

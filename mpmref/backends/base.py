@@ -143,7 +143,7 @@ class FusedBackend(Backend, Protocol):
     """A backend that can also fold the step's internal force into P2G (optional: the steppers use it when the
     backend has it and nothing in the run reads the force apart; :func:`mpmref.steppers.pipeline.substep`)."""
 
-    def p2g_fused(self, particles, dt, prepared=None, classes=None):
+    def p2g_fused(self, particles, dt, prepared=None):
         """-> GridState(mass (N,), momentum (N, d) = (mv)_i + dt f_i, force None)"""
 
 
