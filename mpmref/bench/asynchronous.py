@@ -99,7 +99,8 @@ def time_case(case, t_end, backend, threads, repeats):
                       "stages_us_per_update": 1e6 * stages_s / max(n_updates, 1),
                       "bookkeeping_us_per_update": 1e6 * (record.seconds - stages_s) / max(n_updates, 1),
                       "interface": a_scene.time.interface,
-                      "ghost_stages_us_per_update": ghost_us(a.stepper), "counts": dict(record.counts)},
+                      "ghost_stages_us_per_update": ghost_us(a.stepper),
+                      "counts": {k: int(v) for k, v in record.counts.items()}},
             "reference_interface": {**rec_r, "ghost_stages_us_per_update": ghost_us(r.stepper)},
             "interface_cost_ratio": ghost_us(a.stepper) / max(ghost_us(r.stepper), 1e-300),
             "sync": {**rec_s, "updates": sync_updates},
@@ -188,6 +189,7 @@ def plot_async(section, path):
     over async) against the particle count, with the one-level control; where the wall ratio meets the work ratio,
     the implementation costs nothing more than its particles' work."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -207,6 +209,7 @@ def plot_async(section, path):
                 ax.semilogx(n, [r[key] for r in rows], style, label=f"{label}, {backend}")
             ax.semilogx(n, [1.0 / r["one_level_overhead"] for r in rows], "g:x", label=f"sync / one-level, {backend}")
         ax.axhline(1.0, color="grey", lw=0.8)
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())  # decades only: the minor labels collide
         ax.set_xlabel("particles")
         ax.set_ylabel("ratio (higher: async cheaper)")
         ax.set_title(f"stork {dim}D, {rows[0]['threads']} thread(s)")

@@ -428,7 +428,7 @@ class AsyncInterval:
         if chosen is not None:  # the particles' levels are those the rule chose, not the shortened steps
             level[:n_due] = chosen if not src.size else self.unpermuted(chosen, src, dst)
         t = self.t
-        return [_Cohort(1 << k, t + (1 << k), level_start[k], level_start[k + 1])
+        return [_Cohort(1 << k, t + (1 << k), int(level_start[k]), int(level_start[k + 1]))
                 for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]
 
     @staticmethod
