@@ -44,9 +44,19 @@ def move_rows(pairs, src_idx, dst_idx):
                 dst[j, c] = src[i, c]
 
 
+@njit(cache=True)
+def gather_ghosts(level_pairs, shadow_pairs, level_ghosts, shadow_ghosts, start):
+    """A level update's ghosts copied into the rows from ``start`` on, in one call: the rows ``level_ghosts`` through
+    ``level_pairs`` (every field, from the particles), then the rows ``shadow_ghosts`` through ``shadow_pairs`` (the
+    shadows' fields, the others from the particles): :func:`move_rows` twice."""
+    move_rows(level_pairs, level_ghosts, span(start, level_ghosts.shape[0]))
+    move_rows(shadow_pairs, shadow_ghosts, span(start + level_ghosts.shape[0], shadow_ghosts.shape[0]))
+
+
+@njit(cache=True)
 def span(start, n):
     """The rows ``start .. start + n - 1`` of a group, as an index array for :func:`move_rows`."""
-    return np.arange(start, start + n, dtype=np.int64)
+    return np.arange(start, start + n)
 
 
 @njit(cache=True)
@@ -396,11 +406,20 @@ def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, m
 
 
 @njit(cache=True)
-def add_rows(dst, idx, src, start):
-    """``dst[idx[k]] += src[start + k]`` (rows of 2D arrays): a particle's register takes an update's impulse."""
-    for k in range(idx.shape[0]):
-        for c in range(dst.shape[1]):
-            dst[idx[k], c] += src[start + k, c]
+def add_impulses(dP, dL, first, n_active, shadow_ghosts, first_shadow, impulse, moment):
+    """A level update's impulses and moments (``impulse``, ``moment``: one row per row of the update) added to the
+    registers ``dP``, ``dL`` of its active particles (rows ``first .. first + n_active - 1``, the update's first
+    rows) and of its shadow ghosts' particles ``shadow_ghosts`` (the update's rows from ``first_shadow`` on)."""
+    for k in range(n_active):
+        for c in range(dP.shape[1]):
+            dP[first + k, c] += impulse[k, c]
+        for c in range(dL.shape[1]):
+            dL[first + k, c] += moment[k, c]
+    for k in range(shadow_ghosts.shape[0]):
+        for c in range(dP.shape[1]):
+            dP[shadow_ghosts[k], c] += impulse[first_shadow + k, c]
+        for c in range(dL.shape[1]):
+            dL[shadow_ghosts[k], c] += moment[first_shadow + k, c]
 
 
 @njit(cache=True)

@@ -56,12 +56,13 @@ from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
 from ..state import EVOLVING_FIELDS, State
 from .async_kernels import (
-    add_rows,
+    add_impulses,
     apply_registers_at,
     blocks_by_level,
     boundary_steps,
     bucket_by_block,
     bucket_zone_members,
+    gather_ghosts,
     levels_of,
     misplaced_rows,
     move_rows,
@@ -503,8 +504,9 @@ class AsyncInterval:
             self.take_store(n_level + n_shadow)
         tail = span(n, n_level + n_shadow)
         self.work.counts["ghost_rows_copied"] += n_level + n_shadow
-        move_rows(self.pairs("P", "P") + self.pairs("P_constant", "P_constant"), level_ghosts, tail[:n_level])
-        move_rows(self.pairs("shadow", "P") + self.pairs("P_constant", "P_constant"), shadow_ghosts, tail[n_level:])
+        constant = self.pairs("P_constant", "P_constant")
+        gather_ghosts(self.pairs("P", "P") + constant, self.pairs("shadow", "P") + constant, level_ghosts,
+                      shadow_ghosts, n)
         return np.concatenate((active, tail))
 
     def ghosts(self, zone_, cohorts, node, drift):
@@ -566,12 +568,10 @@ class AsyncInterval:
 
     def add_impulses(self, active, shadow_ghosts, first_shadow, impulses):
         """Add an update's impulses and moments (one row per row of the update, :class:`~.pipeline.LevelExchange`) to
-        the registers of its ``active`` particles and of its shadow ghosts' particles."""
+        the registers of its ``active`` particles (a run of rows) and of its shadow ghosts' particles
+        (:func:`~.async_kernels.add_impulses`)."""
         self.kicked = True
-        dP, dL = impulses
-        for register, impulse in zip(self.registers(), (dP, dL)):
-            add_rows(register, active, impulse, 0)
-            add_rows(register, shadow_ghosts, impulse, first_shadow)
+        add_impulses(*self.registers(), int(active[0]), active.size, shadow_ghosts, first_shadow, *impulses)
 
     def count_update(self, elapsed, rows, n_active):
         """Book a level update of ``rows`` rows, ``n_active`` of them its own particles, whose stages took
