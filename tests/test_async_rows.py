@@ -120,6 +120,27 @@ def test_a_backend_without_the_row_stages_runs_the_same_bits_through_the_adapter
         np.testing.assert_array_equal(array, getattr(plain.particles, name), err_msg=name)
 
 
+@needs_numba
+def test_the_same_bits_on_one_thread_and_two(monkeypatch):
+    """The level updates' stages are the backend's (coloured P2G, a fixed order per node) and the bookkeeping's
+    parallel passes only write each particle's own entries: an asynchronous run gives the same bits on one thread
+    and on two (with the small scene run in parallel too)."""
+    from test_numba_backend import with_threads
+
+    from mpmref.backends.numba import threads as numba_threads
+
+    monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)
+
+    def run():
+        sim = Simulation(case.pressed_disks("conservative", intervals=2), backend="numba")
+        sim.run()
+        return sim.particles
+
+    one, two = with_threads(1, run), with_threads(2, run)
+    for name, array in one.arrays().items():
+        np.testing.assert_array_equal(array, getattr(two, name), err_msg=name)
+
+
 # ---------------------------------------------------------------------------------------- ordered by step
 def test_the_misplaced_rows_are_all_that_moves():
     """Random steps over a prefix of rows: after the moves of :func:`misplaced_rows` the prefix is ordered by step
