@@ -38,6 +38,30 @@ A backend may also have ``p2g_fused(particles, dt, prepared=None)`` (:class:`Fus
 internal force folded into the momentum, (mv)_i + Δt f_i, in one scatter, returned as a
 :class:`~mpmref.state.GridState` whose ``force`` is ``None`` (``grid_update`` then reads the momentum as folded and
 returns no ``v_tilde``). The steppers use it where the scheme allows it and nothing in the run reads the force apart.
+One that also takes ``classes`` (``p2g_fused(particles, dt, prepared=None, classes=None)``, the Numba backend's) sums
+particle classes apart as ``p2g`` does, and ``interface_kicks`` then takes such a folded state: a level update of
+conservative interfaces folds its force too (:func:`mpmref.steppers.pipeline.fuses_classes`).
+
+A backend may also step **rows of persistent particle arrays** (:class:`RowBackend`, the optional stages
+:data:`ROW_BACKEND_STAGES`), which asynchronous stepping's level updates use: the particles of a level are
+contiguous rows of arrays the stepper keeps from update to update, and only their ghosts are copied into spare
+rows after them (:mod:`mpmref.steppers.asynchronous`), so an update gathers and scatters nothing else:
+
+``prepare_rows(particles, rows)``
+    what P2G and G2P of a step of the particles ``rows`` (an int64 index array into ``particles``' arrays) share;
+    given it, ``p2g`` (and ``p2g_fused``) scatter those particles only, and ``classes`` has one entry per row of
+    ``rows``;
+``g2p_rows(particles, v_grid, v_tilde, dt, prepared, out, kicks=None)``
+    the new state of the particles ``rows``, written into the same rows of ``out`` (a :class:`~mpmref.state.Particles`
+    as long, which may be ``particles`` itself: G2P in place); with ``kicks`` it returns each row's impulse and
+    moment ``(dP, dL)``, in the order of ``rows``;
+``return_map_rows(particles, rows)``
+    the plastic projection of the particles ``rows``, in place.
+
+A backend without them (the NumPy reference, a user's own code) steps the same updates through an adapter
+(:func:`mpmref.steppers.pipeline.substep` with ``rows``) that gathers the rows into a new
+:class:`~mpmref.state.Particles`, runs the six stages on it, and writes the results back: the same arithmetic in
+the same order, so the same bits, at the cost of the copies.
 
 These are the stages of a backend; the conformance harness has its own list of what it compares
 (:data:`mpmref.conformance.CONFORMANCE_STAGES`), and the benchmarks name what they time
@@ -60,6 +84,8 @@ ASYNC_BACKEND_STAGES = ("wave_speeds", "interface_kicks")
 CPIC_BACKEND_STAGES = ("cpic_contact", "cpic_impulses", "cpic_g2p")
 #: the optional stage of a backend that folds the internal force into P2G (:class:`FusedBackend`)
 FUSED_BACKEND_STAGES = ("p2g_fused",)
+#: the optional stages of a backend that steps rows of persistent particle arrays (:class:`RowBackend`)
+ROW_BACKEND_STAGES = ("prepare_rows", "g2p_rows", "return_map_rows")
 
 
 @runtime_checkable
@@ -121,10 +147,33 @@ class FusedBackend(Backend, Protocol):
         """-> GridState(mass (N,), momentum (N, d) = (mv)_i + dt f_i, force None)"""
 
 
+@runtime_checkable
+class RowBackend(Backend, Protocol):
+    """A backend that can also step rows of persistent particle arrays (optional: asynchronous stepping uses these
+    stages when the backend has them, and gathers the rows for the plain stages when it has not; see the module
+    docstring)."""
+
+    def prepare_rows(self, particles, rows):
+        """-> what P2G and G2P of a step of the particles rows share (P2G then scatters those rows only)"""
+
+    def g2p_rows(self, particles, v_grid, v_tilde, dt, prepared, out, kicks=None):
+        """-> None, or (dP, dL) with kicks: the rows' new state written into the same rows of out"""
+
+    def return_map_rows(self, particles, rows):
+        """-> None: the plastic projection of the particles rows, in place"""
+
+
+def steps_rows(backend):
+    """Whether ``backend`` has the row stages of :class:`RowBackend` (looked up by name, as :func:`folds_force
+    <mpmref.steppers.pipeline.folds_force>` looks up ``p2g_fused``: an ``isinstance`` test of the protocol costs
+    tens of microseconds)."""
+    return all(callable(getattr(backend, stage, None)) for stage in ROW_BACKEND_STAGES)
+
+
 def stage_signature(stage):
     """``stage(arguments) -> result`` as the protocol declares it, for messages (e.g. ``p2g(particles,
     prepared=None, contact=None, classes=None) -> GridState(...)``)."""
-    method = getattr(CoupledBackend, stage, None) or getattr(FusedBackend, stage)
+    method = getattr(CoupledBackend, stage, None) or getattr(FusedBackend, stage, None) or getattr(RowBackend, stage)
     arguments = list(inspect.signature(method).parameters.values())[1:]  # without self
     returns = (method.__doc__ or "").strip().splitlines()[0]
     return f"{stage}({', '.join(str(a) for a in arguments)}) {returns}".strip()
@@ -172,26 +221,45 @@ class MaterialTable:
             raise TypeError(f"no kernels for material(s) {missing} in this backend")
         self.kernels = [kernels[type(m)] for m in self.materials]
 
-    def groups(self, particles):
+    def groups(self, particles, rows=None):
         """``(material, kernels, idx)`` for each material that has particles
-        (:func:`~mpmref.physics.materials.material_groups`)."""
+        (:func:`~mpmref.physics.materials.material_groups`), or that has some of the particles ``rows`` (``idx`` then
+        lists those, in the order of ``rows``)."""
         kernels = {id(m): k for m, k in zip(self.materials, self.kernels)}
-        return [(m, kernels[id(m)], idx) for m, idx in material_groups(self.materials, particles)]
+        if rows is None:
+            return [(m, kernels[id(m)], idx) for m, idx in material_groups(self.materials, particles)]
+        if len(self.materials) == 1:
+            return [(self.materials[0], self.kernels[0], rows)]
+        of_rows = particles.material[rows]
+        return [(m, k, idx) for i, (m, k) in enumerate(zip(self.materials, self.kernels))
+                if (idx := rows[of_rows == i]).size]
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle."""
         n, d = particles.x.shape
         tau = np.zeros((n, d, d), dtype=particles.x.dtype)
-        for material, (stress, _), idx in self.groups(particles):
-            stress(material, particles, idx, tau)
+        self.stress_into(particles, None, tau)
         return tau
+
+    def stress_into(self, particles, rows, tau):
+        """Kirchhoff stress of every particle, or of the particles ``rows``, into their rows of ``tau`` (n, d, d)."""
+        for material, (stress, _), idx in self.groups(particles, rows):
+            stress(material, particles, idx, tau)
 
     def return_map(self, particles):
         """Plastic projection of every plastic material's particles (a new state; the others untouched)."""
         if particles.Jp is None:
             return particles
         F, Jp = particles.F.copy(), particles.Jp.copy()
-        for material, (_, return_map), idx in self.groups(particles):
+        self._project(particles, None, F, Jp)
+        return particles.with_(F=F, Jp=Jp)
+
+    def return_map_rows(self, particles, rows):
+        """Plastic projection of the plastic materials' particles among ``rows``, in place."""
+        if particles.Jp is not None:
+            self._project(particles, rows, particles.F, particles.Jp)
+
+    def _project(self, particles, rows, F, Jp):
+        for material, (_, return_map), idx in self.groups(particles, rows):
             if return_map is not None:
                 return_map(material, F, Jp, idx)
-        return particles.with_(F=F, Jp=Jp)

@@ -84,9 +84,10 @@ class BenchOptions:
     Attributes
     ----------
     size : int            Table-2 particle count, rounded to ``8 n**3`` (``n`` cells per side)
-    full : bool           Table 2 at the paper's 100**3 cells (8 M particles), overriding ``size``, and the
-                          scaling table up to 1 M particles
-    plot : str or None    write the scaling plot (PNG) here
+    full : bool           Table 2 at the paper's 100**3 cells (8 M particles), overriding ``size``, the
+                          scaling table up to 1 M particles, and the async storks up to 205 000 particles
+    plot : str or None    write the scaling plot (PNG) here, and the async series plot (as ``NAME_async.png``
+                          beside it, or here when the async section runs alone)
     threads : tuple       thread counts (Numba and the peer; NumPy always runs on one)
     dtypes : tuple        ``"float32"`` and/or ``"float64"``
     backends : tuple      mpmref backends to time
@@ -228,8 +229,10 @@ def add_parser(subparsers):
     p.add_argument("--size", type=_positive, help=f"Table-2 particles (default {DEFAULT_PARTICLES:,}; "
                    f"{QUICK_PARTICLES} with --quick), rounded to 8 n^3")
     p.add_argument("--full", action="store_true",
-                   help="Table 2 at the paper's 100^3 cells (8 M particles); scaling up to 1 M particles")
-    p.add_argument("--plot", help="write the scaling plot (PNG) to this file")
+                   help="Table 2 at the paper's 100^3 cells (8 M particles); scaling up to 1 M particles; the async "
+                   "storks up to 205 000 particles (2D) and 127 000 (3D)")
+    p.add_argument("--plot", help="write the scaling plot (PNG) to this file, and the async series plot beside it "
+                   "(NAME_async.png; to this file when --only async)")
     p.add_argument("--threads", type=_thread_list, default=(1, 2), help="thread counts, e.g. 1,2 (default)")
     p.add_argument("--dtype", type=_dtype_list, default=("float32", "float64"), help="f32, f64 or f32,f64 (default)")
     p.add_argument("--backends", type=_backend_list, default=BACKENDS,

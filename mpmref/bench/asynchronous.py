@@ -1,12 +1,14 @@
-"""Asynchronous against synchronous stepping on the stiff/soft stork (the talk's Part IV claim, ~3.3x).
+"""Asynchronous against synchronous stepping on the stiff/soft stork and the snow slope (the talk's Part IV claims,
+~3.3x on the stork, 9.8x on the slope).
 
 Each case runs an example scene asynchronously (with its declared level interfaces, conservative by
 default), then synchronously at the finest step the asynchronous run took, on the same backend and thread
 count, to the same end time; then asynchronously once more with ``time.interface = "reference"``, for the
 cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported:
 particle updates (ghosts included, and the particles' own steps), median wall time of ``repeats`` runs of each
-(compilation excluded: one short warm-up run of each first), their ratios, and the agreement at the end — total energy
-relative to the initial energy, and the largest position difference (particles matched by id) in Δx.
+(the stepping only: set-up and the run's start and end diagnostics are not timed, nor compilation: one short
+warm-up run of each first), their ratios, and the agreement at the end — total energy relative to the initial
+energy, and the largest position difference (particles matched by id) in Δx.
 
 Two more runs make the comparison fair (docs/async.md, "Cost: where the time goes"): synchronous stepping at
 its own CFL step (``time.cfl`` as the asynchronous run's, no fixed step), which is what a user would run
@@ -16,22 +18,31 @@ that step is the asynchronous machinery's own cost. The ratios are those of regi
 the ideal ratio (the particles' own steps, no ghosts), the work ratio (ghosts included) and the wall ratio, with
 the two efficiencies between them, work over ideal (what the ghosts cost) and wall over work (what the
 implementation costs). What the bookkeeping visited, per level update and per tick, comes from the stepper's
-counts (:class:`mpmref.steppers.asynchronous.WorkRecord`, :data:`~mpmref.steppers.asynchronous.COUNTS`).
+counts (:class:`mpmref.steppers.asynchronous.WorkRecord`, :data:`~mpmref.steppers.asynchronous.COUNTS`), and what
+a level update costs, in the step's stages and in the bookkeeping around them (µs per update), from its times.
+
+With ``full`` (``mpmref bench --full``) the stork series goes on to larger grids (:data:`SERIES_CASES`: 2D up to
+205 000 particles, 3D up to 127 000), far enough to show where the wall ratio meets the work ratio; long, so not
+a test. :func:`plot_async` draws the series (``--plot``).
 """
 
 import numpy as np
 
 from ..run.simulation import Simulation
 from ..scene.factories import example_with_time
-from .timing import measure, set_threads
+from .timing import set_threads
 
 #: case -> (example, cells along the first axis, simulated time of a timed run: full, quick). The 2D stork
 #: is also run at 2x and 4x the example's resolution (4x and 16x the particles), the 3D one at 4x: a series over
 #: particle count that shows where the particles' work, not the per-update orchestration, dominates a step and
-#: async starts to pay.
+#: async starts to pay. The snow slope is the talk's second scene (examples/snow_slope2d.toml).
 ASYNC_CASES = {"stork2d": ("stork2d", 64, 0.02, 0.002), "stork2d-128": ("stork2d", 128, 0.008, 0.001),
                "stork2d-256": ("stork2d", 256, 0.004, 0.0005),
-               "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002)}
+               "stork3d": ("stork3d", 32, 0.01, 0.001), "stork3d-128": ("stork3d", 128, 0.025, 0.002),
+               "snow_slope2d": ("snow_slope2d", 128, 0.1, 0.01)}
+#: the series' larger storks, run with ``full``: 108 000 and 205 000 particles in 2D, 4 700 and 127 000 in 3D
+SERIES_CASES = {"stork2d-384": ("stork2d", 384, 0.002, 0.0005), "stork2d-528": ("stork2d", 528, 0.001, 0.0002),
+                "stork3d-64": ("stork3d", 64, 0.02, 0.002), "stork3d-192": ("stork3d", 192, 0.004, 0.0005)}
 
 
 def ghost_us(stepper):
@@ -39,35 +50,42 @@ def ghost_us(stepper):
     return 1e6 * stepper.work.ghost_stage_seconds / max(stepper.work.ghost_level_updates, 1)
 
 
-def _run(scene, backend):
+def stepping(scene, backend):
+    """Run ``scene`` to its end; ``(wall time of the stepping alone, the simulation)`` (the run summary's
+    ``wall_s``: neither the set-up nor the start and end diagnostics)."""
     sim = Simulation(scene, backend=backend)
-    sim.run()
-    return sim
+    return sim.run()["wall_s"], sim
+
+
+def timed(make_scene, t_end, backend, repeats):
+    """``make_scene(t_end)`` run ``repeats`` times after a warm-up run to ``t_end / 10`` (compilation): a timing
+    record (``first_call_s`` the warm-up's, ``times_s``, ``median_s``) of the stepping, and the last run."""
+    first, _ = stepping(make_scene(t_end / 10), backend)
+    runs = [stepping(make_scene(t_end), backend) for _ in range(repeats)]
+    times = [wall for wall, _ in runs]
+    return {"first_call_s": first, "times_s": times, "median_s": float(np.median(times))}, runs[-1][1]
 
 
 def time_case(case, t_end, backend, threads, repeats):
     """One case: the runs timed, updates counted, end states compared (a dict; the module docstring)."""
-    name, cells = ASYNC_CASES[case][:2]
+    name, cells = {**ASYNC_CASES, **SERIES_CASES}[case][:2]
     set_threads(backend, threads)
 
-    def timed(**kwargs):
-        return measure(lambda: _run(example_with_time(name, t_end, cells=cells, **kwargs), backend), repeats,
-                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, **kwargs), backend))
+    def run(**kwargs):
+        return timed(lambda t: example_with_time(name, t, cells=cells, **kwargs), t_end, backend, repeats)
 
     a_scene = example_with_time(name, t_end, cells=cells)
-    rec_a, a = timed()
+    rec_a, a = run()
     summary = a.stepper.summary(a.state)
     record = a.stepper.work
     stages_s, n_updates = record.stage_seconds, record.level_updates
     finest = summary["finest_dt_ticks"]
     dt = finest * a_scene.time.tick
     s_scene = example_with_time(name, t_end, dt=dt, cells=cells)
-    rec_s, s = timed(dt=dt)
-    rec_c, c = timed(cfl_sync=True)
-    rec_o, o = timed(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
-    rec_r, r = measure(lambda: _run(example_with_time(name, t_end, cells=cells, interface="reference"), backend), 1,
-                       first=lambda: _run(example_with_time(name, t_end / 10, cells=cells, interface="reference"),
-                                          backend))
+    rec_s, s = run(dt=dt)
+    rec_c, c = run(cfl_sync=True)
+    rec_o, o = run(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
+    rec_r, r = timed(lambda t: example_with_time(name, t, cells=cells, interface="reference"), t_end, backend, 1)
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
@@ -81,13 +99,16 @@ def time_case(case, t_end, backend, threads, repeats):
                       "stages_us_per_update": 1e6 * stages_s / max(n_updates, 1),
                       "bookkeeping_us_per_update": 1e6 * (record.seconds - stages_s) / max(n_updates, 1),
                       "interface": a_scene.time.interface,
-                      "ghost_stages_us_per_update": ghost_us(a.stepper), "counts": dict(record.counts)},
+                      "ghost_stages_us_per_update": ghost_us(a.stepper),
+                      "counts": {k: int(v) for k, v in record.counts.items()}},
             "reference_interface": {**rec_r, "ghost_stages_us_per_update": ghost_us(r.stepper)},
             "interface_cost_ratio": ghost_us(a.stepper) / max(ghost_us(r.stepper), 1e-300),
             "sync": {**rec_s, "updates": sync_updates},
             "sync_cfl": {**rec_c, "steps": c.step_count, "updates": c.n_particles * c.step_count},
             "one_level": {**rec_o, "levels": sorted(set(o.particles.level.tolist())),
-                          "updates": o.stepper.summary(o.state)["particle_updates"]},
+                          "updates": o.stepper.summary(o.state)["particle_updates"],
+                          "bookkeeping_us_per_update": 1e6 * (o.stepper.work.seconds - o.stepper.work.stage_seconds)
+                          / max(o.stepper.work.level_updates, 1)},
             "updates_ratio": work, "own_updates_ratio": ideal, "wall_ratio": wall,
             "ghost_efficiency": work / ideal, "implementation_efficiency": wall / work,
             "cfl_wall_ratio": rec_c["median_s"] / rec_a["median_s"],
@@ -96,10 +117,12 @@ def time_case(case, t_end, backend, threads, repeats):
             "position_difference_dx": float(np.max(np.linalg.norm(xa - xs, axis=1))) / a_scene.grid.dx}
 
 
-def run_async(quick, backends, threads, repeats, log=print):
-    """The ``async`` section: every case of :data:`ASYNC_CASES` on every backend at the largest thread count."""
+def run_async(quick, backends, threads, repeats, log=print, full=False):
+    """The ``async`` section: every case of :data:`ASYNC_CASES` (and with ``full`` of :data:`SERIES_CASES`) on every
+    backend at the largest thread count."""
+    cases = {**ASYNC_CASES, **(SERIES_CASES if full else {})}
     results = []
-    for case, (_, _, t_full, t_quick) in ASYNC_CASES.items():
+    for case, (_, _, t_full, t_quick) in cases.items():
         for backend in backends:
             k = 1 if backend == "numpy" else max(threads)
             log(f"async: {case} {backend} ({k} thread{'s' if k > 1 else ''})")
@@ -111,17 +134,17 @@ def render_async(section):
     """Two tables: per case, updates and wall time of both runs, their ratios, the agreement, and what one level
     update of the asynchronous run cost (in the step's stages, and in the bookkeeping around them); then the
     accounting (ideal, work and wall ratios, the efficiencies between them, sync at its CFL step, the one-level
-    control) and what the bookkeeping visited."""
-    lines = ["Async vs sync at the finest async step (stork); updates include ghosts (own steps in brackets); "
-             "per level update: us in the step's stages / us of bookkeeping; 'itf x': stage time per update with "
-             "ghosts, conservative over reference interfaces",
-             f"{'case':12}{'backend':8}{'levels':>12}{'sync upd':>11}{'async upd':>19}{'upd x':>7}"
+    control with its bookkeeping per update) and what the bookkeeping visited; then each stork's series."""
+    lines = ["Async vs sync at the finest async step; updates include ghosts (own steps in brackets); per level "
+             "update: us in the step's stages / us of bookkeeping; 'itf x': stage time per update with ghosts, "
+             "conservative over reference interfaces; wall times of the stepping alone",
+             f"{'case':13}{'backend':8}{'levels':>13}{'sync upd':>11}{'async upd':>20}{'upd x':>7}"
              f"{'sync s':>9}{'async s':>9}{'wall x':>8}{'dE/E0':>10}{'dx':>8}{'updates':>9}{'us/update':>15}"
              f"{'itf x':>7}"]
     for r in section["results"]:
         a = r["async"]
-        lines.append(f"{r['case']:12}{r['backend']:8}{str(r['levels']):>12}{r['sync']['updates']:>11}"
-                     f"{a['updates']:>10} ({a['own_updates']:>7}){r['updates_ratio']:>6.2f}x"
+        lines.append(f"{r['case']:13}{r['backend']:8}{str(r['levels']):>13}{r['sync']['updates']:>11}"
+                     f"{a['updates']:>11} ({a['own_updates']:>7}){r['updates_ratio']:>6.2f}x"
                      f"{r['sync']['median_s']:>9.3f}{a['median_s']:>9.3f}{r['wall_ratio']:>7.2f}x"
                      f"{r['energy_difference']:>10.2e}{r['position_difference_dx']:>8.3f}{a['level_updates']:>9}"
                      f"{a['stages_us_per_update']:>8.0f} / {a['bookkeeping_us_per_update']:<5.0f}"
@@ -129,24 +152,107 @@ def render_async(section):
     lines += ["",
               "Accounting: ideal x = sync updates / own steps, work x = with ghosts, wall x = sync at the finest step "
               "/ async; work/ideal (ghosts) and wall/work (implementation); 'cfl x': sync at its own CFL step / async; "
-              "'1-level': the async stepper on one level / sync at that step (its own cost); bookkeeping visits per "
-              "level update (ghost candidates, ghost-zone nodes) and per tick (due blocks)",
-              f"{'case':12}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"
-              f"{'cfl x':>8}{'1-level':>9}{'cand/upd':>10}{'zone/upd':>10}{'blocks/tick':>13}"]
+              "'1-level': the async stepper on one level / sync at that step (its own cost), and its bookkeeping in "
+              "us per update; bookkeeping visits per level update (ghost candidates, ghost-zone nodes) and per tick "
+              "(due blocks)",
+              f"{'case':13}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"
+              f"{'cfl x':>8}{'1-level':>9}{'us/upd':>8}{'cand/upd':>10}{'zone/upd':>10}{'blocks/tick':>13}"]
     for r in section["results"]:
         counts, n = r["async"]["counts"], max(r["async"]["level_updates"], 1)
-        lines.append(f"{r['case']:12}{r['backend']:8}{r['own_updates_ratio']:>8.2f}x{r['updates_ratio']:>7.2f}x"
+        lines.append(f"{r['case']:13}{r['backend']:8}{r['own_updates_ratio']:>8.2f}x{r['updates_ratio']:>7.2f}x"
                      f"{r['wall_ratio']:>7.2f}x{r['ghost_efficiency']:>9.2f}{r['implementation_efficiency']:>9.2f}"
                      f"{r['cfl_wall_ratio']:>7.2f}x{r['one_level_overhead']:>8.2f}x"
+                     f"{r['one_level'].get('bookkeeping_us_per_update', float('nan')):>8.0f}"
                      f"{counts['ghost_candidates'] / n:>10.0f}{counts['zone_nodes'] / n:>10.0f}"
                      f"{counts['due_blocks'] / max(counts['ticks'], 1):>13.0f}")
-    lines += ["", "Over particle count (the series of each stork): wall x, and where async starts to pay (wall x >= 1)"]
-    for backend in sorted({r["backend"] for r in section["results"]}):
-        for dim in ("2d", "3d"):
-            series = sorted((r["particles"], r["wall_ratio"]) for r in section["results"]
-                            if r["backend"] == backend and dim in r["case"])
-            if series:
-                pays = next((f"from {n:,} particles" for n, wall in series if wall >= 1.0), "not in this series")
-                points = ", ".join(f"{n:,}: {wall:.2f}x" for n, wall in series)
-                lines.append(f"  stork {dim} {backend}: {points}; pays {pays}")
+    lines += ["", "Over particle count (the series of each stork): wall x (work x), and where async starts to pay "
+              "(wall x >= 1)"]
+    for (dim, backend), rows in stork_series(section).items():
+        pays = next((f"from {r['particles']:,} particles" for r in rows if r["wall_ratio"] >= 1.0),
+                    "not in this series")
+        points = ", ".join(f"{r['particles']:,}: {r['wall_ratio']:.2f}x ({r['updates_ratio']:.2f}x)" for r in rows)
+        lines.append(f"  stork {dim}D {backend}: {points}; pays {pays}")
     return "\n".join(lines)
+
+
+def stork_series(section):
+    """The stork results of ``section`` by ``(dimension, backend)``, each in order of particle count."""
+    series = {}
+    for r in section["results"]:
+        if r["case"].startswith("stork"):
+            series.setdefault((int(r["case"][5]), r["backend"]), []).append(r)
+    return {key: sorted(rows, key=lambda r: r["particles"]) for key, rows in sorted(series.items())}
+
+
+def plot_async(section, path):
+    """Write the stork series as a PNG: per dimension, the ideal, work and wall ratios (and sync at its own CFL step
+    over async) against the particle count, with the one-level control; where the wall ratio meets the work ratio,
+    the implementation costs nothing more than its particles' work."""
+    import matplotlib
+    import matplotlib.ticker
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = stork_series(section)
+    dims = sorted({dim for dim, _ in series})
+    fig, axes = plt.subplots(1, max(len(dims), 1), figsize=(5.5 * max(len(dims), 1), 4), squeeze=False)
+    for ax, dim in zip(axes[0], dims):
+        for (d, backend), rows in series.items():
+            if d != dim:
+                continue
+            n = [r["particles"] for r in rows]
+            for key, label, style in (("own_updates_ratio", "ideal (own steps)", "k--"),
+                                      ("updates_ratio", "work (ghosts included)", "b-s"),
+                                      ("wall_ratio", "wall: sync at the finest step / async", "r-o"),
+                                      ("cfl_wall_ratio", "wall: sync at its CFL step / async", "m-^")):
+                ax.semilogx(n, [r[key] for r in rows], style, label=f"{label}, {backend}")
+            ax.semilogx(n, [1.0 / r["one_level_overhead"] for r in rows], "g:x", label=f"sync / one-level, {backend}")
+        ax.axhline(1.0, color="grey", lw=0.8)
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())  # decades only: the minor labels collide
+        ax.set_xlabel("particles")
+        ax.set_ylabel("ratio (higher: async cheaper)")
+        ax.set_title(f"stork {dim}D, {rows[0]['threads']} thread(s)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_snow_slope(path, backend="numba", times=(0.01, 0.1, 0.2, 0.3)):
+    """Write the snow slope (examples/snow_slope2d.toml) run asynchronously as a PNG: the particles at ``times``,
+    coloured by their level (log2 of their last step in ticks), turned from the slope's frame to the world's (the
+    slope 30 degrees down to the right); each panel says the update and own-update ratios so far."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..scene.builder import Scene
+    from ..scene.factories import EXAMPLES
+
+    sim = Simulation(Scene.from_toml(EXAMPLES / "snow_slope2d.toml"), backend=backend)
+    angle = np.radians(-30.0)
+    turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    levels = range(sim.scene.time.levels + 1)
+    fig, axes = plt.subplots(1, len(times), figsize=(3.0 * len(times) + 1.0, 2.4), squeeze=False,
+                             layout="constrained")
+    for ax, t in zip(axes[0], times):
+        if t > sim.time:
+            sim.run(t_end=t)
+        x = sim.x @ turn.T
+        shown = ax.scatter(x[:, 0], x[:, 1], c=sim.particles.level, s=0.4, cmap="viridis", vmin=min(levels),
+                           vmax=max(levels))
+        slope = np.array([[0.0, 0.1], [1.0, 0.1]]) @ turn.T
+        ax.plot(slope[:, 0], slope[:, 1], "k-", lw=1)
+        summary = sim.stepper.summary(sim.state) if sim.step_count else None
+        ratios = "" if summary is None else (f"\nupdates {summary['update_ratio']:.2f}x fewer "
+                                             f"(own steps {summary['own_update_ratio']:.2f}x)")
+        ax.set_title(f"t = {sim.time:.2f} s{ratios}", fontsize=8)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(shown, ax=axes[0].tolist(), label="level (log2 of the step in ticks)", shrink=0.9)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -8,8 +8,9 @@ description of :mod:`mpmref.bench`).
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
-from .asynchronous import render_async, run_async
+from .asynchronous import plot_async, render_async, run_async
 from .busy import render_busy, run_busy
 from .cpic import render_cpic, run_cpic
 from .domain import render_domain, run_domain
@@ -78,7 +79,11 @@ def _peer(o, log):
 
 
 def _async(o, log):
-    return run_async(o.quick, o.backends, o.threads, o.repeats, log)
+    section = run_async(o.quick, o.backends, o.threads, o.repeats, log, full=o.full)
+    if o.plot:  # the plot's own name when the section runs alone, else beside the scaling plot
+        path = Path(o.plot)
+        plot_async(section, path if o.sections == ("async",) else path.with_name(f"{path.stem}_async{path.suffix}"))
+    return section
 
 
 def _busy(o, log):

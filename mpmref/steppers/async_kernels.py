@@ -15,7 +15,16 @@ call loops over every field whatever its shape and dtype.
 """
 
 import numpy as np
-from numba import literal_unroll, njit
+from numba import literal_unroll, njit, prange
+
+#: particles per task of the parallel passes over the particles at a step boundary
+CHUNK = 512
+
+
+@njit(cache=True)
+def chunks(n):
+    """The number of :data:`CHUNK`-sized tasks covering ``n`` particles."""
+    return (n + CHUNK - 1) // CHUNK
 
 
 def row_views(arrays):
@@ -35,9 +44,19 @@ def move_rows(pairs, src_idx, dst_idx):
                 dst[j, c] = src[i, c]
 
 
+@njit(cache=True)
+def gather_ghosts(level_pairs, shadow_pairs, level_ghosts, shadow_ghosts, start):
+    """A level update's ghosts copied into the rows from ``start`` on, in one call: the rows ``level_ghosts`` through
+    ``level_pairs`` (every field, from the particles), then the rows ``shadow_ghosts`` through ``shadow_pairs`` (the
+    shadows' fields, the others from the particles): :func:`move_rows` twice."""
+    move_rows(level_pairs, level_ghosts, span(start, level_ghosts.shape[0]))
+    move_rows(shadow_pairs, shadow_ghosts, span(start + level_ghosts.shape[0], shadow_ghosts.shape[0]))
+
+
+@njit(cache=True)
 def span(start, n):
     """The rows ``start .. start + n - 1`` of a group, as an index array for :func:`move_rows`."""
-    return np.arange(start, start + n, dtype=np.int64)
+    return np.arange(start, start + n)
 
 
 @njit(cache=True)
@@ -206,22 +225,22 @@ def base_node(x, origin, dx, shift, node_shape, base, a):
     return min(max(b, 0), node_shape[a] - 1)
 
 
-@njit(cache=True)
-def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, t, base, owner, shadow_base,
-                   shadow_t):
-    """At a step boundary (tick ``t``) of the particles ``idx``: their base nodes ``base``, owner blocks
-    ``owner`` (C order of the block lattice ``blocks_per_axis``), and their shadows' base node and tick."""
-    d = x.shape[1]
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        flat = 0
-        for a in range(d):
-            b = base_node(x[p, a], origin, dx, shift, node_shape, base, a)
-            base[p, a] = b
-            shadow_base[p, a] = b
-            flat = flat * blocks_per_axis[a] + b // block
-        owner[p] = flat
-        shadow_t[p] = t
+@njit(parallel=True, cache=True)
+def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner):
+    """At a step boundary of the particles ``idx``: their base nodes ``base`` and owner blocks ``owner`` (C order
+    of the block lattice ``blocks_per_axis``), in parallel. ``block`` (cells per block edge) is a power of two, so
+    a node's block coordinate is a shift of its index."""
+    d, n = x.shape[1], idx.shape[0]
+    bits = level_of(block)
+    for c in prange(chunks(n)):
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p = idx[k]
+            flat = 0
+            for a in range(d):
+                b = base_node(x[p, a], origin, dx, shift, node_shape, base, a)
+                base[p, a] = b
+                flat = flat * blocks_per_axis[a] + (b >> bits)
+            owner[p] = flat
 
 
 @njit(cache=True)
@@ -239,20 +258,27 @@ def shadow_nodes(x, idx, origin, dx, shift, node_shape, end, shadow_base, shadow
     return drift
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def particle_steps(idx, block_dt, owner, alignment, limit, dt_p):
     """Each particle's step at its boundary: its block's step, capped by the tick's ``alignment`` and by the
-    largest power of two within its own ``limit`` (ticks, >= 1); returns the set of steps taken, as the bits
-    of an integer (steps are powers of two)."""
-    steps = 0
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        own = np.int64(1)
-        while 2 * own <= limit[k]:
-            own *= 2
-        dt = min(block_dt[owner[p]], alignment, own)
-        dt_p[p] = dt
-        steps |= dt
+    largest power of two within its own ``limit`` (ticks, >= 1), in parallel; returns the set of steps taken, as
+    the bits of an integer (steps are powers of two)."""
+    n = idx.shape[0]
+    taken = np.zeros(chunks(n), np.int64)
+    for c in prange(chunks(n)):
+        steps = np.int64(0)
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p = idx[k]
+            own = np.int64(1)
+            while 2 * own <= limit[k]:
+                own *= 2
+            dt = min(block_dt[owner[p]], alignment, own)
+            dt_p[p] = dt
+            steps |= dt
+        taken[c] = steps
+    steps = np.int64(0)
+    for c in range(taken.shape[0]):
+        steps |= taken[c]
     return steps
 
 
@@ -262,7 +288,7 @@ def relevel_one(dt, limit, t):
     while the double fits and is aligned (``t mod 2 dt = 0``)."""
     while dt > limit:
         dt //= 2
-    while 2 * dt <= limit and t % (2 * dt) == 0:
+    while 2 * dt <= limit and t & (2 * dt - 1) == 0:  # t mod 2 dt = 0 (steps are powers of two)
         dt *= 2
     return dt
 
@@ -310,15 +336,18 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
     Taking instead every particle whose stencil touches the block's nodes was tried: it cost 15 % of the
     stork's savings and did not reduce the error of colliding balls (docs/async.md), so the reference rule
     stays."""
+    owning = np.empty(min(idx.shape[0], block_dt.shape[0]), np.int64)  # the blocks owning some, once each
+    n_owning = 0
     for k in range(idx.shape[0]):
         b = owner[idx[k]]
+        if block_limit[b] == np.inf:
+            owning[n_owning] = b
+            n_owning += 1
         block_limit[b] = min(block_limit[b], limit[k])
     coarsest = 0
-    for k in range(idx.shape[0]):
-        b = owner[idx[k]]
-        if block_limit[b] == -np.inf:
-            continue  # visited already
-        if t % block_dt[b] == 0:
+    for j in range(n_owning):
+        b = owning[j]
+        if t & (block_dt[b] - 1) == 0:  # due: t mod dt = 0
             block_dt[b] = relevel_one(block_dt[b], np.int64(min(block_limit[b], max_units)), t)
         coarsest = max(coarsest, block_dt[b])
         block_limit[b] = -np.inf  # owns some: not an empty block below
@@ -330,8 +359,8 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
         if block_limit[b] == -np.inf:
             continue
         block_dt[b] = relevel_one(block_dt[b], coarsest, t)
-    for k in range(idx.shape[0]):
-        block_limit[owner[idx[k]]] = np.inf
+    for j in range(n_owning):
+        block_limit[owning[j]] = np.inf
     # the due blocks, sorted by their new steps (all still at most ``alignment``)
     top = level_of(alignment)
     count = np.zeros(top + 2, np.int64)
@@ -349,34 +378,48 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
     return due
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, max_units):
     r"""Step limit in ticks of the particles ``idx`` (Fang et al. 2018's rule; module docstring of
     :mod:`mpmref.steppers.asynchronous`):
     :math:`\min(\lfloor \min(S_p, A_p) \rfloor, 2^{levels})` with
     :math:`S_p = s \min(\Delta x / (c_p + |v_p|), t_{max}) / \Delta t_u` and
     :math:`A_p = a\, \Delta x / (|v_p|\, \Delta t_u)` (no advection limit at rest). ``wave_speed`` holds
-    :math:`c_p` of each particle of ``idx``; returns float64 (m,)."""
-    out = np.empty(idx.shape[0])
-    for k in range(idx.shape[0]):
-        p = idx[k]
-        speed2 = 0.0
-        for a in range(v.shape[1]):
-            speed2 += np.float64(v[p, a]) ** 2
-        speed = np.sqrt(speed2)
-        limit = strength * min(dx / max(wave_speed[k] + speed, 1e-300), max_step_s) / tick
-        if speed > 0:
-            limit = min(limit, advection * dx / (max(speed, 1e-300) * tick))
-        out[k] = min(np.floor(limit), max_units)
+    :math:`c_p` of each particle of ``idx``; returns float64 (m,). In parallel, one division per limit (the
+    constant factors taken out once)."""
+    n = idx.shape[0]
+    out = np.empty(n)
+    strength_ticks, cap = strength * dx / tick, strength * max_step_s / tick
+    advection_ticks = advection * dx / tick
+    for c in prange(chunks(n)):
+        for k in range(c * CHUNK, min(n, (c + 1) * CHUNK)):
+            p = idx[k]
+            speed2 = 0.0
+            for a in range(v.shape[1]):
+                speed2 += np.float64(v[p, a]) ** 2
+            speed = np.sqrt(speed2)
+            limit = min(strength_ticks / max(wave_speed[k] + speed, 1e-300), cap)
+            if speed > 0:
+                limit = min(limit, advection_ticks / speed)
+            out[k] = min(np.floor(limit), max_units)
     return out
 
 
 @njit(cache=True)
-def add_rows(dst, idx, src, start):
-    """``dst[idx[k]] += src[start + k]`` (rows of 2D arrays): a particle's register takes an update's impulse."""
-    for k in range(idx.shape[0]):
-        for c in range(dst.shape[1]):
-            dst[idx[k], c] += src[start + k, c]
+def add_impulses(dP, dL, first, n_active, shadow_ghosts, first_shadow, impulse, moment):
+    """A level update's impulses and moments (``impulse``, ``moment``: one row per row of the update) added to the
+    registers ``dP``, ``dL`` of its active particles (rows ``first .. first + n_active - 1``, the update's first
+    rows) and of its shadow ghosts' particles ``shadow_ghosts`` (the update's rows from ``first_shadow`` on)."""
+    for k in range(n_active):
+        for c in range(dP.shape[1]):
+            dP[first + k, c] += impulse[k, c]
+        for c in range(dL.shape[1]):
+            dL[first + k, c] += moment[k, c]
+    for k in range(shadow_ghosts.shape[0]):
+        for c in range(dP.shape[1]):
+            dP[shadow_ghosts[k], c] += impulse[first_shadow + k, c]
+        for c in range(dL.shape[1]):
+            dL[shadow_ghosts[k], c] += moment[first_shadow + k, c]
 
 
 @njit(cache=True)
@@ -424,3 +467,98 @@ def apply_registers_at(idx, x, v, C, mass, dP, dL, inertia):
             dP[p, a] = 0.0
         for a in range(dL.shape[1]):
             dL[p, a] = 0.0
+
+
+@njit(cache=True)
+def misplaced_rows(level, n_due, top):
+    """The rows ``0 .. n_due - 1``, whose particles have steps ``2^level`` (``level`` up to ``top``), ordered by step
+    with the fewest moves: ``(src, dst, level_start)``, where the particles of step ``2^k`` are to occupy rows
+    ``level_start[k] .. level_start[k + 1] - 1`` and the particle in row ``src[i]`` moves to row ``dst[i]``.
+
+    Only the particles outside their step's run move: the ``i``-th of them with step ``2^k`` (in row order) takes
+    the ``i``-th row of the run of ``2^k`` held by a particle of another step (the moves are a permutation of
+    those rows, :func:`permute_rows`). A prefix already ordered by step gives no moves."""
+    level_start = np.zeros(top + 2, np.int64)
+    for r in range(n_due):
+        level_start[level[r] + 1] += 1
+    for k in range(top + 1):
+        level_start[k + 1] += level_start[k]
+    # rows of run k held by others ("holes") and particles of step k outside run k ("movers"): as many of each
+    holes = np.zeros(top + 2, np.int64)
+    run = 0
+    for r in range(n_due):
+        while r >= level_start[run + 1]:
+            run += 1
+        if level[r] != run:
+            holes[run + 1] += 1
+    for k in range(top + 1):
+        holes[k + 1] += holes[k]
+    m = holes[top + 1]
+    src = np.empty(m, np.int64)
+    dst = np.empty(m, np.int64)
+    next_hole = holes[:-1].copy()
+    next_mover = holes[:-1].copy()
+    run = 0
+    for r in range(n_due):
+        while r >= level_start[run + 1]:
+            run += 1
+        k = level[r]
+        if k != run:
+            dst[next_hole[run]] = r  # a hole of run ``run``, in row order
+            next_hole[run] += 1
+            src[next_mover[k]] = r  # a mover into run ``k``, in row order: paired with run k's holes
+            next_mover[k] += 1
+    return src, dst, level_start
+
+
+@njit(cache=True)
+def permute_rows(views, src, dst):
+    """``a[dst[i]] = a[src[i]]`` at once for every row view ``a`` of ``views`` (``src`` and ``dst`` the same set of
+    rows, :func:`misplaced_rows`), through a copy of the rows that move."""
+    for a in literal_unroll(views):
+        moving = np.empty((src.shape[0], a.shape[1]), a.dtype)
+        for i in range(src.shape[0]):
+            for c in range(a.shape[1]):
+                moving[i, c] = a[src[i], c]
+        for i in range(src.shape[0]):
+            for c in range(a.shape[1]):
+                a[dst[i], c] = moving[i, c]
+
+
+@njit(cache=True)
+def same_ids(before, after):
+    """Whether ``after`` holds exactly the ids of ``before``, each once (ids are non-negative integers): one pass
+    over each and a mark per id, what the census of every synchronised time costs when the rows were reordered."""
+    if before.shape[0] != after.shape[0]:
+        return False
+    top = 0
+    for k in range(before.shape[0]):
+        top = max(top, before[k])
+    seen = np.zeros(top + 1, np.int8)
+    for k in range(before.shape[0]):
+        seen[before[k]] = 1
+    for k in range(after.shape[0]):
+        i = after[k]
+        if i < 0 or i > top or seen[i] != 1:
+            return False
+        seen[i] = 2
+    return True
+
+
+@njit(cache=True)
+def boundary_steps(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, limit, t, alignment, room,
+                   max_units, block_dt, order, level_start, block_limit, base, owner, dt_p):
+    """Everything the particles ``idx`` at their step boundary (tick ``t``, step limits ``limit``) decide, in one
+    call: their base nodes and blocks (:func:`boundary_nodes`), the blocks due at ``t`` relevelled
+    (:func:`relevel_due`, with ``alignment`` and ``max_units``), and each particle's step, capped at ``room``
+    (:func:`particle_steps`). Returns ``(steps taken as bits, due blocks)``."""
+    boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner)
+    due = relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, max_units, block_limit)
+    return particle_steps(idx, block_dt, owner, room, limit, dt_p), due
+
+
+@njit(cache=True)
+def levels_of(dt_p, n, level):
+    """``level[r] = log2 dt_p[r]`` for the rows ``0 .. n - 1`` (the particles' levels, from their steps)."""
+    for r in range(n):
+        level[r] = level_of(dt_p[r])

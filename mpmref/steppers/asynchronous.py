@@ -54,38 +54,46 @@ import numpy as np
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
-from ..state import CONSTANT_FIELDS, EVOLVING_FIELDS, Particles, State, fields_with_role
+from ..state import EVOLVING_FIELDS, State
 from .async_kernels import (
-    add_rows,
+    add_impulses,
     apply_registers_at,
     blocks_by_level,
-    boundary_nodes,
+    boundary_steps,
     bucket_by_block,
     bucket_zone_members,
+    gather_ghosts,
+    levels_of,
+    misplaced_rows,
     move_rows,
-    particle_steps,
-    relevel_due,
+    permute_rows,
     row_views,
+    same_ids,
     shadow_nodes,
     span,
     step_limits,
     zone,
 )
+from .async_store import StorePool
 from .limits import particle_speeds, wave_speeds
 from .pipeline import NO_HOOKS, LevelExchange, substep
 
-#: the fields an interval writes: those a step changes and the particles' levels (the others are shared with the
-#: state it starts from); and the fields a step reads but does not change (mpmref.state's roles)
-WRITTEN_FIELDS = fields_with_role("evolving", "stepper")
+#: the classes of a level update's rows, in their order: its own particles, the level ghosts, the shadow ghosts
+CLASSES = np.array([ACTIVE, FINER, COARSER], dtype=np.int64)
+#: no rows
+NO_ROWS = np.empty(0, dtype=np.int64)
 #: the longest step a particle may take whatever its speed (the reference code's cap)
 MAX_STEP_S = 0.1
-#: what :attr:`AsynchronousStepper.counts` counts: ticks with work; particles at a step
-#: boundary (their clocks, limits and blocks); blocks due for relevelling; candidate ghosts examined (the
+#: what :attr:`WorkRecord.counts` counts: ticks with work; particles at a step
+#: boundary (their limits, blocks and steps); blocks due for relevelling; candidate ghosts examined (the
 #: particles of the blocks near an update); nodes of the updates' ghost zones (their bounding boxes); rows of
-#: the updates' groups (particle updates, ghosts included); intervals, and the particles of each (the only
-#: work over every particle: the interval's set-up, the registers' last application and the census)
+#: the updates (particle updates, ghosts included); intervals, and the particles of each (the only
+#: work over every particle: the copy into the store, the registers' last application and the census); rows
+#: copied one by one (ghosts into spare rows, the shadows they propose and commit), rows copied as runs (the state's
+#: particles into a store, a cohort's shadows kept at its step's start) and rows moved to keep the particles
+#: ordered by step (:meth:`AsyncInterval.arrange`)
 COUNTS = ("ticks", "boundary_particles", "due_blocks", "ghost_candidates", "zone_nodes",
-          "group_rows", "intervals", "interval_particles")
+          "group_rows", "intervals", "interval_particles", "ghost_rows_copied", "run_rows_copied", "moved_rows")
 
 
 @dataclass(frozen=True)
@@ -126,11 +134,17 @@ class AsyncSchedule:
     def of(cls, state):
         """The schedule held in ``state.stepper``."""
         held = state.stepper
-        return cls(np.asarray(held["block_dt"]), *(f.type(held[f.name]) for f in fields(cls)[1:]))
+        return cls(np.asarray(held["block_dt"]), int(held["updates"]), int(held["own_updates"]),
+                   float(held["sync_updates"]), int(held["stale_shadows"]), int(held["finest_dt"]),
+                   int(held["sync_times"]))
 
     def arrays(self):
         """The fields as arrays, for :attr:`mpmref.state.State.stepper`."""
-        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
+        return {name: np.asarray(getattr(self, name)) for name in SCHEDULE_FIELDS}
+
+
+#: the fields of :class:`AsyncSchedule`, in order
+SCHEDULE_FIELDS = tuple(f.name for f in fields(AsyncSchedule))
 
 
 @dataclass(frozen=True)
@@ -174,13 +188,22 @@ class WorkRecord:
     trace: list | None = None
 
     def __add__(self, other):
-        trace = None if self.trace is None and other.trace is None else (self.trace or []) + (other.trace or [])
-        return WorkRecord({k: self.counts[k] + other.counts[k] for k in COUNTS},
-                          self.level_updates + other.level_updates,
-                          self.ghost_level_updates + other.ghost_level_updates,
-                          self.stage_seconds + other.stage_seconds,
-                          self.ghost_stage_seconds + other.ghost_stage_seconds,
-                          self.seconds + other.seconds, trace)
+        total = WorkRecord(dict(self.counts), self.level_updates, self.ghost_level_updates, self.stage_seconds,
+                           self.ghost_stage_seconds, self.seconds, None if self.trace is None else list(self.trace))
+        total.add(other)
+        return total
+
+    def add(self, other):
+        """Add ``other``'s work to this record, in place."""
+        for k, count in other.counts.items():
+            self.counts[k] += count
+        self.level_updates += other.level_updates
+        self.ghost_level_updates += other.ghost_level_updates
+        self.stage_seconds += other.stage_seconds
+        self.ghost_stage_seconds += other.ghost_stage_seconds
+        self.seconds += other.seconds
+        if other.trace is not None:
+            self.trace = (self.trace or []) + other.trace
 
 
 def alignment(t, cap):
@@ -208,42 +231,58 @@ def relevel(dt, limit, t):
 
 
 class _Cohort:
-    """The particles ``idx`` (ascending) that began a step of ``D`` ticks at the same tick, and end it together at
-    ``end``."""
+    """The particles in rows ``start .. stop - 1`` of the interval's arrays, which began a step of ``D`` ticks at
+    the same tick and end it together at ``end``."""
 
-    __slots__ = ("D", "end", "idx", "_buckets")
+    __slots__ = ("D", "end", "start", "stop", "_buckets")
 
-    def __init__(self, D, end, idx):
-        self.D, self.end, self.idx, self._buckets = D, end, idx, None
+    def __init__(self, D, end, start, stop):
+        self.D, self.end, self.start, self.stop, self._buckets = D, end, start, stop, None
+
+    @property
+    def size(self):
+        return self.stop - self.start
+
+    def rows(self):
+        """The cohort's rows, as an index array."""
+        return np.arange(self.start, self.stop, dtype=np.int64)
 
     def buckets(self, owner):
         """The particles bucketed by their block ``owner[p]`` (:func:`~.async_kernels.bucket_by_block`), for the
         ghost searches of the updates that run while they are at this tick or mid-step; built at the first search
-        (their blocks do not change before their step ends)."""
+        (their blocks and rows do not change before their step ends)."""
         if self._buckets is None:
-            self._buckets = bucket_by_block(self.idx, owner)
+            self._buckets = bucket_by_block(self.rows(), owner)
         return self._buckets
 
 
 class AsyncInterval:
-    """The working state of one :meth:`AsynchronousStepper.advance`: particles with their own clocks.
+    """The working state of one :meth:`AsynchronousStepper.advance`: particles with their own clocks, stored in the
+    order of their steps.
 
-    Three stores hold the particles: ``P`` (the authoritative particles, every field), ``shadow`` (each
-    particle's shadow) and ``proposed`` (the shadows proposed by the updates of the current tick, committed
-    at its end); the shadow stores hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`), the
-    others are read from ``P``. Every update copies its group's rows out of them and its results back with the
-    compiled row copies of :mod:`.async_kernels`, so an update costs time in proportion to its group, not to
-    the particle count.
+    **Storage that follows the schedule.** The particles live in the rows of a :class:`~.async_store.RowStore`
+    ordered by their current step, finest first (``P``, every field; the state the interval starts from is copied
+    there once, at its first tick with more than one step). A particle's step changes only at its step boundary,
+    and the particles at a boundary at tick ``t`` are those whose step divides ``t``: the finest levels, a prefix of
+    the rows. At each tick the prefix is put back in order of the new steps, moving only the rows out of their
+    level's run (:func:`~.async_kernels.misplaced_rows`), so each level's particles are one run of rows, a
+    **cohort** (:class:`_Cohort`: the particles that began a step of the same length at the same tick, and end it
+    together; at most one per level is under way). A level update advances its cohort's rows where they are and
+    copies only its ghosts into the store's spare rows (:meth:`group`); the stages run on those rows in place
+    (:func:`~.pipeline.substep` with ``rows``). The shadows (each particle's state at its step's start, where a finer
+    update reads it) live in ``shadow``, the shadows proposed by the updates of the current tick in ``proposed``,
+    rows for rows; both hold only the fields a step changes (:data:`mpmref.state.EVOLVING_FIELDS`).
 
-    The clocks are kept by **cohort** (:class:`_Cohort`): the particles that began a step of the same length at
-    the same tick end it at the same tick, so the particles due at a tick are the cohorts that end there, and
-    at most one cohort per level is under way. A cohort is bucketed by block when an update first looks among
-    its particles for ghosts, so an update looks only in the blocks near its own particles, and it keeps a
-    shadow only when finer steps begin at its tick (no other update runs before its step ends); the blocks are
-    kept ordered by step, so a tick relevels only the blocks due at it. The work over every particle happens
-    once per interval (its set-up, the registers' last application and the census), when every particle has
-    stepped at least once: a tick and an update cost what their own particles, ghosts and blocks cost
-    (:data:`COUNTS`).
+    When every particle takes the same step at the interval's first tick, the interval is that one update with no
+    ghost: it is the synchronous step (:func:`~.pipeline.substep` of the state's particles, the backend's sort of
+    the last step reused), and nothing is copied.
+
+    A cohort is bucketed by block when an update first looks among its particles for ghosts, so an update looks
+    only in the blocks near its own particles, and it keeps a shadow only when finer steps begin at its tick (no
+    other update runs before its step ends); the blocks are kept ordered by step, so a tick relevels only the
+    blocks due at it. The work over every particle happens once per interval (the copy into the store, the
+    registers' last application and the census): a tick and an update cost what their own particles, ghosts and
+    blocks cost (:data:`COUNTS`).
 
     With an end tick ``deadline``, no particle steps past it: each step is capped at the largest power of two that
     fits before it, so the interval ends there at the latest; the finest step and the particles' levels it
@@ -257,26 +296,16 @@ class AsyncInterval:
         self.state = state
         self.deadline = deadline
         self.work = WorkRecord(trace=[] if stepper.record_trace else None)
-        # the fields the interval writes are copied (the state it starts from stays as it was); the others (mass,
-        # volume, material, id) are shared with it, as a synchronous step's result shares them with its input
-        self.P = state.particles.with_(**{k: a.copy() for k, a in state.particles.arrays().items()
-                                          if k in WRITTEN_FIELDS})
-        n = self.P.n
+        self.P = state.particles  # the state's particles until the store is taken (:meth:`arrange`)
+        self.store = None
+        n = self.n = self.P.n
         self.t0 = self.t = state.tick
-        self.t_p = np.full(n, self.t, dtype=np.int64)  # each particle's clock
-        self.dt_p = np.zeros(n, dtype=np.int64)  # its current step (ticks)
-        self.base = np.zeros((n, self.P.dim), dtype=np.int64)  # its stencil base node at its last boundary
-        self.owner = np.zeros(n, dtype=np.int64)  # the block of that node
-        self.cohorts = [_Cohort(0, self.t, np.arange(n, dtype=np.int64))]  # all due at the first tick
-        self.names = tuple(self.P.arrays())
-        self.evolving = tuple(k for k in self.names if k in EVOLVING_FIELDS)
-        # the fields a step reads but does not change (id and level are the stepper's, not the step's)
-        self.constant = tuple(k for k in self.names if k in CONSTANT_FIELDS)
-        self.shadow = stepper.store(self.P, self.evolving, "shadow")  # a cohort's rows filled as it begins
-        self.shadow_t = np.full(n, self.t, dtype=np.int64)
-        self.shadow_base = np.zeros((n, self.P.dim), dtype=np.int64)  # base node of each shadow
+        # each particle's current step (ticks), stencil base node and block at its last boundary, and its
+        # shadow's base node and tick: rows of P, every row written at the first tick
+        held = stepper.bookkeeping(n, self.P.dim)
+        self.dt_p, self.base, self.owner, self.shadow_base, self.shadow_t = held
+        self.cohorts = [_Cohort(0, self.t, 0, n)]  # all due at the first tick
         self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
-        self.proposed = stepper.store(self.P, self.evolving, "proposed")
         self.schedule = AsyncSchedule.of(state)
         self.block_dt = self.schedule.block_dt.copy()
         self.order, self.level_start = blocks_by_level(self.block_dt, stepper.levels)
@@ -284,72 +313,156 @@ class AsyncInterval:
         self.own_updates = 0
         self.stale = 0
         self.finest = stepper.max_units
-        arrays = self.P.arrays()
-        self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
-                     "proposed": row_views(self.proposed.values()),
-                     "P_constant": row_views(arrays[k] for k in self.constant)}
-        if stepper.conservative:  # impulse refluxing: each particle's received impulse and its moment
-            self.dP = np.zeros((n, self.P.dim))
-            self.dL = np.zeros((n, 1 if self.P.dim == 2 else 3))
+        self.rows = None  # row views of the stores, once the store is taken (:meth:`arrange`)
+        self._registers = None  # impulse refluxing's registers (dP, dL), allocated at their first use
         self.kicked = False  # whether an update of this interval has added to a register
         self.work.counts["intervals"] += 1
         self.work.counts["interval_particles"] += n
         if stepper.ledger is not None:
             stepper.ledger.begin()
 
+    @property
+    def dP(self):
+        """Each particle's register of received impulse (n, d), zero until an update adds to it."""
+        return self.registers()[0]
+
+    @property
+    def dL(self):
+        """Each particle's register of the moment of its received impulse about the origin: (n, 1) in 2D, (n, 3) in
+        3D."""
+        return self.registers()[1]
+
+    def registers(self):
+        """``(dP, dL)``, allocated (zero) at the first use: an interval with no ghost never needs them."""
+        if self._registers is None:
+            d = self.P.dim
+            self._registers = (np.zeros((self.n, d)), np.zeros((self.n, 1 if d == 2 else 3)))
+        return self._registers
+
     def synchronised(self):
         return self.t > self.t0 and all(c.end == self.t for c in self.cohorts)
 
     def tick_once(self):
-        """Everything that happens at the current tick: re-levelling, then each due level, coarse first."""
-        t, s, P = self.t, self.s, self.P
+        """Everything that happens at the current tick: the particles due (a prefix of the rows) re-level, the prefix
+        is put in order of their new steps, then each due level updates, coarse first."""
+        t, s = self.t, self.s
         due = [c for c in self.cohorts if c.end == t]
         self.cohorts = [c for c in self.cohorts if c.end != t]  # mid-step: their shadows may be ghosts
-        at = due[0].idx if len(due) == 1 else np.sort(np.concatenate([c.idx for c in due]))
+        n_due = sum(c.size for c in due)
+        at = np.arange(n_due, dtype=np.int64)
         self.close_registers(at)
-        boundary_nodes(P.x, at, *s.lattice, t, self.base, self.owner, self.shadow_base, self.shadow_t)
+        P = self.P
         limit = s.particle_limits(P, at)
-        if (limit < 1).any():
+        if limit.min() < 1:
             bad = int(np.argmin(limit))
             raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
         align = alignment(t, s.max_units)
-        self.work.counts["due_blocks"] += relevel_due(self.block_dt, self.order, self.level_start, self.owner, at,
-                                                      limit, t, align, s.max_units, s.block_limit)
         room = align if self.deadline is None else min(align, within(self.deadline - t))
-        taken = particle_steps(at, self.block_dt, self.owner, room, limit, self.dt_p)
-        chosen = None  # the steps the deadline shortened, as the level rule chose them
+        taken, due_blocks = boundary_steps(P.x, at, *s.lattice, limit, t, align, room, s.max_units, self.block_dt,
+                                           self.order, self.level_start, s.block_limit, self.base, self.owner,
+                                           self.dt_p)
+        self.work.counts["due_blocks"] += due_blocks
+        chosen = None  # the levels the rule chose, where the deadline shortened the steps
         if room < align:
             own = np.exp2(np.floor(np.log2(limit))).astype(np.int64)
-            chosen = np.minimum(self.block_dt[self.owner[at]], own)  # the ticks off alignment are the deadline's
-            self.finest = min(self.finest, int(chosen.min()))
+            chosen = np.log2(np.minimum(self.block_dt[self.owner[at]], own)).astype(np.int64)
+            self.finest = min(self.finest, 1 << int(chosen.min()))
         else:
             self.finest = min(self.finest, taken & -taken)
         self.work.counts["ticks"] += 1
-        self.work.counts["boundary_particles"] += at.size
-        steps = self.dt_p[at]
-        started = [_Cohort(D, t + D, at[steps == D])
-                   for D in [1 << k for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]]  # coarse first
+        self.work.counts["boundary_particles"] += n_due
+        if t == self.t0 and taken & (taken - 1) == 0:  # one step for every particle: the synchronous step
+            self.synchronous_step(taken, chosen)
+            return
+        started = self.arrange(n_due, taken, chosen)  # coarse first
         for cohort in started:
             # its shadow (the state at its step's start) can be a ghost only of a finer update, and every finer
             # update before its step ends is of particles that take a finer step now
             if taken & (cohort.D - 1):
-                move_rows(self.pairs("P", "shadow"), cohort.idx, cohort.idx)
+                self.save_shadows(cohort)
         mid = list(self.cohorts)  # the cohorts mid-step, whose shadows may be ghosts; each update adds its own
         proposals = []  # (shadow indices, end tick) of each update, coarse first
         for k, cohort in enumerate(started):
-            proposals.append(self.update_level(cohort.D, cohort.idx, started[k + 1:], mid))
+            proposals.append(self.update_level(cohort, started[k + 1:], mid))
             mid.append(cohort)
         self.cohorts += started
-        if chosen is not None:  # the particles' levels are those the rule chose, not the shortened steps
-            self.P.level[at] = np.log2(chosen).astype(np.int64)
         self.refresh_shadows(proposals)
         self.t = min(c.end for c in self.cohorts)
 
+    def save_shadows(self, cohort):
+        """The shadows of the ``cohort``'s particles: their state, base node and tick at their step's start."""
+        rows = slice(cohort.start, cohort.stop)
+        self.work.counts["run_rows_copied"] += cohort.size
+        for k in self.evolving:
+            self.shadow[k][rows] = self.P_arrays[k][rows]
+        self.shadow_base[rows] = self.base[rows]
+        self.shadow_t[rows] = self.t
+
+    def synchronous_step(self, D, chosen):
+        """The interval's one update when every particle takes the step ``D`` at its first tick: no ghost, nothing
+        gathered or copied, the synchronous step of the state's particles (:func:`~.pipeline.substep`), whose
+        arrays the backend may reuse from the step before (its block sort too, when no particle changed block)."""
+        s, t, n = self.s, self.t, self.n
+        exchange = None if s.ledger is None else LevelExchange(np.full(n, ACTIVE, dtype=np.int64), False)
+        start = perf_counter()
+        new = substep(s.backend, self.P, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange)
+        self.count_update(perf_counter() - start, n, n)
+        level = np.full(n, int(D).bit_length() - 1, dtype=np.int64) if chosen is None else chosen
+        self.P = new.with_(level=level)
+        if self.work.trace is not None:
+            self.work.trace.append(LevelUpdate(t, D, sorted(set(self.owner.tolist())), [], []))
+        self.cohorts = [_Cohort(D, t + D, 0, n)]
+        self.t = t + D
+
+    def arrange(self, n_due, taken, chosen):
+        """Put the particles due (rows ``0 .. n_due - 1``) in order of their new steps, finest first, moving only those
+        out of their step's run (at the first such tick, after copying the state's particles into a store of the
+        stepper's: :meth:`take_store`); record the levels the rule chose. Returns the new cohorts, coarse first."""
+        if self.store is None:
+            self.take_store(0)
+        level = self.P_arrays["level"]
+        levels_of(self.dt_p, n_due, level)  # the steps' levels, which order the rows
+        src, dst, level_start = misplaced_rows(level, n_due, self.s.levels)
+        if src.size:
+            permute_rows(self.rows["moving"], src, dst)
+            self.work.counts["moved_rows"] += src.size
+        if chosen is not None:  # the particles' levels are those the rule chose, not the shortened steps
+            level[:n_due] = chosen if not src.size else self.unpermuted(chosen, src, dst)
+        t = self.t
+        return [_Cohort(1 << k, t + (1 << k), int(level_start[k]), int(level_start[k + 1]))
+                for k in range(taken.bit_length() - 1, -1, -1) if taken >> k & 1]
+
+    @staticmethod
+    def unpermuted(values, src, dst):
+        """``values`` (one per row of the prefix, in the rows' order before :func:`permute_rows`) in their order
+        after it."""
+        out = values.copy()
+        out[dst] = values[src]
+        return out
+
+    def take_store(self, spare):
+        """Copy the particles into a store of the stepper's with at least ``spare`` spare rows (or move them into a
+        bigger one), and keep the row views of the stores that the compiled row copies take."""
+        s = self.s
+        if self.store is None:
+            self.store = s.stores.take(self.P, spare)
+            self.work.counts["run_rows_copied"] += self.n
+        else:
+            self.store = s.stores.grown(self.store, spare)
+        self.P = self.store.particles
+        arrays = self.P_arrays = self.store.arrays
+        self.evolving = tuple(k for k in arrays if k in EVOLVING_FIELDS)
+        self.shadow = s.store(self.P, self.evolving, "shadow", self.n)
+        self.proposed = s.store(self.P, self.evolving, "proposed", self.n)
+        constant = tuple(k for k in arrays if k not in EVOLVING_FIELDS)
+        self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
+                     "proposed": row_views(self.proposed.values()),
+                     "P_constant": row_views(arrays[k] for k in constant),
+                     "moving": row_views([*arrays.values(), self.dt_p, self.base, self.owner])}
+
     def pairs(self, src, dst):
-        """``(source, destination)`` row views of every field between two stores (or a store and a group)."""
-        a = self.rows[src] if isinstance(src, str) else src
-        b = self.rows[dst] if isinstance(dst, str) else dst
-        return tuple(zip(a, b))
+        """``(source, destination)`` row views of every field between two stores."""
+        return tuple(zip(self.rows[src], self.rows[dst]))
 
     def close_registers(self, idx):
         """Conservative interfaces: apply and clear the registers of the particles ``idx`` (at their step end;
@@ -376,21 +489,25 @@ class AsyncInterval:
         s = self.s
         for idx, end in proposals:
             move_rows(self.pairs("proposed", "shadow"), idx, idx)
+            self.work.counts["ghost_rows_copied"] += idx.size
             drift = shadow_nodes(self.shadow["x"], idx, *s.lattice[:4], end, self.shadow_base, self.shadow_t, self.base)
             self.drift = max(self.drift, drift)
 
     def group(self, active, level_ghosts, shadow_ghosts):
-        """One :class:`~mpmref.state.Particles` holding the rows of the active particles and the level ghosts
-        (from ``P``) and the shadow ghosts (from ``shadow``; their constant fields from ``P``), in that order."""
-        members = np.concatenate([active, level_ghosts, shadow_ghosts])
-        arrays = {k: np.empty((members.size,) + a.shape[1:], dtype=a.dtype) for k, a in self.P.arrays().items()
-                  if k in self.evolving or k in self.constant}
-        evolving = row_views(arrays[k] for k in self.evolving)
-        own = active.size + level_ghosts.size
-        move_rows(self.pairs("P_constant", row_views(arrays[k] for k in self.constant)), members, span(0, members.size))
-        move_rows(self.pairs("P", evolving), members[:own], span(0, own))
-        move_rows(self.pairs("shadow", evolving), shadow_ghosts, span(own, shadow_ghosts.size))
-        return Particles(**arrays)
+        """The rows of a level update: its ``active`` rows, and its ghosts copied into the store's spare rows after
+        the particles', the level ghosts (every field, from ``P``) then the shadow ghosts (from ``shadow``; their
+        other fields from ``P``)."""
+        n, n_level, n_shadow = self.n, level_ghosts.size, shadow_ghosts.size
+        if n_level + n_shadow == 0:
+            return active
+        if self.store.capacity < n + n_level + n_shadow:
+            self.take_store(n_level + n_shadow)
+        tail = span(n, n_level + n_shadow)
+        self.work.counts["ghost_rows_copied"] += n_level + n_shadow
+        constant = self.pairs("P_constant", "P_constant")
+        gather_ghosts(self.pairs("P", "P") + constant, self.pairs("shadow", "P") + constant, level_ghosts,
+                      shadow_ghosts, n)
+        return np.concatenate((active, tail))
 
     def ghosts(self, zone_, cohorts, node, drift):
         """The particles of ``cohorts`` whose node ``node[p]`` (base node, or their shadow's) lies in the ghost
@@ -405,77 +522,86 @@ class AsyncInterval:
             if members.size:
                 found.append(members)
         if not found:
-            return np.empty(0, dtype=np.int64)
+            return NO_ROWS
         return np.sort(found[0] if len(found) == 1 else np.concatenate(found))
 
-    def update_level(self, D, active, waiting, mid):
-        """One level-``D`` update at the current tick: a substep of the active particles and their ghosts.
+    def update_level(self, cohort, waiting, mid):
+        """One level update at the current tick: a substep of the ``cohort``'s particles and their ghosts.
 
         ``waiting`` are the cohorts of finer particles at this tick, not yet advanced (they may be ghosts at their
         own state); ``mid`` the cohorts mid-step (their shadows may be ghosts). Returns the shadow proposal
         ``(indices, end tick)`` of the coarser ghosts, whose results it wrote into ``proposed``.
         """
-        s, t = self.s, self.t
+        s, t, D = self.s, self.t, cohort.D
+        active = cohort.rows()
         if waiting or mid:
             zone_ = zone(active, self.base, s.reach, s.node_shape)
             self.work.counts["zone_nodes"] += zone_[2].size
             level_ghosts = self.ghosts(zone_, waiting, self.base, 0)
             shadow_ghosts = self.ghosts(zone_, mid, self.shadow_base, self.drift)
         else:  # one level at this tick and none mid-step: no ghost to look for
-            level_ghosts = shadow_ghosts = np.empty(0, dtype=np.int64)
-        self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
-        group = self.group(active, level_ghosts, shadow_ghosts)
+            level_ghosts = shadow_ghosts = NO_ROWS
+        if shadow_ghosts.size:
+            self.stale += int(np.count_nonzero(self.shadow_t[shadow_ghosts] != t))
+        rows = self.group(active, level_ghosts, shadow_ghosts)
         n_active = active.size
-        first_shadow = n_active + level_ghosts.size
         start = perf_counter()
-        kicks = s.conservative and n_active < group.n  # with no ghost there is no exchange to reflux
+        kicks = s.conservative and n_active < rows.size  # with no ghost there is no exchange to reflux
         exchange = None
         if kicks or s.ledger is not None:  # by classes: the registers' impulses, or the ledger's active particles
-            classes = np.repeat(np.array([ACTIVE, FINER, COARSER]), [n_active, level_ghosts.size, shadow_ghosts.size])
+            classes = np.repeat(CLASSES, [n_active, level_ghosts.size, shadow_ghosts.size])
             exchange = LevelExchange(classes, kicks)
-        result = substep(s.backend, group, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange)
+        substep(s.backend, self.P, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange,
+                rows=rows)
         if kicks:
-            self.kicked = True
-            dP, dL = exchange.impulses
-            for register, impulse in ((self.dP, dP), (self.dL, dL)):
-                add_rows(register, active, impulse, 0)
-                add_rows(register, shadow_ghosts, impulse, first_shadow)
-        elapsed = perf_counter() - start
+            self.add_impulses(active, shadow_ghosts, n_active + level_ghosts.size, exchange.impulses)
+        self.count_update(perf_counter() - start, rows.size, n_active)
+        if shadow_ghosts.size:
+            move_rows(self.pairs("P", "proposed"), span(self.n + level_ghosts.size, shadow_ghosts.size), shadow_ghosts)
+            self.work.counts["ghost_rows_copied"] += shadow_ghosts.size
+        if self.work.trace is not None:
+            shadow_blocks = s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist()
+            self.work.trace.append(LevelUpdate(t, D, sorted(set(self.owner[active].tolist())),
+                                               sorted(set(self.owner[level_ghosts].tolist())),
+                                               sorted(set(zip(shadow_blocks, self.shadow_t[shadow_ghosts].tolist())))))
+        return shadow_ghosts, t + D
+
+    def add_impulses(self, active, shadow_ghosts, first_shadow, impulses):
+        """Add an update's impulses and moments (one row per row of the update, :class:`~.pipeline.LevelExchange`) to
+        the registers of its ``active`` particles (a run of rows) and of its shadow ghosts' particles
+        (:func:`~.async_kernels.add_impulses`)."""
+        self.kicked = True
+        add_impulses(*self.registers(), int(active[0]), active.size, shadow_ghosts, first_shadow, *impulses)
+
+    def count_update(self, elapsed, rows, n_active):
+        """Book a level update of ``rows`` rows, ``n_active`` of them its own particles, whose stages took
+        ``elapsed`` seconds."""
         work = self.work
         work.stage_seconds += elapsed
         work.level_updates += 1
-        work.counts["group_rows"] += group.n
-        if n_active < group.n:
+        work.counts["group_rows"] += rows
+        if n_active < rows:
             work.ghost_stage_seconds += elapsed
             work.ghost_level_updates += 1
-        result_rows = row_views(getattr(result, k) for k in self.evolving)
-        move_rows(self.pairs(result_rows, "P"), span(0, n_active), active)
-        move_rows(self.pairs(result_rows, "proposed"), span(first_shadow, shadow_ghosts.size), shadow_ghosts)
-        self.P.level[active] = int(D).bit_length() - 1
-        self.t_p[active] = t + D
-        self.updates += group.n
+        self.updates += rows
         self.own_updates += n_active
-        if work.trace is not None:
-            shadow_blocks = s.owner_blocks(self.shadow["x"][shadow_ghosts]).tolist()
-            work.trace.append(LevelUpdate(t, D, sorted(set(self.owner[active].tolist())),
-                                          sorted(set(self.owner[level_ghosts].tolist())),
-                                          sorted(set(zip(shadow_blocks, self.shadow_t[shadow_ghosts].tolist())))))
-        return shadow_ghosts, t + D
 
     def finish(self):
         """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census (and, with
         conservative interfaces, every register applied: each particle is at its step end), and the interval's
         :class:`WorkRecord`."""
-        self.close_registers(np.arange(self.P.n))
-        census(self.state.particles.id, self.P.id, self.t)
-        n, ticks, old = self.P.n, self.t - self.t0, self.schedule
+        if self.kicked or self._registers is not None:
+            self.close_registers(np.arange(self.n, dtype=np.int64))
+        particles = self.P if self.store is None else self.store.live()
+        census(self.state.particles.id, particles.id, self.t)
+        n, ticks, old = self.n, self.t - self.t0, self.schedule
         schedule = AsyncSchedule(self.block_dt, old.updates + self.updates, old.own_updates + self.own_updates,
                                  old.sync_updates + n * ticks / self.finest, old.stale_shadows + self.stale,
                                  min(old.finest_dt, self.finest), old.sync_times + 1)
         stepper = schedule.arrays()
         if self.s.ledger is not None:
             stepper["energy_ledger"] = self.s.ledger.close(self.state.stepper.get("energy_ledger"))
-        new = replace(self.state, particles=self.P, step=self.state.step + 1, tick=self.t,
+        new = replace(self.state, particles=particles, step=self.state.step + 1, tick=self.t,
                       time=self.t * self.s.tick_s, stepper=stepper)
         return new, self.work
 
@@ -516,6 +642,8 @@ class AsynchronousStepper:
                         self.kernel.base_shift, self.node_shape, self.grid.block,
                         np.asarray(self.grid.blocks_per_axis, dtype=np.int64))
         self._stores = {}
+        #: the stores of the particles' rows that the intervals take in turn (:mod:`.async_store`)
+        self.stores = StorePool()
         self.conservative = t.interface == "conservative"
         self.inertia = 0.0 if self.kernel.inertia_factor is None else self.kernel.inertia_factor * self.grid.dx**2
         self.levels = t.levels
@@ -550,43 +678,52 @@ class AsynchronousStepper:
         return step_limits(particles.v, idx, self.backend.wave_speeds(particles, idx), dx, self.strength,
                            self.advection, self.tick_s, MAX_STEP_S, self.max_units)
 
-    def store(self, particles, names, key):
-        """Arrays shaped like the fields ``names`` of ``particles`` (contents undefined), kept on the stepper and
-        handed out again to the next interval while the particle count and fields stay the same."""
+    def store(self, particles, names, key, n):
+        """Arrays of ``n`` rows shaped like the fields ``names`` of ``particles`` (contents undefined), kept on the
+        stepper and handed out again to the next interval while the particle count and fields stay the same."""
         arrays = particles.arrays()
-        spec = tuple((k, arrays[k].shape, arrays[k].dtype) for k in names)
+        spec = tuple((k, (n,) + arrays[k].shape[1:], arrays[k].dtype) for k in names)
         held = self._stores.get(key)
         if held is None or held[0] != spec:
             held = (spec, {k: np.empty(shape, dtype) for k, shape, dtype in spec})
             self._stores[key] = held
         return held[1]
 
+    def bookkeeping(self, n, d):
+        """The per-particle arrays of an interval's bookkeeping (contents undefined: the first tick writes every row),
+        kept on the stepper like :meth:`store`: each particle's step (ticks), base node, block, and its shadow's base
+        node and tick."""
+        held = self._stores.get("bookkeeping")
+        if held is None or held[0] != (n, d):
+            arrays = (np.empty(n, np.int64), np.empty((n, d), np.int64), np.empty(n, np.int64),
+                      np.empty((n, d), np.int64), np.empty(n, np.int64))
+            held = self._stores["bookkeeping"] = ((n, d), arrays)
+        return held[1]
+
     def warm_up(self, particles):
         """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on one particle,
-        and with conservative interfaces the level update by classes on one particle at Δt = 0: ``particles`` is
-        not modified."""
+        and with conservative interfaces the level update by classes on one particle and a copy of it as its ghost,
+        at Δt = 0: ``particles`` is not modified."""
         interval = self.interval_type(self, self.initial_state(particles.select(slice(0, 1))))
         one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
-        boundary_nodes(interval.P.x, none, *self.lattice, 0, interval.base, interval.owner, interval.shadow_base,
-                       interval.shadow_t)
         step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-        particle_steps(none, interval.block_dt, interval.owner, 1, np.empty(0), interval.dt_p)
-        relevel_due(interval.block_dt, interval.order, interval.level_start, interval.owner, none, np.empty(0), 1, 1,
-                    self.max_units, self.block_limit)
+        boundary_steps(interval.P.x, one, *self.lattice, np.ones(1), 0, 1, 1, self.max_units, interval.block_dt,
+                       interval.order, interval.level_start, self.block_limit, interval.base, interval.owner,
+                       interval.dt_p)
+        interval.take_store(1)
+        levels_of(interval.dt_p, 1, interval.P_arrays["level"])
+        permute_rows(interval.rows["moving"], *misplaced_rows(interval.P_arrays["level"], 1, self.levels)[:2])
         move_rows(interval.pairs("P", "shadow"), none, none)
         shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
                      interval.base)
-        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [_Cohort(1, 1, one)], interval.base, 0)
-        group = interval.group(one, none, none)
-        rows = row_views(getattr(group, k) for k in interval.evolving)
-        move_rows(interval.pairs(rows, "P"), none, none)
+        cohort = _Cohort(1, 1, 0, 1)
+        interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [cohort], interval.base, 0)
+        rows = interval.group(one, one, none)  # the particle and a copy of it as a level ghost
+        same_ids(interval.store.live().id, interval.store.live().id)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
-            exchange = LevelExchange(np.zeros(group.n, dtype=np.int64), kicks=True)
-            substep(self.backend, group, 0.0, 0.0, exchange=exchange)
-            dP, dL = exchange.impulses
-            add_rows(interval.dP, one, dP, 0)
-            add_rows(interval.dL, one, dL, 0)
-            interval.kicked = True
+            exchange = LevelExchange(CLASSES[:2].copy(), kicks=True)
+            substep(self.backend, interval.P, 0.0, 0.0, exchange=exchange, rows=rows)
+            interval.add_impulses(one, none, 2, exchange.impulses)
             interval.close_registers(one)
 
     # ------------------------------------------------------------------ stepping
@@ -601,7 +738,7 @@ class AsynchronousStepper:
             run.tick_once()
         new, work = run.finish()
         work.seconds = perf_counter() - start
-        self.work = self.work + work
+        self.work.add(work)
         return new
 
     def end_tick(self, t_end, tick):
@@ -620,7 +757,7 @@ class AsynchronousStepper:
 
     def updates(self, old, new):
         """Particle steps done between two states: the particles' own updates (ghost updates not counted)."""
-        return AsyncSchedule.of(new).own_updates - AsyncSchedule.of(old).own_updates
+        return int(new.stepper["own_updates"]) - int(old.stepper["own_updates"])
 
     def diagnostics(self, state):
         """Columns of ``diagnostics.csv``: tick, updates so far, synchronised times and stale shadows; with a ledger,
@@ -650,8 +787,9 @@ class AsynchronousStepper:
 
 
 def census(before, after, tick):
-    """Check that the ids ``after`` are exactly the ids ``before``, each once; raise :class:`AsyncCensusError`."""
-    if np.array_equal(before, after):  # an interval keeps every particle in its row: the usual case
+    """Check that the ids ``after`` are exactly the ids ``before``, each once, in any order (an interval may reorder
+    the rows); raise :class:`AsyncCensusError`."""
+    if after is before or same_ids(before, after):
         return
     ids, counts = np.unique(after, return_counts=True)
     duplicated = ids[counts > 1]

@@ -6,21 +6,24 @@ r"""The MPM step, written once: the stages of a backend composed in order.
     \to \text{grid update} \to \text{G2P} \to \text{return map} \to [\text{rigid step}]
 
 Every stepper advances particles with :func:`substep` (the synchronous one for all particles at once, the
-asynchronous one for the particles of a group of blocks plus their ghosts). :class:`Hooks` let a caller
-add what a special step needs without rewriting it: a body force per unit mass, and grid folds applied to
-the grid state before the grid update (e.g. the symmetry planes of the convergence case). A scene with
-rigid bodies couples them by CPIC (Hu et al. 2018 §4–5; docs/cpic.md) in the same step: the bracketed
+asynchronous one for the particles of a level plus their ghosts: rows of arrays it keeps, advanced in place).
+:class:`Hooks` let a caller add what a special step needs without rewriting it: a body force per unit mass, and
+grid folds applied to the grid state before the grid update (e.g. the symmetry planes of the convergence case). A
+scene with rigid bodies couples them by CPIC (Hu et al. 2018 §4–5; docs/cpic.md) in the same step: the bracketed
 stages, and P2G and G2P that respect compatibility.
 """
 
+import inspect
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from ..backends.base import FUSED_BACKEND_STAGES
+from ..backends.base import FUSED_BACKEND_STAGES, steps_rows
 from ..physics.interface import momentum_share
 from ..physics.kernels import compute_stencil
 from ..rigid.dynamics import apply_impulses, begin_step, end_step
+from ..state import EVOLVING_FIELDS
 
 
 @dataclass(frozen=True)
@@ -76,15 +79,24 @@ def nodal_body_force(particles, grid, kernel, b):
     return f
 
 
-def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=None, exchange=None):
+def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=None, exchange=None, rows=None,
+            out=None):
     """One symplectic-Euler MPM step of ``particles`` from ``time`` with step ``dt``; returns new particles.
 
     The only place the stages are composed, for every stepper: prepare, P2G, the hooks, grid update (gravity,
     walls and colliders at ``time``), G2P and the return map. ``particles`` is not modified. The extensions of
     the step are its arguments: ``hooks`` (a body force and grid folds), ``rigid`` (CPIC coupling), ``ledger``
-    (an observer) and ``exchange`` (a level update of asynchronous stepping by particle classes,
+    (an observer), ``exchange`` (a level update of asynchronous stepping by particle classes,
     :class:`LevelExchange`: P2G by classes, the body-force hook added class by class, and with conservative
-    interfaces the kicks gathered in G2P, left in ``exchange.impulses``).
+    interfaces the kicks gathered in G2P, left in ``exchange.impulses``) and ``rows``.
+
+    With ``rows`` (an int64 index array; no ``rigid``), the step advances the particles ``rows`` of ``particles``
+    only, writes their new state into the same rows of ``out`` (default ``particles``: in place) and returns
+    ``None`` (``exchange.classes`` and ``exchange.impulses`` then follow the order of ``rows``): a level update of
+    asynchronous stepping on the arrays it keeps. A backend with the row stages
+    (:class:`~mpmref.backends.base.RowBackend`) runs them where the particles are; any other backend, and a step
+    with hooks or a ledger, goes through the adapter :func:`gathered_substep`, which gathers the rows into new
+    particles, steps them as above and writes the results back (the same arithmetic, so the same bits).
 
     With rigid bodies (``rigid``, a :class:`~mpmref.rigid.dynamics.RigidState`), the step couples
     them by CPIC and returns ``(particles, rigid)``: the colored distance field of the bodies where they
@@ -96,32 +108,37 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
     level update) observes the stages' outputs and books the step's energy change by stage (docs/energy_ledger.md); it
     changes nothing the stages compute.
     """
+    if rows is not None and (ledger is not None or hooks.body_force is not None or hooks.grid_folds
+                             or not steps_rows(backend)):
+        return gathered_substep(backend, particles, rows, dt, time, hooks, ledger, exchange, out)
     scene = backend.scene
-    with backend.running(particles.n):
+    with backend.running(particles.n if rows is None else rows.size):
         if ledger is not None:
             ledger.start(particles, rigid, exchange)
-        prepared = backend.prepare(particles)  # the stencil is shared: particles do not move until G2P
+        # the stencil is shared: particles do not move until G2P
+        prepared = backend.prepare(particles) if rows is None else backend.prepare_rows(particles, rows)
         contact = None
         if rigid is not None:
             rigid = begin_step(scene.rigid_bodies, rigid, time, dt)
             particles, contact = backend.cpic_contact(particles, prepared, rigid, dt)
-        if contact is not None:
-            grid_state = backend.p2g(particles, prepared, contact)
-        elif exchange is not None:
-            grid_state = backend.p2g(particles, prepared, classes=exchange.classes)
-        elif folds_force(backend, hooks, ledger):
-            grid_state = backend.p2g_fused(particles, dt, prepared)
-        else:
-            grid_state = backend.p2g(particles, prepared)
+        grid_state = _p2g(backend, particles, prepared, dt, hooks, ledger, contact, exchange)
         if hooks.body_force is not None or hooks.grid_folds:
             apply_hooks(hooks, grid_state, particles, scene, time, exchange)
         v_grid, v_tilde = backend.grid_update(grid_state, dt, time)
         if ledger is not None:
             ledger.grid(grid_state, v_grid, dt, time)
+        kicks = None
         if exchange is not None and exchange.kicks:
-            node_kicks = backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer))
-            trial, exchange.impulses = backend.g2p(particles, v_grid, v_tilde, dt, prepared,
-                                                   kicks=(exchange.classes, node_kicks))
+            kicks = (exchange.classes, backend.interface_kicks(grid_state, dt, momentum_share(scene.transfer)))
+        if rows is not None:
+            out = particles if out is None else out
+            impulses = backend.g2p_rows(particles, v_grid, v_tilde, dt, prepared, out, kicks)
+            backend.return_map_rows(out, rows)
+            if kicks is not None:
+                exchange.impulses = impulses
+            return None
+        if kicks is not None:
+            trial, exchange.impulses = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=kicks)
             new = _observed(ledger, trial, backend.return_map)
         elif contact is None:
             new = _observed(ledger, backend.g2p(particles, v_grid, v_tilde, dt, prepared), backend.return_map)
@@ -133,6 +150,32 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
         return new if contact is None else (new, rigid)
 
 
+def _p2g(backend, particles, prepared, dt, hooks, ledger, contact, exchange):
+    """The P2G of :func:`substep`: CPIC's to compatible nodes, by classes for a level update, fused where
+    :func:`folds_force` allows (for a level update, where also :func:`fuses_classes`), else plain."""
+    if contact is not None:
+        return backend.p2g(particles, prepared, contact)
+    fused = folds_force(backend, hooks, ledger)
+    if exchange is None:
+        return backend.p2g_fused(particles, dt, prepared) if fused else backend.p2g(particles, prepared)
+    if fused and fuses_classes(backend):
+        return backend.p2g_fused(particles, dt, prepared, classes=exchange.classes)
+    return backend.p2g(particles, prepared, classes=exchange.classes)
+
+
+def gathered_substep(backend, particles, rows, dt, time, hooks=NO_HOOKS, ledger=None, exchange=None, out=None):
+    """:func:`substep` of the particles ``rows`` of ``particles`` through the plain stages: the rows gathered into
+    new particles (in the order of ``rows``), one step of them, and their evolving fields written into the same
+    rows of ``out`` (default ``particles``). The adapter that steps rows on a backend without the row stages
+    (:class:`~mpmref.backends.base.RowBackend`); the particles it steps are the group such a backend would see, in
+    the same order, so its results are the row stages' bit for bit."""
+    new = substep(backend, particles.select(rows), dt, time, hooks, ledger=ledger, exchange=exchange)
+    out = particles if out is None else out
+    for name in EVOLVING_FIELDS:
+        if (array := getattr(new, name)) is not None:
+            getattr(out, name)[rows] = array
+
+
 def folds_force(backend, hooks, ledger):
     """Whether a step folds the internal force into P2G (the backend's ``p2g_fused``, the optional stage of
     :class:`~mpmref.backends.base.FusedBackend`; looked up by name, as an ``isinstance`` test of the protocol costs
@@ -141,6 +184,20 @@ def folds_force(backend, hooks, ledger):
     coupled P2G is never fused). The result is the same up to round-off (docs/performance.md#the-fused-p2g)."""
     return (callable(getattr(backend, FUSED_BACKEND_STAGES[0], None)) and not backend.scene.transfer.flip
             and ledger is None and hooks.body_force is None and not hooks.grid_folds)
+
+
+def fuses_classes(backend):
+    """Whether ``backend``'s ``p2g_fused`` also sums particle classes apart (it takes ``classes``, as the Numba
+    backend's does): then a level update by classes folds the force too when :func:`folds_force` allows, and the
+    kicks of conservative interfaces come from the folded momentum (the scheme's G2P hands out all of it: not
+    FLIP). Looked up once per backend class."""
+    return _fused_takes_classes(type(backend))
+
+
+@lru_cache(maxsize=None)
+def _fused_takes_classes(cls):
+    fused = getattr(cls, FUSED_BACKEND_STAGES[0], None)
+    return callable(fused) and "classes" in inspect.signature(fused).parameters
 
 
 def _observed(ledger, trial, return_map):

@@ -5,7 +5,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from ...physics.interface import KICK_ROW, N_CLASSES
+from ...physics.interface import N_CLASSES
 from ...physics.materials import WeaklyCompressibleFluid, material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
@@ -15,14 +15,13 @@ from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
 from .grid_update import block_grid_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
-from .kicks import class_totals, node_kicks
+from .kicks import class_first_rows, class_totals, node_kicks
+from .rows import NO_ROWS, RowStages
 from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 from .threads import describe_threads, threads_for
 
 WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
-#: the empty row array that tells a transfer kernel it has no particle classes (or no kicks)
-NO_ROWS = np.empty(0, dtype=np.int64)
 
 
 def dense_with_classes(state):
@@ -64,10 +63,12 @@ class Blocks:
     """Particles sorted into the grid's blocks, the groups P2G hands to the threads colour by colour
     (``p2g_groups``: slabs, or single blocks when slabs are too few, see :data:`MIN_SLABS_PER_COLOUR`), the
     sparse grid's :class:`~.sparse.BlockLayout` of these particles, and the :math:`2^d` colour classes of
-    blocks (see :mod:`.blocks`)."""
+    blocks (see :mod:`.blocks`); of every particle, or of the particles ``rows`` only."""
 
-    def __init__(self, order, block_start, blocks_per_axis, layout):
+    def __init__(self, order, block_start, blocks_per_axis, layout, rows=None):
         self.order, self.block_start, self.blocks_per_axis = order, block_start, blocks_per_axis
+        #: the particles sorted (an index array), or ``None`` for every particle (:meth:`NumbaBackend.prepare_rows`)
+        self.rows = rows
         slab_start, slabs, colour_start = slab_colours(block_start, blocks_per_axis)
         enough = min(colour_start[1] - colour_start[0], colour_start[2] - colour_start[1]) >= MIN_SLABS_PER_COLOUR
         #: ``(group_start, groups, colour_start)``: ``order[group_start[g]:group_start[g + 1]]`` are group ``g``'s
@@ -81,7 +82,7 @@ class Blocks:
         return colour_classes(self.block_start, self.blocks_per_axis)
 
 
-class NumbaBackend:
+class NumbaBackend(RowStages):
     """Optimised implementation of the reference stages for ``scene`` (same methods as ``NumpyBackend``).
 
     Only what the scene declares is compiled: the transfer kernels for its dimension, kernel, scheme and
@@ -131,6 +132,7 @@ class NumbaBackend:
         self.n_blocks = int(np.prod(grid.blocks_per_axis))
         #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
         self._last_sort = (None, None)
+        self._held_class_rows = NO_ROWS  # the class rows of a P2G of some rows (:meth:`_class_rows`), reused
 
     running = staticmethod(threads_for)
 
@@ -155,15 +157,23 @@ class NumbaBackend:
         particles' blocks alone (:func:`.blocks.counting_sort`), so when every particle is in the block it was in at
         the last sort, that sort is returned as it is (the particles' blocks are computed every time, in parallel:
         :func:`.blocks.block_keys`)."""
-        keys = block_keys(particles.x, self.origin, self.dx, self.shift, self.block, self.blocks_per_axis)
+        keys = self._keys(particles, NO_ROWS)
         last_keys, last_blocks = self._last_sort
         if last_keys is not None and np.array_equal(keys, last_keys):
             return last_blocks  # the sort depends on the blocks alone (counting_sort): the last one still holds
-        order, block_start = counting_sort(keys, self.n_blocks)
-        layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
-        blocks = Blocks(order, block_start, self.blocks_per_axis, layout)
+        blocks = self._sorted(keys, None)
         self._last_sort = (keys, blocks)
         return blocks
+
+    def _keys(self, particles, rows):
+        """Each particle's block (:func:`.blocks.block_keys`), of every particle or of ``rows``."""
+        return block_keys(particles.x, rows, self.origin, self.dx, self.shift, self.block, self.blocks_per_axis)
+
+    def _sorted(self, keys, rows):
+        """:class:`Blocks` of a counting sort of ``keys`` (those of ``rows``, or of every particle)."""
+        order, block_start = counting_sort(keys, self.n_blocks)
+        layout = BlockLayout.from_sort(block_start, self.blocks_per_axis, self.block, self.scene.grid.node_shape)
+        return Blocks(order if rows is None else rows[order], block_start, self.blocks_per_axis, layout, rows)
 
     def wave_speeds(self, particles, idx):
         """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, in one compiled
@@ -200,37 +210,60 @@ class NumbaBackend:
         blocks = prepared or self.prepare(particles)
         if contact is not None:
             return cpic.p2g(self, particles, blocks, contact)
+        return self._grid_state(self._p2g, particles, blocks, prepared, classes, 0.0, 2)
+
+    def _grid_state(self, kernel, particles, blocks, prepared, classes, dt, vectors):
+        """Run the P2G ``kernel`` (1 + ``vectors`` d values per node) and give its :class:`~mpmref.state.GridState`,
+        with the classes' sums apart when ``classes`` is given; in ``blocks``' layout, or dense without ``prepared``."""
         n_classes = 1 if classes is None else N_CLASSES
-        class_rows = (NO_ROWS if classes is None
-                      else np.ascontiguousarray(classes, dtype=np.int64) * blocks.layout.n_rows)
-        grid = self._scatter(self._p2g, particles, blocks, n_classes, class_rows, 0.0, 2)
+        class_rows = NO_ROWS if classes is None else self._class_rows(particles, blocks, classes)
+        grid = self._scatter(kernel, particles, blocks, n_classes, class_rows, dt, vectors)
         layout, d = blocks.layout, particles.dim
+        width = 1 + vectors * d
         class_sums = None
         if classes is not None:
-            class_sums = grid.reshape(N_CLASSES, layout.n_rows, 1 + 2 * d)
-            grid, = self.buffers.take("grid_totals", (layout.n_rows, 1 + 2 * d))
+            class_sums = grid.reshape(N_CLASSES, layout.n_rows, width)
+            grid, = self.buffers.take(f"grid_totals_{vectors}", (layout.n_rows, width))
             class_totals(class_sums, grid)
-        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:], layout=layout,
-                          class_sums=class_sums)
+        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=grid[:, 1 + d:] if vectors == 2 else None,
+                          layout=layout, class_sums=class_sums)
         return state if prepared is not None else dense_with_classes(state)
 
-    def p2g_fused(self, particles, dt, prepared=None):
+    def _class_rows(self, particles, blocks, classes):
+        """The first grid row of each particle's class, indexed by particle (of the sorted rows only, when
+        ``blocks`` sorts some rows: the kernel reads no other; :func:`.kicks.class_first_rows`)."""
+        classes = np.asarray(classes, dtype=np.int64)
+        if blocks.rows is None:
+            out = np.empty(particles.n, dtype=np.int64)
+        else:
+            out = self._held_class_rows
+            if out.shape[0] < particles.n:
+                out = self._held_class_rows = np.empty(particles.n, dtype=np.int64)
+        class_first_rows(classes, NO_ROWS if blocks.rows is None else blocks.rows, blocks.layout.n_rows, out)
+        return out
+
+    def p2g_fused(self, particles, dt, prepared=None, classes=None):
         """P2G with the internal force folded into the momentum (:func:`.transfers2d.p2g_kernel` with ``FUSED``; the
         reference is :func:`mpmref.backends.numpy.transfers.p2g_fused`): node rows of mass and momentum after the
         force, (1 + d) values where :meth:`p2g` scatters (1 + 2d); a :class:`~mpmref.state.GridState` with
-        ``force = None``, in ``prepared``'s layout or, without it, dense."""
+        ``force = None``, in ``prepared``'s layout or, without it, dense. With ``classes``, each class's sums apart
+        as in :meth:`p2g` (``class_sums`` (K, rows, 1 + d)): what the kicks of conservative interfaces need when the
+        G2P takes the whole node momentum (:meth:`interface_kicks`)."""
         blocks = prepared or self.prepare(particles)
-        grid = self._scatter(self._p2g_fused, particles, blocks, 1, NO_ROWS, dt, 1)
-        d = particles.dim
-        state = GridState(mass=grid[:, 0], momentum=grid[:, 1:1 + d], force=None, layout=blocks.layout)
-        return state if prepared is not None else state.dense()
+        return self._grid_state(self._p2g_fused, particles, blocks, prepared, classes, dt, 1)
 
     def _scatter(self, kernel, particles, blocks, n_classes, class_rows, dt, vectors):
         """Run a P2G ``kernel`` over the particles by colour into zeroed pool rows of 1 + ``vectors`` d values per
         node (and per class); returns the rows."""
         layout = blocks.layout
         n, d = particles.x.shape
-        stress = self._or_empty(None, 0, d, d) if self.fluids_only else self.stress(particles)
+        if self.fluids_only:
+            stress = self._or_empty(None, 0, d, d)
+        elif blocks.rows is None:
+            stress = self.stress(particles)
+        else:  # the stress of the sorted rows only: the kernel reads no other
+            stress, = self.buffers.take("stress", (n, d, d))
+            self.materials.stress_into(particles, blocks.rows, stress)
         grid, = self.buffers.take("grid" if vectors == 2 else "grid_fused",
                                   (n_classes * layout.n_rows, 1 + vectors * d))
         grid.fill(0.0)  # a memset: memory-bound, so a parallel loop's launch costs more than its second thread gains
@@ -256,9 +289,10 @@ class NumbaBackend:
 
     def interface_kicks(self, grid_state, dt, kappa):
         """The node kicks of impulse refluxing from a P2G by classes (2, rows, d), compiled
-        (:func:`.kicks.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`)."""
+        (:func:`.kicks.node_kicks`; the reference is :func:`mpmref.physics.interface.interface_kicks`), also from a
+        fused P2G by classes (``kappa`` then 1: the folded momentum is what the G2P hands out)."""
         sums = grid_state.class_sums
-        kicks = np.empty((2, sums.shape[1], (sums.shape[2] - 1) // 2))
+        kicks = np.empty((2, sums.shape[1], grid_state.momentum.shape[1]))
         node_kicks(sums, dt, kappa, kicks)
         return kicks
 
@@ -298,15 +332,14 @@ class NumbaBackend:
         own pass, so that no other run's G2P compiles it), and the result is ``(particles, (dP, dL))``.
         """
         n, d = particles.x.shape
-        if v_tilde is None:  # after a fused P2G (no FLIP): the kernel does not read it
-            v_tilde = v_grid
         if prepared is None:
             layout = self.prepare(particles).layout
-            v_grid, v_tilde = layout.from_dense(v_grid), layout.from_dense(v_tilde)
+            v_grid, v_tilde = layout.from_dense(v_grid), None if v_tilde is None else layout.from_dense(v_tilde)
             if kicks is not None:
                 kicks = (kicks[0], np.stack([layout.from_dense(k) for k in kicks[1]]))
         else:
             layout = prepared.layout
+        impulses = None if kicks is None else self._impulses(particles, NO_ROWS, layout, kicks)
 
         def shape(name, *full):
             return full if getattr(particles, name) is not None else (0,) * len(full)
@@ -314,22 +347,12 @@ class NumbaBackend:
         modes_shape = particles.modes.shape if particles.modes is not None else (0, 0, d)
         x_new, v_new, C_new, F_new, J_new, modes_new = self.buffers.take(
             "particles", (n, d), (n, d), shape("C", n, d, d), shape("F", n, d, d), shape("J", n), modes_shape)
-        self._g2p(particles.x, particles.v, self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                  self.sparse_layout(layout), dt, self.transfer.flip_alpha, self.mode_index, v_grid, v_tilde,
-                  x_new, v_new, C_new, F_new, J_new, modes_new)
-        changes = {"x": x_new, "v": v_new}
+        new = particles.with_(x=x_new, v=v_new)
         for name, array in (("C", C_new), ("F", F_new), ("J", J_new), ("modes", modes_new)):
             if getattr(particles, name) is not None:
-                changes[name] = array
-        new = particles.with_(**changes)
-        if kicks is None:
-            return new
-        row_of_class = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
-        first = row_of_class[kicks[0]]
-        impulse, moment = np.zeros((n, d)), np.zeros((n, 1 if d == 2 else 3))
-        self._kick_gather(particles.x, particles.mass, self.sparse_layout(layout),
-                          np.where(first >= 0, first * layout.n_rows, -1), kicks[1].reshape(-1, d), impulse, moment)
-        return new, (impulse, moment)
+                setattr(new, name, array)
+        self._gather(particles, NO_ROWS, layout, v_grid, v_tilde, dt, new)
+        return new if kicks is None else (new, impulses)
 
     # ------------------------------------------------------------------ CPIC stages (:mod:`mpmref.backends.numba.cpic`)
     def cpic_contact(self, particles, prepared, rigid, dt):

@@ -23,25 +23,33 @@ from numba import njit, prange
 
 
 @njit(parallel=True, cache=True)
-def block_keys(x, origin, dx, shift, block, blocks_per_axis):
-    """The block (C-order number) of each particle: the block of its stencil's base node, in parallel.
+def block_keys(x, rows, origin, dx, shift, block, blocks_per_axis):
+    """The block (C-order number) of each particle: the block of its stencil's base node, in parallel; of every
+    particle when ``rows`` is empty, else of the particles ``rows`` (the ``k``-th key that of ``rows[k]``).
 
     Parameters
     ----------
     x : (n, d)                 particle positions
+    rows : (m,) int            the particles to key (empty: all)
     origin : (d,), dx : float  the grid
     shift : float              ``base = floor((x - origin)/dx - shift)`` (the kernel's base-node rule)
-    block : int                cells per block edge
+    block : int                cells per block edge (a power of two)
     blocks_per_axis : (d,) int
     """
-    n, d = x.shape
+    d = x.shape[1]
+    some = rows.shape[0] > 0
+    n = rows.shape[0] if some else x.shape[0]
+    bits = 0  # block is a power of two: a node's block coordinate is an arithmetic shift (a floor division)
+    while (1 << bits) < block:
+        bits += 1
     block_of = np.empty(n, dtype=np.int64)
-    for p in prange(n):
+    for k in prange(n):
+        p = rows[k] if some else np.int64(k)  # one integer type (prange counts unsigned)
         b = 0
         for a in range(d):
             base = int(np.floor((x[p, a] - origin[a]) / dx - shift))
-            b = b * blocks_per_axis[a] + base // block
-        block_of[p] = b
+            b = b * blocks_per_axis[a] + (base >> bits)
+        block_of[k] = b
     return block_of
 
 
@@ -137,3 +145,22 @@ def colour_classes(block_start, blocks_per_axis):
         colour_blocks[placed[colour[i]]] = blocks[i]
         placed[colour[i]] += 1
     return colour_blocks, colour_start
+
+
+@njit(cache=True)
+def runs_of(rows):
+    """The runs of consecutive particles in ``rows`` (an index array): ``(starts, stops)``, run ``r`` being
+    ``starts[r] .. stops[r] - 1``, in the order of ``rows``."""
+    n_runs = 0
+    for k in range(rows.shape[0]):
+        if k == 0 or rows[k] != rows[k - 1] + 1:
+            n_runs += 1
+    starts = np.empty(n_runs, np.int64)
+    stops = np.empty(n_runs, np.int64)
+    r = -1
+    for k in range(rows.shape[0]):
+        if k == 0 or rows[k] != rows[k - 1] + 1:
+            r += 1
+            starts[r] = rows[k]
+        stops[r] = rows[k] + 1
+    return starts, stops

@@ -4,6 +4,8 @@ and the per-particle update from the gathered sums (its motion, then its deforma
 
 from numba import njit
 
+from .tuple_math import matrix
+
 #: particles per task of G2P's parallel loop
 G2P_CHUNK = 256
 
@@ -51,23 +53,25 @@ def move_particle(p, x, v, dt, inertia, flip_alpha, v_pic, dv_flip, B, acc, qnor
 
 
 @njit(cache=True, inline="always")
-def deform_particle(p, x, F, J, dt, inertia, B, grad_v, F_new, J_new, mls_gradient, tracks_F, tracks_J):
+def deform_particle(p, dim, F, J, dt, inertia, B, grad_v, F_new, J_new, mls_gradient, tracks_F, tracks_J):
     r"""G2P's update of particle ``p``'s deformation (see :func:`mpmref.backends.numpy.transfers.g2p`), after
     :func:`move_particle`: :math:`\nabla v_p = C_p = B_p D_p^{-1}` (MLS, ``mls_gradient``) or the gathered
     :math:`\sum_i v_i \nabla w_{ip}^T` (``grad_v``; both flat, row-major tuples); :math:`F_p \leftarrow
     F_p + \Delta t\, \nabla v_p F_p` if ``tracks_F``; :math:`J_p \leftarrow J_p (1 + \Delta t \operatorname{tr}
-    \nabla v_p)` if ``tracks_J``.
+    \nabla v_p)` if ``tracks_J``. ``dim`` is the dimension (a compile-time constant). The particle's :math:`F_p` is
+    read whole before any entry is written, so ``F_new`` may be ``F`` (a G2P in place, :meth:`g2p_rows
+    <mpmref.backends.base.RowBackend.g2p_rows>`).
     """
-    d = x.shape[1]
     if tracks_F:
-        for a in range(d):
-            for b in range(d):
+        Fp = matrix(F[p], F.dtype.type(1.0), dim)
+        for a in range(dim):
+            for b in range(dim):
                 s = 0.0
-                for c in range(d):
-                    s += dt * (B[a * d + c] / inertia if mls_gradient else grad_v[a * d + c]) * F[p, c, b]
-                F_new[p, a, b] = F[p, a, b] + s
+                for c in range(dim):
+                    s += dt * (B[a * dim + c] / inertia if mls_gradient else grad_v[a * dim + c]) * Fp[c][b]
+                F_new[p, a, b] = Fp[a][b] + s
     if tracks_J:
         trace = 0.0
-        for a in range(d):
-            trace += B[a * d + a] / inertia if mls_gradient else grad_v[a * d + a]
+        for a in range(dim):
+            trace += B[a * dim + a] / inertia if mls_gradient else grad_v[a * dim + a]
         J_new[p] = J[p] * (1.0 + dt * trace)

@@ -5,6 +5,7 @@ dimension's kick gather, which hands the kicks to the particles, is its transfer
 (:mod:`.transfers2d`, :mod:`.transfers3d`).
 """
 
+import numpy as np
 from numba import njit
 
 
@@ -24,11 +25,14 @@ def node_kicks(class_sums, dt, kappa, kicks):
     :func:`mpmref.physics.interface.interface_kicks`): ``kicks[0]`` :math:`= -I_i(A \leftarrow F)/m^A_i` for
     the active particles, ``kicks[1]`` :math:`= -I_i(A \leftarrow S)/m^S_i` for the coarser shadows, with
     :math:`I_i(A \leftarrow Y) = (\kappa (m^A (mv)^Y - m^Y (mv)^A) + \Delta t (m^A f^Y - m^Y f^A)) / m_i`;
-    zero where the receiving class (or the node) has no mass.
+    zero where the receiving class (or the node) has no mass. From a fused P2G by classes (rows of 1 + d values:
+    mass and :math:`q = (mv) + \Delta t f`, and :math:`\kappa = 1`) the same exchange is
+    :math:`(m^A q^Y - m^Y q^A) / m_i`.
 
     Docs: docs/async.md#what-is-conserved-at-level-interfaces
     """
     d = kicks.shape[2]
+    folded = class_sums.shape[2] == 1 + d
     for r in range(kicks.shape[1]):
         mA, mF, mS = class_sums[0, r, 0], class_sums[1, r, 0], class_sums[2, r, 0]
         m = mA + mF + mS
@@ -37,8 +41,44 @@ def node_kicks(class_sums, dt, kappa, kicks):
             mY = class_sums[y, r, 0]
             for a in range(d):
                 if m > 0 and receiver > 0:
-                    exchange = (kappa * (mA * class_sums[y, r, 1 + a] - mY * class_sums[0, r, 1 + a])
-                                + dt * (mA * class_sums[y, r, 1 + d + a] - mY * class_sums[0, r, 1 + d + a])) / m
-                    kicks[k, r, a] = -exchange / receiver
+                    exchange = kappa * (mA * class_sums[y, r, 1 + a] - mY * class_sums[0, r, 1 + a])
+                    if not folded:
+                        exchange += dt * (mA * class_sums[y, r, 1 + d + a] - mY * class_sums[0, r, 1 + d + a])
+                    kicks[k, r, a] = -(exchange / m) / receiver
                 else:
                     kicks[k, r, a] = 0.0
+
+
+@njit(cache=True)
+def kicked_blocks(kicks, block_nodes):
+    """Whether each block of ``block_nodes`` rows of the node kicks ``kicks`` (rows, d) holds a non-zero kick (the
+    kicks of both receiving classes, :func:`node_kicks`, one block of rows after the other): the blocks the kick
+    gather (:func:`.transfers2d.kick_gather_kernel`) visits. One more entry, false, so that a block's next one
+    always exists."""
+    flags = np.zeros(kicks.shape[0] // block_nodes + 1, np.bool_)
+    for r in range(kicks.shape[0]):
+        for a in range(kicks.shape[1]):
+            if kicks[r, a] != 0.0:
+                flags[r // block_nodes] = True
+                break
+    return flags
+
+
+@njit(cache=True)
+def class_first_rows(classes, rows, n_rows, out):
+    """The first grid row of each particle's class in a P2G by classes: ``out[rows[k]] = classes[k] * n_rows``
+    (``out[k]`` when ``rows`` is empty: every particle, in order)."""
+    some = rows.shape[0] > 0
+    for k in range(classes.shape[0]):
+        out[rows[k] if some else k] = classes[k] * n_rows
+
+
+@njit(cache=True)
+def kick_first_rows(classes, kick_row_of_class, n_rows):
+    """The first row of each particle's kicks in the node kicks (classes' kick rows ``kick_row_of_class``, one block
+    of ``n_rows`` rows each), or -1 for a class that receives none."""
+    out = np.empty(classes.shape[0], np.int64)
+    for k in range(classes.shape[0]):
+        row = kick_row_of_class[classes[k]]
+        out[k] = row * n_rows if row >= 0 else -1
+    return out

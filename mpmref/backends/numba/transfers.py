@@ -46,11 +46,11 @@ class DimensionTransfers(NamedTuple):
                             -> ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout,
                             mode_index, particle_groups, class_rows, dt, grid)`` (:func:`.transfers2d.p2g_kernel`)
     g2p_kernel : Callable   ``g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK)`` -> ``g2p(x, v, F, J,
-                            layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new,
+                            rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new,
                             J_new, modes_new)``
                             (:func:`.transfers2d.g2p_kernel`)
-    kick_gather_kernel : Callable   ``kick_gather_kernel(KERNEL, S, BLOCK)`` -> ``gather(x, mass, layout,
-                            kick_rows, kicks, impulse, moment)`` (:func:`.transfers2d.kick_gather_kernel`)
+    kick_gather_kernel : Callable   ``kick_gather_kernel(KERNEL, S, BLOCK)`` -> ``gather(x, mass, rows, layout,
+                            kick_rows, kicks, kicked, impulse, moment)`` (:func:`.transfers2d.kick_gather_kernel`)
     """
 
     p2g_kernel: Callable

@@ -133,10 +133,13 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     r"""G2P kernel: PIC velocity, affine matrix, PolyPIC modes, FLIP blend, F or J and position
     (Jiang et al. 2015 §5; Hu et al. 2018 §4; see :func:`mpmref.backends.numpy.transfers.g2p`).
 
-    The returned ``g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new,
+    The returned ``g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new,
     F_new, J_new, modes_new)`` (``layout`` a :class:`~.kernel_args.SparseLayout`) writes the new particle arrays
     from the node velocities on the rows of a
-    :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`). A gather writes
+    :class:`~.sparse.BlockLayout` (see :func:`p2g_kernel`): of every particle when ``rows`` is empty, else of the
+    particles ``rows`` only, each into its own row of the new arrays (which may be the particle arrays themselves:
+    a particle reads its own state before writing it, so G2P runs in place, as asynchronous stepping's level
+    updates do, :meth:`mpmref.backends.base.RowBackend.g2p_rows`). A gather writes
     only its own particle, so it runs in parallel over the particles in their storage order. The sums over the stencil
     are held as tuples, in the run's dtype: :math:`\sum_i w_{ip} v_i`,
     :math:`B_p = \sum_i w_{ip} v_i (x_i - x_p)^T`, :math:`\sum_i v_i \nabla w_{ip}^T` (classic force) and
@@ -152,21 +155,23 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**2
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
+    def g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
             modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
         real = x_new.dtype.type
         inv_dx = 1.0 / dx
-        n = x.shape[0]
+        some = rows.shape[0] > 0
+        n = rows.shape[0] if some else x.shape[0]
         for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
             q = np.empty((2, S, S))
             qnorm = np.empty((2, S))
             w_arr = np.empty((2, S))
             fx_arr = np.empty(2)
             acc = np.empty((max(n_modes, 1), 2))
-            for p in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
+            for k in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
+                p = rows[k] if some else np.int64(k)
                 if POLY:
                     acc[:] = 0.0
                 v_pic, dv_flip = zeros(real, 2), zeros(real, 2)
@@ -199,7 +204,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                             gather_modes(acc, idx, w, (i, j), v_grid, q, mode_index)
                 move_particle(p, x, v, dt, inertia, flip_alpha, v_pic, dv_flip, B, acc, qnorm, mode_index, x_new,
                               v_new, C_new, modes_new, AFFINE, POLY, FLIP)
-                deform_particle(p, x, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
+                deform_particle(p, 2, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
                                 J_new.shape[0] > 0)
 
     return g2p
@@ -210,13 +215,17 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     r"""The kick gather of conservative level interfaces (:mod:`mpmref.physics.interface`), a pass of its own
     after G2P, so that the G2P kernels of every other run compile without it.
 
-    The returned ``gather(x, mass, layout, kick_rows, kicks, impulse, moment)`` (``layout`` a
-    :class:`~.kernel_args.SparseLayout`) writes, for each particle ``p`` with ``kick_rows[p] >= 0`` (the first row of
-    its class's kicks in ``kicks``), its impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[p]`` and its
-    moment about the origin
-    :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)` into ``moment[p]``
+    The returned ``gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment)`` (``layout`` a
+    :class:`~.kernel_args.SparseLayout`) writes, for the ``k``-th particle ``p`` of ``rows`` (``p = k`` when ``rows`` is
+    empty) with ``kick_rows[k] >= 0`` (the first row of its class's kicks in ``kicks``), its impulse
+    :math:`\delta P_p = m_p \sum_i w_{ip} k_i` into ``impulse[k]`` and its moment about the origin
+    :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)` into ``moment[k]``
     (one column: the moments of 3-vectors with zero third components have only a third), in float64; the nodes are the
-    rows of a :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`.
+    rows of a :class:`~.sparse.BlockLayout`, addressed as in :func:`g2p_kernel`. ``kicked`` flags the blocks of
+    ``kicks`` (its rows in blocks of :math:`B^d`, :func:`.kicks.kicked_blocks`) that hold a non-zero kick: a particle
+    whose stencil reaches none is skipped (its rows of ``impulse`` and ``moment``, zero on entry, stay zero, which
+    is what the sums of zero kicks give), so the pass costs what the particles near an interface cost. It reads
+    the positions of the step's P2G, so it runs before a G2P in place.
 
     Docs: docs/async.md#conservative-interfaces
     """
@@ -224,18 +233,24 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     N = BLOCK**2
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def gather(x, mass, layout, kick_rows, kicks, impulse, moment):
+    def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
-        for p in prange(x.shape[0]):
-            first = kick_rows[p]
+        some = rows.shape[0] > 0
+        n = rows.shape[0] if some else x.shape[0]
+        for k in prange(n):
+            p = rows[k] if some else np.int64(k)  # one integer type (prange counts unsigned)
+            first = kick_rows[k]
             if first < 0:
                 continue
-            kp, kl = zeros(np.float64, 2), zeros(np.float64, 3)
             b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
             b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
             k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
+            s0, s1 = (first + k0) // N, (first + k1) // N  # the blocks the stencil reaches: these and the next
+            if not (kicked[s0] or kicked[s0 + 1] or kicked[s1] or kicked[s1 + 1]):
+                continue  # no kick there: the impulse and moment stay zero
+            kp, kl = zeros(np.float64, 2), zeros(np.float64, 3)
+            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
             l0, l1 = b0 % BLOCK, b1 % BLOCK
             c0, r0 = hops(l0, BLOCK, S), local_rows(l0, BLOCK, BLOCK, 0, S)
             r1 = local_rows(l1, BLOCK, 1, N, S)
@@ -249,7 +264,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             xp = (np.float64(x[p, 0]), np.float64(x[p, 1]), 0.0)
             about_origin = axpy(kl, 1.0, cross(xp, (kp[0], kp[1], 0.0)), 3)
             for a in range(2):
-                impulse[p, a] = m * kp[a]
-            moment[p, 0] = m * about_origin[2]
+                impulse[k, a] = m * kp[a]
+            moment[k, 0] = m * about_origin[2]
 
     return gather

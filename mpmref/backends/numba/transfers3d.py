@@ -114,21 +114,23 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def g2p(x, v, F, J, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
+    def g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
             modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         n_modes = mode_index.shape[0]
         real = x_new.dtype.type
         inv_dx = 1.0 / dx
-        n = x.shape[0]
+        some = rows.shape[0] > 0
+        n = rows.shape[0] if some else x.shape[0]
         for chunk in prange((n + G2P_CHUNK - 1) // G2P_CHUNK):
             q = np.empty((3, S, S))
             qnorm = np.empty((3, S))
             w_arr = np.empty((3, S))
             fx_arr = np.empty(3)
             acc = np.empty((max(n_modes, 1), 3))
-            for p in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
+            for k in range(chunk * G2P_CHUNK, min(n, (chunk + 1) * G2P_CHUNK)):
+                p = rows[k] if some else np.int64(k)
                 if POLY:
                     acc[:] = 0.0
                 v_pic, dv_flip = zeros(real, 3), zeros(real, 3)
@@ -167,7 +169,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                                 gather_modes(acc, idx, w, (i, j, l), v_grid, q, mode_index)
                 move_particle(p, x, v, dt, inertia, flip_alpha, v_pic, dv_flip, B, acc, qnorm, mode_index, x_new,
                               v_new, C_new, modes_new, AFFINE, POLY, FLIP)
-                deform_particle(p, x, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
+                deform_particle(p, 3, F, J, dt, inertia, B, grad_v, F_new, J_new, MLS_GRADIENT, F_new.shape[0] > 0,
                                 J_new.shape[0] > 0)
 
     return g2p
@@ -176,9 +178,9 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
 @lru_cache(maxsize=None)
 def kick_gather_kernel(KERNEL, S, BLOCK):
     r"""The kick gather of conservative level interfaces in 3D, as the 2D :func:`~.transfers2d.kick_gather_kernel`
-    (same arguments): each particle's impulse :math:`\delta P_p = m_p \sum_i w_{ip} k_i` and its moment about the
-    origin :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`, three
-    columns.
+    (same arguments, the same skipping of particles whose stencil reaches no kick): each particle's impulse
+    :math:`\delta P_p = m_p \sum_i w_{ip} k_i` and its moment about the origin
+    :math:`\delta L_p = m_p (x_p \times \sum_i w_{ip} k_i + \sum_i w_{ip} (x_i - x_p) \times k_i)`, three columns.
 
     Docs: docs/async.md#conservative-interfaces
     """
@@ -186,20 +188,29 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     N = BLOCK**3
 
     @njit(parallel=True, cache=True, fastmath={"contract"})
-    def gather(x, mass, layout, kick_rows, kicks, impulse, moment):
+    def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
-        for p in prange(x.shape[0]):
-            first = kick_rows[p]
+        some = rows.shape[0] > 0
+        n = rows.shape[0] if some else x.shape[0]
+        for k in prange(n):
+            p = rows[k] if some else np.int64(k)  # one integer type (prange counts unsigned)
+            first = kick_rows[k]
             if first < 0:
                 continue
-            kp, kl = zeros(np.float64, 3), zeros(np.float64, 3)
             b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
             b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
             b2, f2, w2, _ = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
-            d2 = offsets(f2, dx, S)
             k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
+            reached = False  # whether a block the stencil reaches (these four and the next along z) has a kick
+            for start in (k00, k01, k10, k11):
+                s_ = (first + start) // N
+                reached = reached or kicked[s_] or kicked[s_ + 1]
+            if not reached:
+                continue  # no kick there: the impulse and moment stay zero
+            kp, kl = zeros(np.float64, 3), zeros(np.float64, 3)
+            d0, d1 = offsets(f0, dx, S), offsets(f1, dx, S)
+            d2 = offsets(f2, dx, S)
             l0, l1, l2 = b0 % BLOCK, b1 % BLOCK, b2 % BLOCK
             c0, c1 = hops(l0, BLOCK, S), hops(l1, BLOCK, S)
             r0, r1 = local_rows(l0, BLOCK, BLOCK * BLOCK, 0, S), local_rows(l1, BLOCK, BLOCK, 0, S)
@@ -216,7 +227,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             xp = (np.float64(x[p, 0]), np.float64(x[p, 1]), np.float64(x[p, 2]))
             about_origin = axpy(kl, 1.0, cross(xp, kp), 3)
             for a in range(3):
-                impulse[p, a] = m * kp[a]
-                moment[p, a] = m * about_origin[a]
+                impulse[k, a] = m * kp[a]
+                moment[k, a] = m * about_origin[a]
 
     return gather
