@@ -263,10 +263,12 @@ def test_verify_refuses_a_backend_without_the_stages_every_scene_needs(tmp_path)
     assert not (tmp_path / "v").exists()
 
 
+@pytest.mark.slow  # 45 s of one core; the default run has every case on a user's backend through the CLI in the
+# partial example's quick report (tests/test_verify_partial.py) and each case's quick preset on the reference
 def test_the_whole_quick_report_passes_on_the_example_backend(tmp_path):
-    """``mpmref verify --quick --backend my_mpm_backend.backend:factory``: every case, every check (about 40 s; the
-    cases that compare two backends compare it with the reference, the sweeps of ``sync_vs_async`` that compare
-    stepping schemes run on Numba as they do for every backend)."""
+    """``mpmref verify --quick --backend my_mpm_backend.backend:factory``: every case, every check (the cases that
+    compare two backends compare it with the reference, the sweeps of ``sync_vs_async`` that compare stepping schemes
+    run on Numba as they do for every backend)."""
     run = mpmref(["verify", "--quick", "--backend", REFERENCE, "--out", str(tmp_path / "v"), "--no-progress"],
                  tmp_path / "p")
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]

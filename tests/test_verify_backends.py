@@ -62,6 +62,7 @@ def test_report_writes_plot_vtk_series_and_table(result, tmp_path):
     assert case.backends_run(result, "numpy") == ("numpy", "numba")
 
 
+@pytest.mark.slow  # compiles every kernel of the case from an empty cache: about a minute of one core
 def test_quick_preset_passes_from_an_empty_numba_cache_and_again_from_the_filled_one(tmp_path):
     """`mpmref verify backends --quick` in a fresh process with an empty Numba cache (kernels compiled), then
     again with the cache it filled (kernels loaded): exit 0 both times, every check passing, and the same bits
