@@ -48,7 +48,9 @@ def _store_with_ghosts(sim, rng):
 @pytest.mark.parametrize("dim, method, material", [(2, {"scheme": "mls"}, "fixed_corotated"),
                                                    (2, {"scheme": "mls"}, "snow"),
                                                    (2, {"scheme": "flip", "flip_alpha": 0.95}, "fixed_corotated"),
-                                                   (3, {"scheme": "mls"}, "fixed_corotated")])
+                                                   # a fresh Numba cache compiles the 3D kernels: 17 s of one core
+                                                   pytest.param(3, {"scheme": "mls"}, "fixed_corotated",
+                                                                marks=pytest.mark.slow)])
 @pytest.mark.parametrize("kicks", [False, True], ids=["plain", "by classes, kicks"])
 def test_the_row_stages_give_the_bits_of_the_gathering_adapter(dim, method, material, kicks):
     """One level update's rows (a run of the particles and ghost rows after them) stepped in place by the Numba row

@@ -351,6 +351,7 @@ def test_peer_refuses_scenes_it_does_not_implement():
         taichi_mpm88.check_scene(table2_scene(2))
 
 
+@pytest.mark.slow  # a fresh Numba cache compiles float32 kernels in 2D and 3D for it: 20 s of one core
 def test_numba_stages_and_scaling_records_are_consistent():
     """The Numba backend computes the stress inside P2G: the stress line is the stage timed alone; the scaling
     figures are the timed rates inverted, and one thread's speed-up over itself is 1."""

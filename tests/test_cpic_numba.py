@@ -15,10 +15,11 @@ from mpmref.conformance import CPIC_CONFORMANCE_STAGES, check, make_cases
 from mpmref.physics.cdf import update_tags
 
 CPIC_CASES = make_cases(dims=(2,), stages=CPIC_CONFORMANCE_STAGES)
-#: the default run checks every stage on three methods (one per kernel, affine and not, both forces); the
-#: slow run checks all of them (a fresh Numba cache compiles two kernels per method)
+#: the default run checks every stage on three methods (one per kernel, affine and not, both forces) and the step's
+#: variants; the slow run checks all of them, the per-body fit included (a fresh Numba cache compiles two kernels per
+#: method, and the per-body fit's kernels took 19 s of one core)
 QUICK_VARIANTS = {"bodies", "mls-mls-quadratic", "pic-classic-linear", "apic-classic-cubic", "pic-mls-quadratic",
-                  "pic-mls-quadratic-exact", "mls-mls-quadratic-no-ghost-force", "mls-mls-quadratic-per-body"}
+                  "pic-mls-quadratic-exact", "mls-mls-quadratic-no-ghost-force"}
 QUICK_CASES = [c for c in CPIC_CASES if c.variant in QUICK_VARIANTS]
 
 
