@@ -28,9 +28,8 @@ compiles stay in its memory for the cases that follow.
 import multiprocessing
 from dataclasses import dataclass
 
+from mpmref import Simulation
 from mpmref.backends import make_backend, resolve
-from mpmref.scene.sampling import sample_particles
-from mpmref.steppers.pipeline import substep
 
 from . import registry
 
@@ -81,9 +80,15 @@ def plan(names, preset, backend):
 
 
 def _kernels(backend_name, scene):
-    """The compiled kernels a scene runs (``compiled_kernels()`` of its backend; the scene itself without it)."""
+    """The compiled kernels a scene runs (``compiled_kernels()`` of its backend; the scene itself without it), and
+    its stepping: an asynchronous scene compiles its stepper's bookkeeping and the backend's row stages too, and
+    their kernels depend on the particle fields the scene allocates (:meth:`~mpmref.run.Simulation.warm_up`)."""
     compiled = make_backend(backend_name, scene)
-    return compiled.compiled_kernels() if hasattr(compiled, "compiled_kernels") else {id(scene)}
+    kernels = compiled.compiled_kernels() if hasattr(compiled, "compiled_kernels") else {id(scene)}
+    if scene.time.stepping == "async":
+        kernels = kernels | {("async", scene.dtype.str, scene.transfer.transfer, scene.tracks("F"), scene.tracks("J"),
+                              scene.tracks("Jp"))}
+    return kernels
 
 
 def scenes_to_compile(names, preset, backend):
@@ -93,14 +98,15 @@ def scenes_to_compile(names, preset, backend):
 
 
 def compile_scenes(names, preset, backend, queue=None, from_back=False, done=None):
-    """Compile (or load) every kernel of :func:`scenes_to_compile` with one Δt = 0 step of each scene; with a
+    """Compile (or load) every kernel of :func:`scenes_to_compile` as a run of each scene does before it is timed
+    (:meth:`mpmref.run.Simulation.warm_up`: one Δt = 0 step, and an asynchronous stepper's bookkeeping); with a
     ``queue`` (shared ``[front, back)`` bounds, see :func:`start`), only the scenes this worker claims, each
     marked in the shared flags ``done`` once compiled."""
     scenes = scenes_to_compile(names, preset, backend)
     queue = queue if queue is not None else multiprocessing.Array("i", [0, len(scenes)])
     while (index := claim(queue, from_back)) is not None:
         name, scene = scenes[index]
-        make_backend(name, scene).warm_up(sample_particles(scene), substep)
+        Simulation(scene, backend=name).warm_up()  # the backend's kernels and, if asynchronous, its stepper's
         if done is not None:
             done[index] = 1
 
