@@ -1,7 +1,7 @@
 """One conformance case: a stage on a scene, with the seeded random state it is checked on.
 
-The built-in catalogue (:mod:`.cases`) and the cases drawn from a user's scene (:mod:`.scenes`) are both made of
-:class:`ConformanceCase`; what they differ in is the scene and the :class:`~.states.Scales` of the state.
+The built-in catalogue (:mod:`.cases`) and the cases drawn from a user's scene (:mod:`~mpmref.conformance.scenes`) are
+both made of :class:`ConformanceCase`; what they differ in is the scene and the :class:`~.states.Scales` of the state.
 """
 
 import zlib
@@ -64,8 +64,9 @@ class ConformanceCase:
     scales : Scales    the magnitudes of the state (:class:`~.states.Scales`); ``None``: the built-in cases' own,
                        :func:`~.states.catalogue_scales`
     dt : float         the stage's Δt where the scene has no ``time.dt`` (asynchronous stepping); ``None``: the scene's
-    source : str       the name of the user's scene the case was drawn from (:mod:`.scenes`), ``None`` for a
-                       built-in case; such a case is applicable only to a backend that implements that whole scene
+    source : str       the name of the user's scene the case was drawn from (:mod:`~mpmref.conformance.scenes`),
+                       ``None`` for a built-in case; such a case is applicable only to a backend that implements that
+                       whole scene
     """
 
     stage: str

@@ -19,7 +19,7 @@ from mpmref import Scene
 from mpmref.errors import ArgumentError, SceneError
 from mpmref.scene.sampling import sample_particles
 
-#: keys of which a scene declares one: setting one removes the other
+#: keys of which a scene declares one (setting one removes the other)
 ALTERNATIVES = {("grid", "dx"): "cells", ("grid", "cells"): "dx", ("time", "dt"): "cfl", ("time", "cfl"): "dt",
                 ("time", "steps"): "t_end", ("time", "t_end"): "steps"}
 #: what ``--vary`` accepts, for messages

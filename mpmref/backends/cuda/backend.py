@@ -211,15 +211,16 @@ class CudaBackend:
         return tau if is_device(particles.x) else tau.copy_to_host()
 
     def p2g(self, particles, prepared=None, contact=None, classes=None):
-        """Node mass, momentum and internal force (:mod:`.p2g`): a :class:`~mpmref.state.GridState` on the device for
-        device particles, on the host for host particles. CPIC contact and particle classes are not implemented
-        (scenes that need them are refused when the backend is made)."""
+        """Node mass, momentum and internal force (:mod:`~mpmref.backends.cuda.p2g`): a :class:`~mpmref.state.GridState`
+        on the device for device particles, on the host for host particles. CPIC contact and particle classes are not
+        implemented (scenes that need them are refused when the backend is made)."""
         if contact is not None or classes is not None:
             raise NotImplementedError("the cuda backend has no CPIC contact or particle classes")
         return self._p2g(particles, prepared, self.kernels.p2g, 0.0)
 
     def p2g_fused(self, particles, dt, prepared=None):
-        """P2G with the step's internal force folded into the momentum (:mod:`.p2g`; ``force`` is ``None``)."""
+        """P2G with the step's internal force folded into the momentum (:mod:`~mpmref.backends.cuda.p2g`; ``force`` is
+        ``None``)."""
         return self._p2g(particles, prepared, self.kernels.p2g_fused, dt)
 
     def _p2g(self, particles, prepared, kernels, dt):
@@ -254,8 +255,9 @@ class CudaBackend:
         return self._scratch[key]
 
     def grid_update(self, grid_state, dt, time=0.0):
-        """Node velocities after forces, gravity, walls and colliders, ``(v, v_tilde)`` (:mod:`.grid_update`), on the
-        device for a device grid state, on the host for a host one; ``v_tilde`` is ``None`` after a fused P2G."""
+        """Node velocities after forces, gravity, walls and colliders, ``(v, v_tilde)``
+        (:mod:`~mpmref.backends.cuda.grid_update`), on the device for a device grid state, on the host for a host one;
+        ``v_tilde`` is ``None`` after a fused P2G."""
         on_device = is_device(grid_state.mass)
         to = (lambda a: a) if on_device else (lambda a: self.cuda.to_device(np.ascontiguousarray(a)))
         d, N = self.dim, grid_state.mass.shape[0]
@@ -275,9 +277,9 @@ class CudaBackend:
         return v.copy_to_host(), None if v_tilde is None else v_tilde.copy_to_host()
 
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
-        """New particles from the node velocities (:mod:`.g2p`): on the device for device particles, on the host for
-        host particles. Kicks of conservative level interfaces are not implemented (asynchronous stepping is
-        refused)."""
+        """New particles from the node velocities (:mod:`~mpmref.backends.cuda.g2p`): on the device for device
+        particles, on the host for host particles. Kicks of conservative level interfaces are not implemented
+        (asynchronous stepping is refused)."""
         if kicks is not None:
             raise NotImplementedError("the cuda backend has no asynchronous stepping")
         p = prepared.particles if prepared is not None else self.to_device(particles)
@@ -299,8 +301,8 @@ class CudaBackend:
         return self._result(particles, changes)
 
     def return_map(self, particles):
-        """Plastic projection of the snow and sand particles (:mod:`.materials`; a new state, the others' ``F`` and
-        ``Jp`` copied)."""
+        """Plastic projection of the snow and sand particles (:mod:`~mpmref.backends.cuda.materials`; a new state, the
+        others' ``F`` and ``Jp`` copied)."""
         if not self.plastic or particles.Jp is None:
             return particles
         p = self.to_device(particles)

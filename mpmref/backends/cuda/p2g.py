@@ -1,13 +1,13 @@
 r"""P2G of the GPU backend (:func:`mpmref.backends.numpy.transfers.p2g` and ``p2g_fused`` for the equations).
 
 Two kernels. ``prelude`` runs once per particle, in the order of :mod:`mpmref.backends.cuda.sort`, and writes the
-particle's *row*: what every node of its stencil takes from it (:class:`Row`): its fractions :math:`f_a` (the
-weights and offsets follow from them), mass :math:`m_p`, momentum :math:`m_p v_p`, affine momentum :math:`m_p C_p`
-(APIC, PolyPIC, MLS-MPM) and force matrix :math:`Q_p = -V_p^0\tau_p D_p^{-1}` (MLS force) or :math:`-V_p^0\tau_p`
-(classic), the Kirchhoff stress :math:`\tau_p` computed there by its material (:mod:`.materials`); and with PolyPIC
-the momentum of its higher modes at each stencil node, :math:`m_p\sum_r s_r(x_i)\,c_{pr}`. A fused P2G folds the
-step's force in: with the MLS force :math:`A_p = m_p C_p + \Delta t\,Q_p` takes the place of :math:`m_p C_p` (Hu et
-al. 2018 §4; the 88-line program's ``affine``), with the classic force :math:`\Delta t\,Q_p \nabla w_{ip}` joins the
+particle's *row*: what every node of its stencil takes from it (:class:`Row`): its fractions :math:`f_a` (the weights
+and offsets follow from them), mass :math:`m_p`, momentum :math:`m_p v_p`, affine momentum :math:`m_p C_p` (APIC,
+PolyPIC, MLS-MPM) and force matrix :math:`Q_p = -V_p^0\tau_p D_p^{-1}` (MLS force) or :math:`-V_p^0\tau_p` (classic),
+the Kirchhoff stress :math:`\tau_p` computed there by its material (:mod:`~mpmref.backends.cuda.materials`); and with
+PolyPIC the momentum of its higher modes at each stencil node, :math:`m_p\sum_r s_r(x_i)\,c_{pr}`. A fused P2G folds the
+step's force in: with the MLS force :math:`A_p = m_p C_p + \Delta t\,Q_p` takes the place of :math:`m_p C_p` (Hu et al.
+2018 §4; the 88-line program's ``affine``), with the classic force :math:`\Delta t\,Q_p \nabla w_{ip}` joins the
 momentum.
 
 ``gather`` runs once per node and sums, in a fixed order, what the particles of the :math:`S^d` cells whose

@@ -5,11 +5,12 @@ Files, by stage, with one 2D/3D convention (the one of the CPIC stages, :mod:`mp
 whose loops run over a particle's stencil are written once per dimension, in :mod:`.transfers2d` and
 :mod:`.transfers3d`, behind one declared interface (:class:`DimensionTransfers`; the table :data:`TRANSFER_KERNELS`,
 from which :func:`make_p2g`, :func:`make_g2p` and :func:`make_kick_gather` take the scene's dimension's); what both
-dimensions share is in a module per stage, :mod:`.p2g` (the per-node scatter) and :mod:`.g2p` (the mode
-projections and the per-particle update), and in :mod:`.stencil` (a particle's stencil along one axis),
-:mod:`.sparse` (the rows of the stencil's nodes) and :mod:`.tuple_math`. The grid update (:mod:`.grid_update`)
-and the node kicks of conservative interfaces (:mod:`.kicks`) are written once for both dimensions: their loops
-run over the columns of the node arrays.
+dimensions share is in a module per stage, :mod:`~mpmref.backends.numba.p2g` (the per-node scatter) and
+:mod:`~mpmref.backends.numba.g2p` (the mode projections and the per-particle update), and in
+:mod:`~mpmref.backends.numba.stencil` (a particle's stencil along one axis), :mod:`.sparse` (the rows of the stencil's
+nodes) and :mod:`.tuple_math`. The grid update (:mod:`~mpmref.backends.numba.grid_update`) and the node kicks of
+conservative interfaces (:mod:`.kicks`) are written once for both dimensions: their loops run over the columns of the
+node arrays.
 
 Each kernel is built for one transfer configuration (of a :class:`~mpmref.physics.scheme.TransferSpec`):
 dimension (the file), kernel, block size, scheme features (affine matrix, PolyPIC modes, FLIP in G2P) and force
