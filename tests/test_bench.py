@@ -383,7 +383,8 @@ def test_cpic_bench_steps_the_same_sand_outside_the_ring_with_and_without_the_bo
     assert radius.min() > SAND_WHEEL["ring_radius"] * np.cos(np.pi / SAND_WHEEL["ring_segments"])  # none inside
 
 
-@pytest.mark.parametrize("memory", [False, pytest.param(True, marks=pytest.mark.slow)])
+@pytest.mark.slow  # the section's 3D float32 kernels: a fresh compile of about 14 s of one core
+@pytest.mark.parametrize("memory", [False, True])
 def test_domain_section_puts_the_same_body_in_growing_domains(memory):
     """The same particles in every domain, the step time's ratio to the smallest domain's, and (in fresh
     processes) a peak resident memory at least the baseline after compiling."""
