@@ -254,3 +254,57 @@ def test_the_warm_up_queue_hands_out_every_scene_once_from_either_end():
     queue = multiprocessing.Array("i", [0, 5])
     taken = [warmup.claim(queue, from_back=k % 2 == 1) for k in range(7)]
     assert taken == [0, 4, 1, 3, 2, None, None]
+
+
+def test_a_compiled_case_runs_as_soon_as_the_main_process_has_compiled_its_kernels(monkeypatch):
+    """Once the NumPy cases are done, the main process compiles a scene at a time and runs a compiled case between
+    two of them as soon as its kernels are compiled, not after the whole compilation; the records keep the order
+    of the names."""
+    from types import SimpleNamespace
+
+    from verification.framework import cli
+
+    ready, turns, events = set(), iter(["b", "a"]), []
+
+    def help_compile(warm_up, progress):
+        case = next(turns, None)
+        if case is None:
+            return False
+        events.append(f"compile {case}")
+        ready.add(case)
+        return True
+
+    monkeypatch.setattr(cli.warmup, "compiles", lambda name, preset, backend: name in ("a", "b"))
+    monkeypatch.setattr(cli.warmup, "can_start", lambda warm_up, name: name in ready)
+    monkeypatch.setattr(cli.warmup, "help_compile", help_compile)
+    monkeypatch.setattr(cli, "_run_case", lambda args, name, tag, executor: events.append(f"run {tag}") or name)
+    records = cli._run_cases(SimpleNamespace(preset="quick", backend="numpy"), ["numpy_case", "a", "b"], None,
+                             object())
+    assert events == ["run [1/3] numpy_case", "compile b", "run [2/3] b", "compile a", "run [3/3] a"]
+    assert records == ["numpy_case", "a", "b"]
+
+
+def test_the_main_process_compiles_from_the_back_one_scene_a_turn_until_every_scene_is_done(monkeypatch):
+    """help_compile: one scene from the back of the queue each turn, marked done; a wait once the queue is
+    claimed but a scene is still compiling in the background; False once every scene is done; one progress line."""
+    import multiprocessing
+    from types import SimpleNamespace
+
+    from verification.framework import warmup
+
+    compiled, lines, joins = [], [], []
+
+    def compile_scene(queued, index, done):
+        compiled.append(queued)
+        done[index] = 1
+
+    monkeypatch.setattr(warmup, "compile_scene", compile_scene)
+    process = SimpleNamespace(is_alive=lambda: True, join=lambda timeout: joins.append(timeout))
+    done = multiprocessing.Array("b", 3)
+    warm = warmup.WarmUp(process, multiprocessing.Array("i", [1, 3]), done, (), {}, ["s0", "s1", "s2"])
+    assert warmup.help_compile(warm, lines.append) and compiled == ["s2"]
+    assert warmup.help_compile(warm, lines.append) and compiled == ["s2", "s1"]
+    assert warmup.help_compile(warm, lines.append) and joins  # s0 is the background's, still compiling
+    done[0] = 1
+    assert not warmup.help_compile(warm, lines.append) and compiled == ["s2", "s1"] and len(lines) == 1
+    assert not warmup.help_compile(None, lines.append)
