@@ -166,24 +166,20 @@ def check_backend(reference):
 def _run_cases(args, names, executor, compiling):
     """Run and report each case, with a progress line when it starts and when it ends; the records come
     back in the order of ``names``. The NumPy-only cases run first; a case that runs a compiled backend
-    runs as soon as the compilation (:mod:`.warmup`) has compiled every kernel it needs
-    (:func:`.warmup.can_start`): between the NumPy cases, or between two scenes that this process compiles
-    once they are done (:func:`.warmup.help_compile`), or after the whole compilation, so that no kernel is
-    compiled twice."""
+    runs between them as soon as the background compilation (:mod:`.warmup`) has compiled every kernel it
+    needs (:func:`.warmup.can_start`), or else after the whole compilation, so that no kernel is compiled
+    twice."""
     later = [n for n in names if warmup.compiles(n, args.preset, args.backend)]
     first = [n for n in names if n not in later]
     records = {}
-    while first or later:
-        name = next((n for n in later if warmup.can_start(compiling, n)), None)
-        if name is not None:
+    for i in range(1, len(names) + 1):
+        early = next((n for n in later if warmup.can_start(compiling, n)), None)
+        if early is None and not first:
+            warmup.wait(compiling, lambda line: _progress(args, line))
+        name = early or (first or later).pop(0)
+        if name == early:
             later.remove(name)
-        elif first:
-            name = first.pop(0)
-        elif warmup.help_compile(compiling, lambda line: _progress(args, line)):
-            continue
-        else:
-            name = later.pop(0)
-        records[name] = _run_case(args, name, f"[{len(records) + 1}/{len(names)}] {name}", executor)
+        records[name] = _run_case(args, name, f"[{i}/{len(names)}] {name}", executor)
     return [records[n] for n in names]
 
 

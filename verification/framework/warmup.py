@@ -11,20 +11,18 @@ needs it is compiled there as before.
 Numba has no lock between processes: a case that starts while the warm-up is still compiling its kernels
 would compile them a second time, on the other core (measured: the ``backends`` quick preset took 134 s of
 CPU that way against 64 s alone). So a case that declares compiled scenes starts only once every scene it
-needs is compiled (:func:`can_start`: then, between two NumPy cases or two scenes that the main process
-compiles, while the warm-up goes on with the others) or after the whole warm-up; every kernel compiles once.
-A case that times its runs (``runs_alone=True`` in its :class:`~verification.framework.case.VerificationCase`)
-always waits for the whole warm-up: compilation on the other core would slow what it measures.
+needs is compiled (:func:`can_start`: then, between two NumPy cases, while the warm-up goes on with the
+others) or after :func:`wait` for the whole warm-up; every kernel compiles once. A case that times its
+runs (``runs_alone=True`` in its :class:`~verification.framework.case.VerificationCase`) always waits for the whole
+warm-up: compilation on the other core would slow what it measures.
 
 The queue (:func:`plan`) holds one scene per set of kernels not yet compiled by the scenes before it
 (``compiled_kernels()`` of the backend), the scenes of cases that may start early first, fewest first,
 and within a case the scene compiling the most kernels first (the short ones are left for the end).
 Two workers take from it, one from each end, each scene claimed under a lock: the background process
 from the front from the start, and, once the NumPy cases are done and the core they used is free, the
-main process from the back, one scene at a time (:func:`help_compile`), running between two scenes any case
-whose kernels are all compiled by then, so that the cases' own runs overlap the compilation still going on in
-the background. No scene is compiled twice, and the kernels the main process compiles stay in its memory for
-the cases that follow.
+main process from the back (:func:`wait`). No scene is compiled twice, and the kernels the main process
+compiles stay in its memory for the cases that follow.
 """
 
 import multiprocessing
@@ -107,16 +105,10 @@ def compile_scenes(names, preset, backend, queue=None, from_back=False, done=Non
     scenes = scenes_to_compile(names, preset, backend)
     queue = queue if queue is not None else multiprocessing.Array("i", [0, len(scenes)])
     while (index := claim(queue, from_back)) is not None:
-        compile_scene(scenes[index], index, done)
-
-
-def compile_scene(queued, index, done=None):
-    """Compile (or load) the kernels of one queued ``(backend name, scene)`` as a run does before it is timed
-    (the backend's kernels and, if asynchronous, its stepper's) and mark it in the shared flags ``done``."""
-    name, scene = queued
-    Simulation(scene, backend=name).warm_up()
-    if done is not None:
-        done[index] = 1
+        name, scene = scenes[index]
+        Simulation(scene, backend=name).warm_up()  # the backend's kernels and, if asynchronous, its stepper's
+        if done is not None:
+            done[index] = 1
 
 
 def claim(queue, from_back):
@@ -135,24 +127,16 @@ def claim(queue, from_back):
 @dataclass
 class WarmUp:
     """The background compilation: its process, the shared queue bounds and per-scene ``done`` flags, what
-    :func:`help_compile` needs to take the other end of the queue (the queued scenes), and the queue positions
-    each case needs."""
+    :func:`wait` needs to take the other end of the queue, and the queue positions each case needs."""
 
     process: multiprocessing.Process
     queue: object
     done: object
     job: tuple
     needs: dict
-    scenes: list
-    helping: bool = False  # whether the main process has started on the back of the queue (said once)
 
     def is_alive(self):
         return self.process.is_alive()
-
-    def finished(self):
-        """Whether every queued scene is compiled, or the background process is gone (a case then compiles what it
-        still needs itself)."""
-        return all(self.done) or not self.is_alive()
 
 
 def start(names, preset, backend):
@@ -169,7 +153,7 @@ def start(names, preset, backend):
     process = context.Process(target=compile_scenes, args=(*job, queue, False, done), daemon=True,
                               name="mpmref-warm-up")
     process.start()
-    return WarmUp(process, queue, done, job, needs, scenes)
+    return WarmUp(process, queue, done, job, needs)
 
 
 def compiles(name, preset, backend):
@@ -185,23 +169,16 @@ def can_start(warm_up, name):
     return all(warm_up.done[index] for index in warm_up.needs.get(name, ()))
 
 
-def help_compile(warm_up, progress):
-    """One turn of the main process at the compilation, once it has no NumPy case left to run: the scene at the
-    back of the queue compiled here, beside the background process, or, when every scene is claimed, a short wait
-    for the background process; ``False`` when the compilation is over (then every case may start), ``True``
-    otherwise, so that the caller can run a case whose kernels are compiled before the next turn. The first turn
-    says so through ``progress``. The process itself may still be shutting down; :func:`stop` ends it."""
-    if warm_up is None or warm_up.finished():
-        return False
-    if not warm_up.helping:
-        warm_up.helping = True
-        progress("compiling the rest of the kernels here and in the background process (each kernel compiles "
-                 "once; a case starts as soon as its own are compiled)")
-    if (index := claim(warm_up.queue, from_back=True)) is not None:
-        compile_scene(warm_up.scenes[index], index, warm_up.done)
-    else:
+def wait(warm_up, progress):
+    """Compile the scenes still queued from the back here, beside the background process, then wait until
+    every scene is compiled (a line through ``progress`` when the background process is still running). The
+    process itself may still be shutting down; :func:`stop` ends it."""
+    if warm_up is None or not warm_up.is_alive():
+        return
+    progress("compiling the rest of the kernels here and in the background process (each kernel compiles once)")
+    compile_scenes(*warm_up.job, queue=warm_up.queue, from_back=True, done=warm_up.done)
+    while warm_up.is_alive() and not all(warm_up.done):
         warm_up.process.join(timeout=0.05)
-    return True
 
 
 def stop(warm_up):
