@@ -196,6 +196,18 @@ def required_calls(scene):
     return calls
 
 
+#: wall (and collider) types as the compiled backends' kernels code them
+WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
+
+
+def wall_table(boundary, dim):
+    r"""The domain's walls as compiled kernels take them, in the order x_min, x_max, y_min, ...: their types
+    (:data:`WALL_CODES`, int64) and Coulomb friction coefficients (float64), talk Eq. 25's :math:`\mu_b`."""
+    walls = [boundary.walls[f"{'xyz'[a]}_{side}"] for a in range(dim) for side in ("min", "max")]
+    return (np.array([WALL_CODES[w.type] for w in walls], dtype=np.int64),
+            np.array([w.friction for w in walls], dtype=np.float64))
+
+
 def serial_context(n_particles):
     """The ``running`` of a backend with nothing to set up."""
     return nullcontext()

@@ -9,10 +9,10 @@ import numpy as np
 from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState, Particles
-from ..base import serial_context
+from ..base import serial_context, wall_table
 from ..capabilities import Implements
-from ..residency import Summary, on_host
-from .grid_update import BOUNDARY_CODES, collider_table
+from ..residency import Summary, is_device, on_host
+from .grid_update import collider_table
 from .kernels import Config, Kernels
 from .materials import PLASTIC, material_table
 from .particles import CHECKED_FIELDS, summary_size
@@ -24,11 +24,6 @@ P2G_MODES = ("gather", "atomic")
 #: references to a kept array that mean nobody else holds it: the pool's list, the loop variable and the argument
 #: of ``sys.getrefcount``
 _FREE = 3
-
-
-def is_device(array):
-    """Whether ``array`` is a device array (numba-cuda's, or the simulator's)."""
-    return hasattr(array, "copy_to_host")
 
 
 class Prepared(NamedTuple):
@@ -100,9 +95,8 @@ class CudaBackend:
         self.origin64 = to(np.asarray(grid.origin, dtype=np.float64))
         self.node_shape = to(np.array(list(grid.node_shape) + [1] * (3 - d), dtype=np.int64))
         self.gravity = to(np.asarray(scene.gravity, dtype=self.dtype))
-        walls = [scene.boundary.walls[f"{'xyz'[a]}_{side}"] for a in range(d) for side in ("min", "max")]
-        self.wall_type = to(np.array([BOUNDARY_CODES[w.type] for w in walls], dtype=np.int64))
-        self.wall_friction = to(np.array([w.friction for w in walls], dtype=self.dtype))
+        wall_type, wall_friction = wall_table(scene.boundary, d)
+        self.wall_type, self.wall_friction = to(wall_type), to(wall_friction.astype(self.dtype))
         self.colliders = to(collider_table(scene.colliders))
         rules, params = material_table(scene.material_list, self.dtype)
         self.rules, self.params = to(rules), to(params)
@@ -166,13 +160,19 @@ class CudaBackend:
             return particles
         return Particles(**{name: on_host(array) for name, array in particles.arrays().items()})
 
+    @cached_property
+    def _summary_start(self):
+        """What a summary's maxima start from before the reduction (host, -inf each)."""
+        return np.full(summary_size(self.dim), -np.inf)
+
     def summarize(self, particles, previous=None):
         """The :class:`~mpmref.backends.residency.Summary` of the particles, reduced on the GPU (five numbers and a
         flag per field come back): non-finite fields, extent, largest velocity change since ``previous``, largest
         signal speed."""
         p = self.to_device(particles)
         d = self.dim
-        out = self.cuda.to_device(np.full(summary_size(d), -np.inf))
+        out = self._work("summary", (summary_size(d),), np.float64)
+        out.copy_to_device(self._summary_start)  # every maximum starts at -inf; the device array is the backend's own
         old = self.to_device(previous).v if previous is not None else p.v
         self.kernels.particles.summarize(p.n, p.x, p.v, old, self._or_none(p.C, 0, d, d), self._or_none(p.F, 0, d, d),
                                          self._or_none(p.J, 0), self._or_none(p.Jp, 0),

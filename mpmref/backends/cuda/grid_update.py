@@ -16,11 +16,10 @@ import numpy as np
 from numba import types
 
 from ...physics.colliders import Ball, Box, Cylinder, Plane
+from ..base import WALL_CODES
 from .launch import array, device_function, kernel_set, scalar
 from .runtime import cuda, load
 
-#: wall and collider types as the kernels code them
-BOUNDARY_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
 #: collider shapes as the kernels code them
 SHAPE_CODES = {Plane: 0, Ball: 1, Box: 2, Cylinder: 3}
 #: a collider's row: shape, type, friction, velocity (3), then its shape's numbers (up to 7)
@@ -34,7 +33,7 @@ def collider_table(colliders):
     table = np.zeros((max(len(colliders), 1), COLLIDER_WIDTH))
     for k, c in enumerate(colliders):
         numbers = shape_numbers(c.shape)
-        table[k, :6] = [SHAPE_CODES[type(c.shape)], BOUNDARY_CODES[c.type], c.friction] + padded(c.velocity)
+        table[k, :6] = [SHAPE_CODES[type(c.shape)], WALL_CODES[c.type], c.friction] + padded(c.velocity)
         table[k, 6:6 + len(numbers)] = numbers
     return table
 

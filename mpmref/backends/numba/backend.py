@@ -9,7 +9,7 @@ from ...physics.interface import N_CLASSES
 from ...physics.materials import WeaklyCompressibleFluid, material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
-from ..base import MaterialTable
+from ..base import MaterialTable, wall_table
 from . import cpic, materials, transfers
 from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
@@ -20,8 +20,6 @@ from .rows import NO_ROWS, RowStages
 from .sparse import BlockLayout
 from .stencil import BASE_SHIFT
 from .threads import describe_threads, threads_for
-
-WALL_CODES = {"open": 0, "sticky": 1, "slip": 2, "separate": 3}
 
 
 def dense_with_classes(state):
@@ -121,9 +119,7 @@ class NumbaBackend(RowStages):
         self.shift = BASE_SHIFT[scene.kernel.name]
         self.block = grid.block
         self.blocks_per_axis = grid.blocks_per_axis
-        walls = [scene.boundary.walls[f"{'xyz'[a]}_{side}"] for a in range(scene.dim) for side in ("min", "max")]
-        self.wall_type = np.array([WALL_CODES[w.type] for w in walls], dtype=np.int64)
-        self.wall_friction = np.array([w.friction for w in walls], dtype=np.float64)
+        self.wall_type, self.wall_friction = wall_table(scene.boundary, scene.dim)
         self.gravity = np.asarray(scene.gravity, dtype=np.float64)
         self.materials = MaterialTable(scene.material_list, MATERIAL_KERNELS)
         self.fluid_params = materials.fluid_parameters(scene.material_list)
