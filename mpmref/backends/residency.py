@@ -75,15 +75,20 @@ def resident(backend):
     return all(callable(getattr(backend, name, None)) for name in RESIDENT_METHODS)
 
 
+def is_device(array):
+    """Whether ``array`` is a device array (numba-cuda's, or the simulator's)."""
+    return hasattr(array, "copy_to_host")
+
+
 def on_host(array):
     """``array`` as a NumPy array (a device array is copied; anything else is returned as it is)."""
-    return array.copy_to_host() if hasattr(array, "copy_to_host") else array
+    return array.copy_to_host() if is_device(array) else array
 
 
 def host_grid(grid_state):
     """A grid state with NumPy arrays over every node in C order (:meth:`~mpmref.state.GridState.dense`)."""
     dense = grid_state.dense()
-    if dense is grid_state and not any(hasattr(a, "copy_to_host") for a in grid_state.node_arrays().values()):
+    if dense is grid_state and not any(is_device(a) for a in grid_state.node_arrays().values()):
         return grid_state
     return GridState(**{name: on_host(a) for name, a in dense.node_arrays().items()})
 

@@ -28,7 +28,7 @@ SIMULATED = simulated()
 def device_function(fn):
     """``fn`` as a numba-cuda device function, inlined into its callers by NVVM (see above)."""
     cuda = load()
-    return (cuda.jit(device=True) if simulated() else cuda.jit(device=True, forceinline=True))(fn)
+    return (cuda.jit(device=True) if SIMULATED else cuda.jit(device=True, forceinline=True))(fn)
 
 
 def array(dtype, ndim):

@@ -60,7 +60,9 @@ def make_materials(dtype, dim, present):
       (unread by the fluid), ``J`` and ``Jp`` its volume ratios (unread where the law has none);
     * ``return_map(rule, prm, F, Jp)``: the plastic projection of ``F`` (in place) for snow and sand, returning the
       new :math:`J_P` (``Jp`` itself for the other laws);
-    * ``wave_speed(rule, prm, F, J, Jp)``: the current P-wave speed :math:`c_p` in float64 (the CFL rule's).
+    * ``wave_speed(rule, prm, F, J, Jp)``: the current P-wave speed :math:`c_p` in float64 (the CFL rule's);
+    * ``load_state(p, F, J, Jp, rule, Fp)``: particle ``p``'s ``F`` copied into the local ``Fp`` and its ``(J, Jp)``,
+      from the particle arrays.
     """
     load()
     T, nb = real_types(dtype)
@@ -111,7 +113,8 @@ def make_materials(dtype, dim, present):
 
     @device_function
     def fluid(J, K, gamma, tau):
-        r"""``tau`` = :math:`-pJ\,I`, :math:`p = K(J^{-\gamma} - 1)` (Tait fluid)."""
+        r"""``tau`` = :math:`-pJ\,I`, :math:`p = K(J^{-\gamma} - 1)`: the Tait fluid of Becker & Teschner 2007 §4 and
+        Tampubolon et al. 2017 §4.1 (:class:`mpmref.physics.materials.WeaklyCompressibleFluid`)."""
         power = one / J if gamma == one else math.pow(J, -gamma)
         s = -(K * (power - one)) * J
         for a in range(D):
@@ -241,5 +244,15 @@ def make_materials(dtype, dim, present):
         shear = 4.0 * mu * Jv / (3.0 * rho)
         return math.sqrt(max(shear + (2.0 * mu / 3.0 + lam) * (1.0 - math.log(Jv)) / rho, shear))
 
-    return SimpleNamespace(stress=stress, return_map=return_map, wave_speed=wave_speed, det=det)
+    @device_function
+    def load_state(p, F, J, Jp, rule, Fp):
+        """Particle ``p``'s deformation gradient into the local ``Fp`` (the identity for a fluid, which has none) and
+        its ``J``, ``Jp`` (1 where the scene has none), as :func:`stress` and :func:`return_map` take them."""
+        for a in range(D):
+            for b in range(D):
+                Fp[a, b] = F[p, a, b] if rule != FLUID else (one if a == b else zero)
+        return (J[p] if J.shape[0] > 0 else one), (Jp[p] if Jp.shape[0] > 0 else one)
+
+    return SimpleNamespace(stress=stress, return_map=return_map, wave_speed=wave_speed, det=det,
+                           load_state=load_state)
 

@@ -23,7 +23,7 @@ import numpy as np
 from numba import types
 
 from .launch import array, device_function, kernel_set, real_types, scalar
-from .materials import FLUID, make_materials
+from .materials import make_materials
 from .runtime import cuda, load
 from .sort import INDEX
 from .stencil import make_stencil
@@ -71,7 +71,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
     K = S**D  # nodes of a stencil
     M = K - 1 - D  # PolyPIC's higher modes
     mats = make_materials(dtype, dim, laws)
-    mats_stress = mats.stress
+    mats_stress, mats_load_state = mats.stress, mats.load_state
     row = row_layout(D, S, affine, poly, mls_force, fused)
     FX, MASS, MOM, AFF, QF, MODES = row.fx, row.mass, row.momentum, row.affine, row.force, row.modes
     one, zero = T(1.0), T(0.0)
@@ -127,11 +127,8 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         tau = cuda.local.array((D, D), nb)
         Fp = cuda.local.array((D, D), nb)
         law = rules[material[p]]
-        for a in range(D):
-            for b in range(D):
-                Fp[a, b] = F[p, a, b] if law != FLUID else zero
-        mats_stress(law, params[material[p]], Fp, J[p] if J.shape[0] > 0 else one, Jp[p] if Jp.shape[0] > 0 else one,
-                    tau)
+        Jv, Jpv = mats_load_state(p, F, J, Jp, law, Fp)
+        mats_stress(law, params[material[p]], Fp, Jv, Jpv, tau)
         scale = -vol0[p] / T(inertia) if mls_force else -vol0[p] * (T(dt) if fused else one)
         for a in range(D):
             for b in range(D):

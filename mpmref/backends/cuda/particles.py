@@ -13,7 +13,7 @@ import numpy as np
 from numba import types
 
 from .launch import BLOCK, array, device_function, kernel_set, real_types
-from .materials import FLUID, make_materials
+from .materials import make_materials
 from .runtime import cuda, load
 
 #: the particle fields whose non-finite values the summary flags, in the order of its first entries
@@ -31,22 +31,13 @@ def particle_kernels(dtype, dim, laws):
     """The kernels ``stress``, ``return_map`` and ``summarize`` for particles of ``dtype`` in ``dim`` dimensions with
     the material laws ``laws`` (a namespace of :class:`~.launch.DeviceKernel`)."""
     load()
-    T, nb = real_types(dtype)
+    _, nb = real_types(dtype)
     D = dim
-    one, zero = T(1.0), T(0.0)
     mats = make_materials(dtype, dim, laws)
     mats_stress, mats_return_map, mats_wave_speed = mats.stress, mats.return_map, mats.wave_speed
+    load_state = mats.load_state
     NQ = summary_size(dim)
     FLAGS = len(CHECKED_FIELDS)
-
-    @device_function
-    def load_state(p, F, J, Jp, law, Fp):
-        """Particle ``p``'s deformation gradient into the local ``Fp`` (the identity for a fluid) and its ``J``,
-        ``Jp`` (1 where the scene has none)."""
-        for a in range(D):
-            for b in range(D):
-                Fp[a, b] = F[p, a, b] if law != FLUID else (one if a == b else zero)
-        return (J[p] if J.shape[0] > 0 else one), (Jp[p] if Jp.shape[0] > 0 else one)
 
     def stress(F, J, Jp, material, rules, params, tau):
         """``tau[p]``: particle ``p``'s Kirchhoff stress by its material's law."""

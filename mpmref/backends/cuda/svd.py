@@ -8,7 +8,8 @@ McAdams et al. 2011. The result is the *signed* SVD :math:`F = U\Sigma V^T` with
 
 The functions work on per-thread local arrays (``cuda.local.array``) of the dtype :func:`make_svd` is made for:
 every constant is of that dtype, so a float32 run computes in float32, and the Jacobi tolerance is that dtype's
-round-off (:data:`mpmref.physics.svd.TOL_ULPS` ulps). All are inlined into their callers (``inline="always"``).
+round-off (:data:`mpmref.physics.svd.TOL_ULPS` ulps). All are inlined into their callers by NVVM
+(:func:`~mpmref.backends.cuda.launch.device_function`).
 """
 
 import math
@@ -16,10 +17,9 @@ from functools import lru_cache
 from types import SimpleNamespace
 
 import numpy as np
-from numba import from_dtype
 
 from ...physics.svd import MAX_SWEEPS, PAIRS_3D, TOL_ULPS
-from .launch import device_function
+from .launch import device_function, real_types
 from .runtime import cuda, load
 
 
@@ -28,11 +28,10 @@ def make_svd(dtype, dim):
     """The device functions of the decompositions of ``dim`` × ``dim`` matrices in ``dtype``: a namespace with
     ``signed_svd(F, U, sigma, Vt)`` and ``polar_rotation(F, R, U, sigma, Vt)``."""
     load()
-    T = np.dtype(dtype).type
+    T, nb = real_types(dtype)
     one, zero, half, two = T(1.0), T(0.0), T(0.5), T(2.0)
     tol2 = T((TOL_ULPS * np.finfo(T).eps) ** 2)
     first, second = tuple(p for p, _ in PAIRS_3D), tuple(q for _, q in PAIRS_3D)
-    nb = from_dtype(np.dtype(dtype))
 
     @device_function
     def polar_2d(F, R):
