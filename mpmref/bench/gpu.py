@@ -26,9 +26,8 @@ from pathlib import Path
 
 from ..scene import SceneBuilder
 from ..scene.sampling import sample_particles
-from ..steppers import substep
 from .scenes import mpm88_scene
-from .throughput import time_steps
+from .throughput import run_steps, time_steps
 from .timing import measure
 
 #: the cases: dimension -> ((particles, cells per side), ...)
@@ -83,8 +82,7 @@ def time_resident(backend, particles, dt, repeats, min_time=MIN_TIME):
     from ..backends.cuda.runtime import cuda
 
     def run(p, steps):
-        for i in range(steps):
-            p = substep(backend, p, dt, i * dt)
+        p = run_steps(backend, p, dt, steps)
         cuda.synchronize()
         return p
 

@@ -98,10 +98,6 @@ def _ledger(o, log):
     return run_ledger(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
 
 
-def _cuda(o, log):
-    return run_cuda(o, log)
-
-
 #: every section, in the order of the JSON document, of ``--only``'s choices and of a run
 SECTIONS = (
     Section("table2", _table2, render_table2),
@@ -115,7 +111,7 @@ SECTIONS = (
     Section("cpic", _cpic, render_cpic),
     Section("busy", _busy, render_busy),
     Section("ledger", _ledger, render_ledger),
-    Section("cuda", _cuda, render_cuda, default=False),
+    Section("cuda", run_cuda, render_cuda, default=False),
 )
 
 #: the sections by name
