@@ -187,12 +187,6 @@ class WorkRecord:
     seconds: float = 0.0
     trace: list | None = None
 
-    def __add__(self, other):
-        total = WorkRecord(dict(self.counts), self.level_updates, self.ghost_level_updates, self.stage_seconds,
-                           self.ghost_stage_seconds, self.seconds, None if self.trace is None else list(self.trace))
-        total.add(other)
-        return total
-
     def add(self, other):
         """Add ``other``'s work to this record, in place."""
         for k, count in other.counts.items():
@@ -590,7 +584,7 @@ class AsyncInterval:
         """The new :class:`~mpmref.state.State` at this synchronised tick, after the id census (and, with
         conservative interfaces, every register applied: each particle is at its step end), and the interval's
         :class:`WorkRecord`."""
-        if self.kicked or self._registers is not None:
+        if self.kicked:
             self.close_registers(np.arange(self.n, dtype=np.int64))
         particles = self.P if self.store is None else self.store.live()
         census(self.state.particles.id, particles.id, self.t)
@@ -705,25 +699,25 @@ class AsynchronousStepper:
         and with conservative interfaces the level update by classes on one particle and a copy of it as its ghost,
         at Δt = 0: ``particles`` is not modified."""
         interval = self.interval_type(self, self.initial_state(particles.select(slice(0, 1))))
-        one, none = np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64)
-        step_limits(interval.P.v, none, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+        one = np.zeros(1, dtype=np.int64)
+        step_limits(interval.P.v, NO_ROWS, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
         boundary_steps(interval.P.x, one, *self.lattice, np.ones(1), 0, 1, 1, self.max_units, interval.block_dt,
                        interval.order, interval.level_start, self.block_limit, interval.base, interval.owner,
                        interval.dt_p)
         interval.take_store(1)
         levels_of(interval.dt_p, 1, interval.P_arrays["level"])
         permute_rows(interval.rows["moving"], *misplaced_rows(interval.P_arrays["level"], 1, self.levels)[:2])
-        move_rows(interval.pairs("P", "shadow"), none, none)
-        shadow_nodes(interval.shadow["x"], none, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
+        move_rows(interval.pairs("P", "shadow"), NO_ROWS, NO_ROWS)
+        shadow_nodes(interval.shadow["x"], NO_ROWS, *self.lattice[:4], 0, interval.shadow_base, interval.shadow_t,
                      interval.base)
         cohort = _Cohort(1, 1, 0, 1)
         interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [cohort], interval.base, 0)
-        rows = interval.group(one, one, none)  # the particle and a copy of it as a level ghost
+        rows = interval.group(one, one, NO_ROWS)  # the particle and a copy of it as a level ghost
         same_ids(interval.store.live().id, interval.store.live().id)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
             exchange = LevelExchange(CLASSES[:2].copy(), kicks=True)
             substep(self.backend, interval.P, 0.0, 0.0, exchange=exchange, rows=rows)
-            interval.add_impulses(one, none, 2, exchange.impulses)
+            interval.add_impulses(one, NO_ROWS, 2, exchange.impulses)
             interval.close_registers(one)
 
     # ------------------------------------------------------------------ stepping
