@@ -258,10 +258,21 @@ OPTION_HELP = ("the backend: numpy (the reference), numba, cuda (a GPU), an inst
 
 
 def reference_argument(text):
-    """The argparse ``type`` of a ``--backend`` option: ``text`` itself, once it resolves (:func:`resolve`; a
-    ``MODULE:ATTRIBUTE`` may name a module in the current folder). A reference that does not resolve raises
-    :class:`BackendError`, which the command line reports with exit status 2 before any work."""
+    """The argparse ``type`` of every ``--backend`` option (and of each of ``bench --backends``): ``text`` itself,
+    once it resolves (:func:`resolve`; a ``MODULE:ATTRIBUTE`` may name a module in the current folder) and, for the
+    GPU backend, once a GPU is usable (:func:`refuse_missing_device`). Otherwise :class:`BackendError`, which the
+    command line reports in one line with exit status 2 before any work."""
     if ":" in text:
         importable_from_here()
-    resolve(text)
+    refuse_missing_device(resolve(text))
     return text
+
+
+def refuse_missing_device(found):
+    """:class:`BackendError` in one line naming what is missing (numba-cuda, or a CUDA GPU with its driver:
+    :func:`.cuda.runtime.require_device`, the check that making the backend does) when ``found``, a resolved
+    reference, is the GPU backend or one of its factories (``cuda``, ``mpmref.backends.cuda:atomic``)."""
+    if getattr(found, "__module__", "").startswith(f"{__name__}.cuda"):
+        from .cuda.runtime import require_device
+
+        require_device()

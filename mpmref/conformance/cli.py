@@ -8,12 +8,12 @@ option, scene or backend reference.
 from pathlib import Path
 
 from ..backends import OPTION_HELP, reference_argument, resolve
-from ..cli import OptionError, add_threads_option, apply_threads
+from ..cli import OptionError, add_threads_option, apply_threads, option_value
 from ..physics.kernels import KERNELS
 from ..scene import SCHEMES
 from .candidates import candidate_implements
 from .cases import DEFAULT_RTOL, MATERIALS, make_cases
-from .report import check
+from .report import check, relative_tolerance
 from .scenes import scene_cases, scene_record
 from .stages import ALL_CONFORMANCE_STAGES
 from .vectors import export
@@ -96,8 +96,8 @@ def add_parser(subparsers):
     check_parser.add_argument("--backend", required=True, type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
                               help="the backend to check: " + OPTION_HELP + "; a factory may return an object "
                               "with only some stages, or a dict {stage: callable}, and the others are not applicable")
-    check_parser.add_argument("--rtol", type=float, default=None,
-                              help="pass threshold on the relative error (default: "
+    check_parser.add_argument("--rtol", type=option_value(float, relative_tolerance, "a number"), default=None,
+                              help="pass threshold on the relative error, a finite number > 0 (default: "
                               + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")
     check_parser.add_argument("--verbose", action="store_true",
                               help="list every case, not only the failed ones, and each not-applicable case")

@@ -9,6 +9,7 @@ names the stage and the scene.
 
 import json
 import math
+import numbers
 import sys
 from collections import Counter
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ from tqdm import tqdm
 
 from ..backends import resolve
 from ..backends.capabilities import EVOLVED, declined
+from ..errors import ArgumentError
 from .candidates import candidate_implements, stage_set, validated
 from .cases import make_cases
 from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
@@ -342,6 +344,14 @@ def _probe_scenes(cases):
             yield case.scene()
 
 
+def relative_tolerance(value, name="rtol"):
+    """A pass threshold on the relative error: a finite number > 0 (at 0 or below, or NaN, no case could pass, and
+    an infinite one passes every case), else :class:`~mpmref.errors.ArgumentError` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value) and value > 0):
+        raise ArgumentError(name, value, "a finite number > 0 (the pass threshold on the relative error)")
+    return float(value)
+
+
 def check(candidate, cases=None, rtol=None, progress=False, implements=None):
     """Run ``candidate`` on ``cases`` and compare each stage with the reference.
 
@@ -353,8 +363,8 @@ def check(candidate, cases=None, rtol=None, progress=False, implements=None):
         Default: the float64 catalogue of the seven stages of every backend fitted to what the candidate implements,
         :func:`~mpmref.conformance.cases.make_cases` ``(implements=...)``.
     rtol : float, optional
-        Pass threshold on each case's relative error (:func:`relative_error`, largest over its outputs).
-        Default: each case's own ``rtol``, 1e-12 in float64.
+        Pass threshold on each case's relative error (:func:`relative_error`, largest over its outputs), a finite
+        number > 0 (:func:`relative_tolerance`). Default: each case's own ``rtol``, 1e-12 in float64.
     progress : bool
         Show a progress bar on standard error, naming the case being run (the first case of each scene
         is where a compiled candidate compiles its kernels, which can take a while).
@@ -365,6 +375,7 @@ def check(candidate, cases=None, rtol=None, progress=False, implements=None):
     -------
     Report
     """
+    rtol = None if rtol is None else relative_tolerance(rtol)
     found = validated(resolve(candidate))
     cases = None if cases is None else list(cases)
     if implements is None:
