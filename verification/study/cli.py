@@ -27,7 +27,7 @@ from mpmref.errors import ArgumentError
 
 from ..framework.executor import Executor
 from . import SameComputationWarning, run_study
-from .orders import series_label
+from .orders import orders_text, series_label
 from .runs import load
 from .variations import SYNTAX, label, parse_vary
 
@@ -132,7 +132,7 @@ def summary(study):
     for row in study["orders"]:
         if math.isfinite(row["order"]) or math.isfinite(row["richardson"]):
             lines.append(f"order of {row['measure']} in {row['key']} ({series_label(row)}, against "
-                         f"{row['against']}): fitted {row['order']:.3f}, Richardson {row['richardson']:.3f}")
+                         f"{row['against']}): {orders_text(row)}")
     return "\n".join(lines + ["report: " + ", ".join(study["paths"])])
 
 

@@ -27,7 +27,10 @@ Both assume :math:`q_k \approx q^* + C h_k^p`. Against the finest run each error
 :math:`e_k = C(h_k^p - h_n^p)`, which biases the fit upwards on few levels: on three levels halving :math:`h` the two
 errors are in the ratio :math:`(4^p - 1)/(2^p - 1)`, so a first-order measure reads :math:`\log_2 3 = 1.58`.
 Richardson's estimate has no such bias; with the exact value the fit has none either, and where the two then
-disagree the levels are not yet in the asymptotic range. Levels that agree to round-off (errors within
+disagree the levels are not yet in the asymptotic range. Where the two differ by :data:`DISAGREEMENT` or more, the
+row's note says so and why (:func:`disagreement`). Two errors (three levels against the finest run, two against the
+exact value) always lie on a line, so their slope shows nothing of whether the errors follow a power of :math:`h`:
+the row says that its fit is :data:`TWO_POINTS`. Levels that agree to round-off (errors within
 :data:`ROUND_OFF_EPS` machine epsilons of the values), and drifts that are round-off at every level, get no order.
 A measure that cannot be negative (:data:`NON_NEGATIVE`: a norm, the largest :math:`|E(t) - E(0)|`) whose
 extrapolated limit :math:`q_R` comes out negative has no limit resolved by its levels: its finest value is smaller
@@ -49,6 +52,10 @@ ORDERED = DRIFTS[:3] + ("energy_excursion",)
 ROUND_OFF_EPS = 1.0e4
 #: the built-in measures that cannot be negative (norms of a change, the largest relative change): their limit >= 0
 NON_NEGATIVE = ("momentum_drift", "angular_momentum_drift", "energy_excursion")
+#: what a fitted order is when only two errors are fitted: any two points fit a line
+TWO_POINTS = "the line through two points"
+#: the difference between the fitted order and Richardson's estimate from which a row's note points it out
+DISAGREEMENT = 0.5
 
 
 def abscissa(key, scene):
@@ -85,8 +92,9 @@ def observed_orders(runs, variations, measures, eps):
     list of dict
         Per resolution key, series and measure: ``key``, ``abscissa``, ``refined_with`` (the keys linked to it),
         ``fixed`` (the other keys' values), ``measure``, ``against`` (``"exact"`` or ``"finest run"``), ``h``,
-        ``values``, ``errors`` (``null`` where not measured), ``order``, ``intercept``, ``richardson``,
-        ``extrapolated`` and ``note`` (why a figure is missing, or ``""``).
+        ``values``, ``errors`` (``null`` where not measured), ``order``, ``fit`` (what ``order`` is the slope of:
+        :func:`fitted_line`, ``""`` without one), ``intercept``, ``richardson``, ``extrapolated`` and ``note`` (why a
+        figure is missing, where the two orders disagree, or ``""``).
     """
     done = [r for r in runs if "metrics" in r]
     rows = []
@@ -128,7 +136,8 @@ def order(series, key, name, eps, drift=False, non_negative=False):
     else:
         errors, fit = np.append(np.abs(q[:-1] - q[-1]), np.nan), slice(0, -1)
     out = {"against": against, "h": h.tolist(), "values": q.tolist(),
-           "errors": [None if math.isnan(e) else float(e) for e in errors], "order": math.nan, "intercept": math.nan}
+           "errors": [None if math.isnan(e) else float(e) for e in errors], "order": math.nan, "fit": "",
+           "intercept": math.nan}
     round_off = _round_off(errors[fit], q, eps, drift)
     if round_off:
         return {**out, "richardson": math.nan, "extrapolated": math.nan, "note": round_off}
@@ -138,10 +147,43 @@ def order(series, key, name, eps, drift=False, non_negative=False):
     why = _why_no_fit(h[fit], errors[fit])
     if not why:
         out["order"], out["intercept"] = fit_slope(h[fit], errors[fit])
+        out["fit"] = fitted_line(len(h[fit]))
     steps = np.diff(q)
     bent = ("the values are not monotone over the levels, so the coarse ones are not in the asymptotic range"
             if np.any(steps[:-1] * steps[1:] < 0) and "not monotone" not in out["note"] else "")
-    return {**out, "note": "; ".join(n for n in (why, out["note"], bent) if n)}
+    apart = disagreement(out["order"], out["richardson"], against)
+    return {**out, "note": "; ".join(n for n in (why, out["note"], bent, apart) if n)}
+
+
+def orders_text(row):
+    """A row's two orders in one phrase, as the study's summary prints them: the fitted order and what it is the slope
+    of (:func:`fitted_line`), Richardson's estimate, and how far apart they are where that is :data:`DISAGREEMENT`
+    or more (the row's note says why)."""
+    fitted, estimate = row["order"], row["richardson"]
+    text = (f"fitted {fitted:.3f} ({row['fit']})" if math.isfinite(fitted) else "no fitted order") + ", " + (
+        f"Richardson {estimate:.3f}" if math.isfinite(estimate) else "no Richardson estimate")
+    if math.isfinite(fitted) and math.isfinite(estimate) and abs(fitted - estimate) >= DISAGREEMENT:
+        text += f"; they differ by {abs(fitted - estimate):.3f} (the note in index.html says why)"
+    return text
+
+
+def fitted_line(points):
+    """What the fitted order is the slope of: :data:`TWO_POINTS`, or the least-squares line through ``points``."""
+    return TWO_POINTS if points == 2 else f"the least-squares line through {points} points"
+
+
+def disagreement(fitted, estimate, against):
+    """Why the fitted order and Richardson's estimate differ by :data:`DISAGREEMENT` or more (``""`` when they do
+    not, or one is missing): against the finest run, the fit's bias on few levels (the module docstring); against
+    the exact value, coarse levels outside the asymptotic range (the fit uses every level, Richardson's the three
+    finest)."""
+    if not (math.isfinite(fitted) and math.isfinite(estimate)) or abs(fitted - estimate) < DISAGREEMENT:
+        return ""
+    why = ("against the finest run the fit reads high on few levels (each error carries the finest run's own: first "
+           "order reads 1.58 on three levels halving h), so trust Richardson's" if against == "finest run" else
+           "the coarse levels, which the fit uses and Richardson's estimate does not, are not in the asymptotic range")
+    return (f"the fitted order, {fitted:.2f}, and Richardson's estimate, {estimate:.2f}, differ by "
+            f"{abs(fitted - estimate):.2f}: {why}")
 
 
 def unresolved_limit(name, limit, finest):

@@ -30,7 +30,7 @@ from mpmref.observe.ledger import ASYNC_TERMS
 
 from ..framework.html_report import figure_html, page
 from ..framework.report import LEDGER_COLOURS, NO_CAPTION, figure_caption, pyplot, save_figure
-from .orders import series_label
+from .orders import TWO_POINTS, series_label
 from .runs import METRICS, jsonable
 from .variations import label
 
@@ -115,7 +115,8 @@ def _order_panel(ax, row, color):
         return
     fitted = math.isfinite(row["order"])
     richardson = f", Richardson {row['richardson']:.2f}" if math.isfinite(row["richardson"]) else ""
-    text = f"order {row['order']:.2f}{richardson}" if fitted else "no order"
+    two = " (two points)" if row["fit"] == TWO_POINTS else ""
+    text = f"order {row['order']:.2f}{two}{richardson}" if fitted else "no order"
     ax.loglog(h[shown], errors[shown], "o", color=color, label=f"{series_label(row)}: {text}")
     if fitted:
         ax.loglog(h[shown], np.exp(row["intercept"]) * h[shown] ** row["order"], "--", color=color, lw=1)
@@ -123,14 +124,16 @@ def _order_panel(ax, row, color):
 
 
 def _order_caption(measure, rows):
-    fits = "; ".join(f"{series_label(r)}: {r['order']:.2f}" for r in rows if math.isfinite(r["order"]))
+    fits = "; ".join(f"{series_label(r)}: {r['order']:.2f}{' (' + TWO_POINTS + ')' if r['fit'] == TWO_POINTS else ''}"
+                     for r in rows if math.isfinite(r["order"]))
     return (f"Observed order of {measure}: its error against the exact value (where given) or against the finest "
             f"run, on log-log axes against the resolution, with least-squares lines (dashed; fitted slope and "
             f"Richardson's estimate from the three finest levels in the legend; fitted: {fits or 'none'}). Look "
             "for points on a straight line: its slope is the order at which the measure converges, and a line "
             "that bends means the coarse levels are not yet in the asymptotic range. Against the finest run the "
             "fit reads high on few levels (first order reads 1.58 on three levels halving the resolution), so "
-            "there trust Richardson's estimate.")
+            "there trust Richardson's estimate; and two points always lie on a line, so their slope says nothing of "
+            "whether the error follows a power of the resolution.")
 
 
 def plot_series(out, runs):
@@ -284,9 +287,17 @@ def _orders_html(orders):
             "<th>fitted order</th><th>Richardson</th><th>extrapolated</th><th>note</th></tr>")
     rows = "".join(f"<tr><td>{e(r['measure'])}</td><td>{e(r['key'])} ({e(r['abscissa'])})</td>"
                    f"<td>{e(series_label(r))}</td><td>{e(r['against'])}</td><td class='num'>{len(r['h'])}</td>"
-                   f"<td class='num'>{_number(r['order'])}</td><td class='num'>{_number(r['richardson'])}</td>"
+                   f"<td class='num'>{_fitted_html(r)}</td><td class='num'>{_number(r['richardson'])}</td>"
                    f"<td class='num'>{_number(r['extrapolated'])}</td><td>{e(r['note'])}</td></tr>" for r in orders)
     return f"<table>{head}{rows}</table>"
+
+
+def _fitted_html(row):
+    """The fitted order's cell: the order and, under it, what it is the slope of (the line through two points, or
+    the least-squares line through more)."""
+    if not math.isfinite(row["order"]):
+        return _number(row["order"])
+    return f"{_number(row['order'])}<br><small>{e(row['fit'])}</small>"
 
 
 def _figures_html(figures, out):
