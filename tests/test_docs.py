@@ -262,3 +262,47 @@ def test_diagnostics_columns_and_cli_options_are_documented():
         main(["run", "--help"])
     for option in set(re.findall(r"--[a-z][a-z-]*", help_text.getvalue())) - {"--help"}:
         assert f"`{option}" in started, f"command-line option {option} missing from getting_started.md"
+
+
+# --------------------------------------------------------------------------- the site build's progress lines
+def docs_build_module():
+    """docs/build.py as a module (it is a script, not a package's)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_build", DOCS / "build.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+#: Sphinx's status output as a terminal gets it: a counted phase rewrites its line (``\r``), a pipe gets lines
+SPHINX_STATUS = ("Running Sphinx v9.0.4\n[autosummary] generating autosummary for: "
+                 + ", ".join(f"page{i}.md" for i in range(50)) + "\n"
+                 "[autosummary] generating autosummary for: docs/api/mpmref.rst\n"
+                 "mpmref figures: running the momentum case (quick preset)\n"
+                 "mpmref figures: running the energy case (quick preset)\n"
+                 + "".join(f"reading sources... [{p:3d}%] page{p}\r" for p in range(0, 101, 5))
+                 + "\nWriting evaluated template result to _static/basic.css\n"
+                 "Writing evaluated template result to _static/alabaster.css\n"
+                 + "".join(f"writing output... [{p:3d}%] page{p}\n" for p in range(0, 101, 10))
+                 + "build succeeded.\n")
+
+
+def test_the_site_build_shows_a_line_per_phase_quarter_and_figure_with_its_time():
+    build = docs_build_module()
+    clock = iter(range(0, 1000, 10))
+    out = io.StringIO()
+    progress = build.Progress(out, clock=lambda: next(clock))
+    for start in range(0, len(SPHINX_STATUS), 7):   # in pieces that cut lines, as a stream is written
+        progress.write(SPHINX_STATUS[start:start + 7])
+    shown = [line.split(" s  ", 1)[1] for line in out.getvalue().splitlines()]
+    long_line = "[autosummary] generating autosummary for: " + ", ".join(f"page{i}.md" for i in range(50))
+    assert shown == ["Running Sphinx v9.0.4", long_line[:build.WIDTH - 1] + "…",
+                     "mpmref figures: running the momentum case (quick preset)",
+                     "mpmref figures: running the energy case (quick preset)",
+                     "reading sources... [  0%] page0", "reading sources... [ 25%] page25",
+                     "reading sources... [ 50%] page50", "reading sources... [ 75%] page75",
+                     "Writing evaluated template result to _static/basic.css",
+                     "writing output... [  0%] page0", "writing output... [ 30%] page30",
+                     "writing output... [ 50%] page50", "writing output... [ 80%] page80", "build succeeded."]
+    assert out.getvalue().splitlines()[0] == "docs    10 s  Running Sphinx v9.0.4"   # seconds since the start
