@@ -129,6 +129,39 @@ def resolve(qualname):
     raise ImportError(qualname)
 
 
+#: the numbered equations of G2P, per page: each links to the short function of the NumPy reference that implements it
+#: (they all linked to the one long ``g2p``)
+G2P_EQUATIONS = {"mpm_cycle.md": ("eq-g2p-affine", "eq-velocity-gradient", "eq-flip-blend", "eq-deformation-update",
+                                  "eq-advection", "eq-polypic-projection"),
+                 "transfers.md": ("eq-pic", "eq-flip", "eq-apic", "eq-polypic"),
+                 "mls_vs_classic.md": ("eq-gradient-weight-form", "eq-mls-deformation-update")}
+#: the most lines of code (the docstring left out) a function that implements one equation may have
+SHORT = 12
+
+
+def code_links_after(page, label):
+    """The qualified names of the ``Code:`` paragraph that follows the numbered equation ``label`` of ``page``."""
+    paragraph = (DOCS / page).read_text(encoding="utf-8").split(f"$$ ({label})", 1)[1].strip().split("\n\n", 1)[0]
+    assert paragraph.startswith("Code:"), f"{page} ({label}): no Code: paragraph after the equation"
+    return re.findall(r"\[`(mpmref(?:\.\w+)+)`\]", paragraph)
+
+
+def code_lines(function):
+    """Lines of ``function``'s body after its docstring."""
+    body = ast.parse(inspect.getsource(function)).body[0].body
+    statements = body[1:] if isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) else body
+    return statements[-1].end_lineno - statements[0].lineno + 1
+
+
+@pytest.mark.parametrize("page, label", [(p, eq) for p, labels in G2P_EQUATIONS.items() for eq in labels])
+def test_each_g2p_equation_links_to_a_short_function_that_implements_it(page, label):
+    names = [n for n in code_links_after(page, label) if n.startswith("mpmref.backends.numpy.transfers.")
+             and not n.endswith(".p2g")]      # P2G's half of a transfer's equation
+    assert names and "mpmref.backends.numpy.transfers.g2p" not in names, names
+    for name in names:
+        assert code_lines(resolve(name)) <= SHORT, f"{name} has {code_lines(resolve(name))} lines of code"
+
+
 def lacks_optional_dependency(module):
     """``module`` exists but imports a package that is not installed (e.g. taichi, the optional ``bench``
     extra)."""

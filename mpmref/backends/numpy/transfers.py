@@ -250,94 +250,231 @@ def grid_update(gs, grid, dt, gravity, walls, bands, colliders=(), time=0.0, nod
 def g2p(particles, v_grid, v_tilde, grid, kernel, transfer, dt, prepared=None, ghost=None, kicks=None):
     r"""Grid to particle: new velocity, affine matrix, PolyPIC modes, deformation and position.
 
-    .. math::
+    Each gathers from the stencil's node velocities (:func:`stencil_velocities`) in a function of its own, which
+    carries its equation: :func:`pic_velocity`, :func:`affine_matrix` (APIC, and the MLS velocity gradient),
+    :func:`velocity_gradient`, :func:`flip_velocity` (FLIP only), :func:`polypic_modes` (PolyPIC only); then
+    :func:`deform` and :func:`advect`. ``transfer.gradient`` chooses the velocity gradient, independently of the
+    force (``method.velocity_gradient``; it follows ``method.force`` unless declared).
 
-        v_p^{PIC} = \sum_i w_{ip} v_i, \qquad
-        C_p = B_p D_p^{-1} = \sum_i w_{ip} v_i (x_i - x_p)^T D_p^{-1} \;(\text{Jiang et al. 2015 §5}),
+    Parameters
+    ----------
+    particles : Particles
+    v_grid : (N, d) array
+        Node velocities after the grid update, :math:`v_i`.
+    v_tilde : (N, d) array or None
+        Node velocities before forces and walls, :math:`\tilde v_i` (FLIP only).
+    grid, kernel, transfer
+        The scene's grid, kernel and transfer.
+    dt : float
+        The step :math:`\Delta t`.
+    prepared : tuple, optional
+        The output of :func:`prepare` (computed here if ``None``).
+    ghost : tuple, optional
+        CPIC only: ``(compatible (K, n), ghost velocities (K, n, d))`` (:func:`stencil_velocities`).
+    kicks : tuple, optional
+        A level update of asynchronous stepping with conservative interfaces: ``(classes, kick)``
+        (:func:`interface_impulses`).
 
-        \nabla v_p = \sum_i v_i\, g_{ip}^T, \qquad
-        v_p^{FLIP} = v_p + \sum_i w_{ip}(v_i - \tilde v_i), \qquad
-        v_p \leftarrow \alpha v_p^{FLIP} + (1-\alpha) v_p^{PIC} \;(\text{FLIP only}),
-
-        F_p \leftarrow (I + \Delta t\, \nabla v_p) F_p, \qquad
-        J_p \leftarrow (1 + \Delta t \operatorname{tr} \nabla v_p) J_p, \qquad x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
-
-    With the MLS velocity gradient :math:`\nabla v_p = C_p` (Hu et al. 2018 §4, with their Eq. 18); with the
-    classic one :math:`\nabla v_p = \sum_i v_i \nabla w_{ip}^T`. ``transfer.gradient`` chooses it, independently of
-    the force (``method.velocity_gradient``; it follows ``method.force`` unless declared). PolyPIC's higher modes are
-    the projections of :mod:`mpmref.physics.polypic`. The J update is the first-order form of Taichi's mpm88.
-    ``prepared`` is the output of :func:`prepare` (computed here if ``None``). ``ghost`` (CPIC only) is
-    ``(compatible (K, n), ghost velocities (K, n, d))``: at a node incompatible with the particle, its ghost
-    velocity takes the place of :math:`v_i` (Hu et al. 2018 §4; docs/cpic.md). Returns new
-    :class:`~mpmref.state.Particles`; the input is not modified.
-
-    ``kicks`` (a level update of asynchronous stepping with conservative interfaces) is ``(classes,
-    kick)``: each particle's class and the node kicks (2, N, d) of
-    :func:`mpmref.physics.interface.interface_kicks`. In the same gather, the particles of the active and
-    coarser classes collect their impulse and its moment about the origin,
-
-    .. math:: \delta P_p = m_p \sum_i w_{ip}\, k_i, \qquad
-              \delta L_p = m_p \sum_i w_{ip}\, x_i \times k_i
-              = x_p \times \delta P_p + m_p \sum_i w_{ip}\, (x_i - x_p) \times k_i,
-
-    and the function returns ``(particles, (dP, dL))`` (``dL`` (n, 1) in 2D, (n, 3) in 3D).
-
-    Docs: docs/mls_vs_classic.md#consistency-with-apics-affine-field, docs/mls_vs_classic.md#two-gradient-weights,
-    docs/mpm_cycle.md#g2p-grid-to-particle, docs/mpm_cycle.md#polypic,
-    docs/transfers.md#apic-and-the-transfer-of-mls-mpm, docs/transfers.md#flipα, docs/transfers.md#pic,
-    docs/transfers.md#polypic
+    Returns
+    -------
+    Particles
+        A new state; the input is not modified. With ``kicks``, ``(particles, (dP, dL))``.
     """
     st, basis = prepared or prepare(particles, grid, kernel, transfer)
-    n, d = particles.x.shape
     dtype = v_grid.dtype
-    need_B = transfer.affine or transfer.mls_gradient
-    v_pic = np.zeros((n, d), dtype=dtype)
-    B = np.zeros((n, d, d), dtype=dtype) if need_B else None
-    grad_v = np.zeros((n, d, d), dtype=dtype) if not transfer.mls_gradient else None
-    dv_flip = np.zeros((n, d), dtype=dtype) if transfer.flip else None
-    modes = np.zeros_like(particles.modes) if basis is not None else None
-    if kicks is not None:
-        classes, kick = kicks
-        kick_row = np.array([KICK_ROW.get(c, 0) for c in range(N_CLASSES)])[classes]
-        kicked = np.isin(classes, list(KICK_ROW))
-        dP = np.zeros((n, d))
-        dL = np.zeros(n if d == 2 else (n, 3))
-    for k, offset in enumerate(st.offsets):
-        idx = node_index(st, offset, grid)
-        w = st.node_weight(offset)
-        vi = v_grid[idx] if ghost is None else np.where(ghost[0][k][:, None], v_grid[idx], ghost[1][k])
-        v_pic += w[:, None] * vi
-        if need_B:
-            B += np.einsum("na,nb->nab", w[:, None] * vi, st.node_offset_vector(offset))
-        if grad_v is not None:
-            grad_v += np.einsum("na,nb->nab", vi, st.node_gradient(offset))
-        if transfer.flip:
-            dv_flip += w[:, None] * (vi - v_tilde[idx])
-        if basis is not None:
-            modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
-        if kicks is not None:
-            ki = kick[kick_row, idx] * (w * kicked)[:, None]
-            dP += ki
-            dL += moment(st.node_offset_vector(offset), ki)
-    C = B / st.inertia if need_B else None
-    grad_v = C if transfer.mls_gradient else grad_v
+
+    def nodes():
+        return stencil_velocities(st, grid, v_grid, ghost)
+
+    v_pic = pic_velocity(st, nodes(), dtype)
+    C = affine_matrix(st, nodes(), dtype) if transfer.affine or transfer.mls_gradient else None
+    grad_v = velocity_gradient(st, nodes(), dtype, C if transfer.mls_gradient else None)
     v_new = v_pic
     if transfer.flip:
-        v_new = transfer.flip_alpha * (particles.v + dv_flip) + (1.0 - transfer.flip_alpha) * v_pic
-    changes = {"x": particles.x + dt * v_pic, "v": v_new}
+        v_new = flip_velocity(particles.v, v_pic, st, nodes(), v_tilde, transfer.flip_alpha, dtype)
+    changes = {"x": advect(particles.x, v_pic, dt), "v": v_new, **deform(particles, grad_v, dt)}
     if transfer.affine:
         changes["C"] = C
     if basis is not None:
-        norms = mode_norms(basis[2], basis[1])[..., None]
-        changes["modes"] = np.divide(modes, norms, out=np.zeros_like(modes), where=norms > 0)
+        changes["modes"] = polypic_modes(nodes(), basis, np.zeros_like(particles.modes))
+    new = particles.with_(**changes)
+    if kicks is None:
+        return new
+    return new, interface_impulses(st, nodes(), kicks, particles)
+
+
+def stencil_velocities(stencil, grid, v_grid, ghost=None):
+    r"""``(offset, idx, w, v)`` for each node of the particles' stencil, in the order of ``stencil.offsets``: the
+    offset, the nodes' linear indices (n,), the weights :math:`w_{ip}` (n,) and the node velocities :math:`v_i`
+    (n, d) that the particles gather. With CPIC's ``ghost``, ``(compatible (K, n), ghost velocities (K, n, d))``,
+    a node incompatible with the particle gives its ghost velocity instead (Hu et al. 2018 §4; docs/cpic.md).
+
+    The indices are :func:`node_index`'s, as the index of the stencil's lowest node plus the offset's (the same
+    integers, without a product per offset), and the velocities are gathered with ``np.take``, which copies the same
+    values as indexing, faster: each function of :func:`g2p` walks the stencil once."""
+    lowest = stencil.base @ grid.strides
+    for k, offset in enumerate(stencil.offsets):
+        idx = lowest + offset @ grid.strides
+        v = np.take(v_grid, idx, axis=0)
+        if ghost is not None:
+            v = np.where(ghost[0][k][:, None], v, ghost[1][k])
+        yield offset, idx, stencil.node_weight(offset), v
+
+
+def pic_velocity(stencil, nodes, dtype):
+    r"""PIC's velocity: the weighted mean of the stencil's node velocities (Sulsky et al. 1994).
+
+    .. math:: v_p^{PIC} = \sum_i w_{ip}\, v_i
+
+    with :math:`w_{ip}` the weight of node :math:`i` at particle :math:`p` and :math:`v_i` the node's velocity
+    after the grid update. It is the new velocity of every scheme but FLIP, and every particle moves with it
+    (:func:`advect`). ``nodes``: :func:`stencil_velocities`; ``dtype``: the grid velocities'. Returns (n, d).
+
+    Docs: docs/mpm_cycle.md#g2p-grid-to-particle, docs/transfers.md#pic,
+    docs/transfers.md#apic-and-the-transfer-of-mls-mpm
+    """
+    v = np.zeros(stencil.fx.shape, dtype=dtype)
+    for _, _, w, vi in nodes:
+        v += w[:, None] * vi
+    return v
+
+
+def affine_matrix(stencil, nodes, dtype):
+    r"""APIC's affine matrix, the least-squares fit of an affine field to the stencil's velocities (Jiang et al.
+    2015 §5).
+
+    .. math:: B_p = \sum_i w_{ip}\, v_i\, (x_i - x_p)^T, \qquad C_p = B_p D_p^{-1}
+
+    with :math:`x_i - x_p` the offset of node :math:`i` from particle :math:`p` and :math:`D_p` the APIC inertia
+    (``stencil.inertia`` :math:`\times I`: :math:`\tfrac14 \Delta x^2 I` for the quadratic B-spline). Also the MLS
+    velocity gradient (:func:`velocity_gradient`). Returns :math:`C_p`, (n, d, d).
+
+    Docs: docs/mpm_cycle.md#g2p-grid-to-particle, docs/transfers.md#apic-and-the-transfer-of-mls-mpm
+    """
+    d = stencil.fx.shape[1]
+    B = np.zeros((len(stencil.fx), d, d), dtype=dtype)
+    for offset, _, w, vi in nodes:
+        B += np.einsum("na,nb->nab", w[:, None] * vi, stencil.node_offset_vector(offset))
+    return B / stencil.inertia
+
+
+def velocity_gradient(stencil, nodes, dtype, C=None):
+    r"""The velocity gradient that deforms the particle, :math:`\nabla v_p = \sum_i v_i\, g_{ip}^T`.
+
+    .. math::
+
+        \nabla v_p = \sum_i v_i\, \nabla w_{ip}^T \;\text{(classic: Stomakhin et al. 2013 §4)}, \qquad
+        \nabla v_p = C_p \;\text{(MLS: Hu et al. 2018 §4, with their Eq. 18)}
+
+    with :math:`\nabla w_{ip}` the kernel's gradient (``stencil.node_gradient``) and :math:`C_p` APIC's affine
+    matrix (:func:`affine_matrix`), the MLS gradient weight :math:`g_{ip} = w_{ip} D_p^{-1}(x_i - x_p)` summed.
+    ``C`` given: the MLS gradient, ``C`` itself; otherwise the classic sum. Returns (n, d, d).
+
+    Docs: docs/mpm_cycle.md#g2p-grid-to-particle, docs/mls_vs_classic.md#two-gradient-weights,
+    docs/mls_vs_classic.md#consistency-with-apics-affine-field
+    """
+    if C is not None:
+        return C
+    d = stencil.fx.shape[1]
+    grad_v = np.zeros((len(stencil.fx), d, d), dtype=dtype)
+    for offset, _, _, vi in nodes:
+        grad_v += np.einsum("na,nb->nab", vi, stencil.node_gradient(offset))
+    return grad_v
+
+
+def flip_velocity(v, v_pic, stencil, nodes, v_tilde, alpha, dtype):
+    r"""FLIP's velocity, blended with PIC's (FLIP: Brackbill and Ruppel 1986).
+
+    .. math::
+
+        v_p^{FLIP} = v_p + \sum_i w_{ip}\,(v_i - \tilde v_i), \qquad
+        v_p \leftarrow \alpha\, v_p^{FLIP} + (1 - \alpha)\, v_p^{PIC}
+
+    with :math:`v_p` the particle's velocity before the step, :math:`\tilde v_i` the node's velocity before forces
+    and walls (``v_tilde``, of :func:`grid_update`), :math:`v_p^{PIC}` of :func:`pic_velocity` (``v_pic``) and
+    :math:`\alpha` = ``method.flip_alpha``. Returns the new :math:`v_p`, (n, d).
+
+    Docs: docs/mpm_cycle.md#g2p-grid-to-particle, docs/transfers.md#flipα
+    """
+    change = np.zeros(stencil.fx.shape, dtype=dtype)
+    for _, idx, w, vi in nodes:
+        change += w[:, None] * (vi - np.take(v_tilde, idx, axis=0))
+    return alpha * (v + change) + (1.0 - alpha) * v_pic
+
+
+def polypic_modes(nodes, basis, modes):
+    r"""PolyPIC's higher modes: the projection of the stencil's velocities on each (Fu et al. 2017).
+
+    .. math:: c_{pr} = \frac{\sum_i w_{ip}\, s_r(x_i)\, v_i}{\sum_i w_{ip}\, s_r(x_i)^2}
+
+    with :math:`s_r` the particle's mode :math:`r`, a product of per-axis polynomials orthogonal under its own
+    weights (:mod:`mpmref.physics.polypic`; ``basis`` of :func:`polypic_basis`); the denominator is
+    :func:`mpmref.physics.polypic.mode_norms`, and a mode of zero norm gets :math:`c_{pr} = 0`. ``modes``: zeros of
+    the modes' shape (n, R, d), which the numerators are summed into. Returns (n, R, d).
+
+    Docs: docs/mpm_cycle.md#polypic, docs/transfers.md#polypic
+    """
+    for offset, _, w, vi in nodes:
+        modes += np.einsum("nm,nd->nmd", w[:, None] * mode_values(basis[0], offset, basis[1]), vi)
+    norms = mode_norms(basis[2], basis[1])[..., None]
+    return np.divide(modes, norms, out=np.zeros_like(modes), where=norms > 0)
+
+
+def deform(particles, grad_v, dt):
+    r"""The deformation the velocity gradient makes over the step, of each field the particles carry (``F``, ``J``).
+
+    .. math::
+
+        F_p \leftarrow (I + \Delta t\, \nabla v_p)\, F_p, \qquad
+        J_p \leftarrow (1 + \Delta t \operatorname{tr} \nabla v_p)\, J_p
+
+    with :math:`\nabla v_p` of :func:`velocity_gradient` (Hu et al. 2018 §4 for :math:`F`; the :math:`J` update is
+    the first-order form of Taichi's mpm88). Returns ``{"F": ..., "J": ...}`` of those the particles carry.
+
+    Docs: docs/mpm_cycle.md#g2p-grid-to-particle, docs/mls_vs_classic.md#consistency-with-apics-affine-field
+    """
+    changes = {}
     if particles.F is not None:
         changes["F"] = particles.F + dt * grad_v @ particles.F
     if particles.J is not None:
         changes["J"] = particles.J * (1.0 + dt * np.trace(grad_v, axis1=1, axis2=2))
-    new = particles.with_(**changes)
-    if kicks is None:
-        return new
+    return changes
+
+
+def advect(x, v_pic, dt):
+    r"""The particles' new positions: every scheme, FLIP included, moves them with PIC's velocity (Hu et al. 2018
+    Alg. 1).
+
+    .. math:: x_p \leftarrow x_p + \Delta t\, v_p^{PIC}
+
+    Docs: docs/mpm_cycle.md#g2p-grid-to-particle
+    """
+    return x + dt * v_pic
+
+
+def interface_impulses(stencil, nodes, kicks, particles):
+    r"""The impulse and its moment about the origin that each particle of the active and coarser classes collects
+    from the node kicks of conservative interfaces (asynchronous stepping; docs/async.md).
+
+    .. math:: \delta P_p = m_p \sum_i w_{ip}\, k_i, \qquad
+              \delta L_p = m_p \sum_i w_{ip}\, x_i \times k_i
+              = x_p \times \delta P_p + m_p \sum_i w_{ip}\, (x_i - x_p) \times k_i
+
+    with :math:`k_i` the kick of node :math:`i` for the particle's class and :math:`m_p` its mass. ``kicks`` is
+    ``(classes, kick)``: each particle's class and the node kicks (2, N, d) of
+    :func:`mpmref.physics.interface.interface_kicks`. Returns ``(dP, dL)``, float64: (n, d) and (n, 1) in 2D,
+    (n, 3) in 3D.
+    """
+    classes, kick = kicks
+    kick_row = np.array([KICK_ROW.get(c, 0) for c in range(N_CLASSES)])[classes]
+    kicked = np.isin(classes, list(KICK_ROW))
+    n, d = stencil.fx.shape
+    dP = np.zeros((n, d))
+    dL = np.zeros(n if d == 2 else (n, 3))
+    for offset, idx, w, _ in nodes:
+        ki = kick[kick_row, idx] * (w * kicked)[:, None]
+        dP += ki
+        dL += moment(stencil.node_offset_vector(offset), ki)
     m = particles.mass[:, None]
     dP = dP * m
-    dL = dL.reshape(n, -1) * m + moment(particles.x.astype(np.float64), dP).reshape(n, -1)
-    return new, (dP, dL)
+    return dP, dL.reshape(n, -1) * m + moment(particles.x.astype(np.float64), dP).reshape(n, -1)
