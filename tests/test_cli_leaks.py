@@ -7,7 +7,7 @@ import pytest
 
 from mpmref.cli import main
 from mpmref.conformance import check
-from mpmref.errors import ArgumentError
+from mpmref.errors import ArgumentError, BackendError
 
 #: every command that takes a backend, each asking for the GPU backend
 GPU_COMMANDS = {
@@ -49,6 +49,11 @@ def test_every_command_refuses_the_gpu_backend_without_a_gpu_in_the_same_one_lin
         lines[name] = stderr[0]
     assert len(set(lines.values())) == 1, lines
     assert "'cuda' needs a CUDA GPU" in lines["run"] and "CUDA driver library cannot be found" in lines["run"]
+
+
+def test_the_harness_refuses_the_gpu_backend_without_a_gpu_before_any_case(no_gpu):
+    with pytest.raises(BackendError, match="'cuda' needs a CUDA GPU"):
+        check("cuda")
 
 
 def test_conformance_export_takes_no_backend_and_says_so_in_one_line(tmp_path, capsys):

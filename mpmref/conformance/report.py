@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from ..backends import resolve
+from ..backends import refuse_missing_device, resolve
 from ..backends.capabilities import EVOLVED, declined
 from ..errors import ArgumentError
 from .candidates import candidate_implements, stage_set, validated
@@ -374,9 +374,13 @@ def check(candidate, cases=None, rtol=None, progress=False, implements=None):
     Returns
     -------
     Report
+        :class:`~mpmref.errors.BackendError` instead, before any case, for the GPU backend where no GPU is usable
+        (:func:`mpmref.backends.refuse_missing_device`): every case would fail the same way.
     """
     rtol = None if rtol is None else relative_tolerance(rtol)
-    found = validated(resolve(candidate))
+    found = resolve(candidate)
+    refuse_missing_device(found)
+    found = validated(found)
     cases = None if cases is None else list(cases)
     if implements is None:
         implements = candidate_implements(found, _probe_scenes(cases))
