@@ -15,6 +15,7 @@ from helpers import fd_gradient, independent_lame, random_deformations
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from mpmref.physics.catalogue import MATERIALS
 from mpmref.physics.materials import (
     FixedCorotated,
     NeoHookean,
@@ -428,3 +429,17 @@ def test_a_neo_hookean_scene_that_blows_up_stops_with_its_own_error_only(tmp_pat
     assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 3
     err = capsys.readouterr().err
     assert "NonFiniteError" in err and "encountered" not in err, err
+
+
+@pytest.mark.parametrize("kind", sorted(MATERIALS))
+@pytest.mark.parametrize("rho,c", [(1.0, 36.7), (1000.0, 1.16), (2.5, 4.0e3)])
+def test_a_material_made_for_a_wave_speed_has_that_speed_and_keeps_what_is_given(kind, rho, c):
+    """``with_wave_speed``: the material of each type with the density and rest P-wave speed asked for, whatever
+    parameters are given beside (a code's fixed ones), is valid and has that speed; a given stiffness is kept."""
+    cls = MATERIALS[kind]
+    given = {"gamma": 1.0} if kind == "fluid" else {"nu": 0.2}
+    material = cls(**cls.with_wave_speed(rho, c, given))
+    assert material.rho == rho and material.wave_speed() == pytest.approx(c, rel=1e-13)
+    assert all(getattr(material, k) == v for k, v in given.items())
+    stiffness = "K" if kind == "fluid" else "E"
+    assert cls.with_wave_speed(rho, c, {stiffness: 7.0})[stiffness] == 7.0

@@ -192,10 +192,18 @@ def test_snow_hardening(dim):
 
 @pytest.mark.parametrize("E_,nu_,rho_,xi,jp_min", [(1.0e3, 0.3, 2.0, 10.0, 0.6), (1.4e5, 0.2, 400.0, 10.0, 0.6),
                                                    (50.0, 0.25, 1.0, 0.0, 0.9), (7.0, 0.0, 3.0, 5.0, 1.0)])
-def test_snow_wave_speed_uses_the_stiffest_admissible_state(E_, nu_, rho_, xi, jp_min):
+def test_snow_wave_speed_is_the_rest_states_and_each_particles_its_own(E_, nu_, rho_, xi, jp_min):
+    """The speed a scene starts from is the unhardened one (J_P = 1), whatever the clamp ``Jp_min``; a particle's
+    own speed follows its J_P (the hardened P-wave modulus at the current density), so a clamp the particles never
+    reach (a code that never clamps declares Jp_min = 1e-300) does not shrink the step."""
     mat = SnowPlasticity(E=E_, nu=nu_, rho=rho_, hardening=xi, Jp_min=jp_min)
     M = E_ * (1.0 - nu_) / ((1.0 + nu_) * (1.0 - 2.0 * nu_))  # P-wave modulus lam + 2 mu
-    assert mat.wave_speed() == pytest.approx(math.sqrt(M * math.exp(xi * (1.0 - jp_min)) / rho_), rel=1e-13)
+    assert mat.wave_speed() == pytest.approx(math.sqrt(M / rho_), rel=1e-13)
+    unclamped = SnowPlasticity(E=E_, nu=nu_, rho=rho_, hardening=xi, Jp_min=1e-300, Jp_max=1e300)
+    assert unclamped.wave_speed() == mat.wave_speed()
+    F, Jp = np.eye(3)[None].repeat(2, axis=0), np.array([1.0, jp_min])
+    J = Jp  # det F_E J_P: the current density is rho / J
+    assert mat.wave_speeds(F, Jp) == pytest.approx(np.sqrt(M * np.exp(xi * (1.0 - Jp)) * J / rho_), rel=1e-13)
 
 
 # --------------------------------------------------------------------------------------------------

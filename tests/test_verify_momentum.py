@@ -30,7 +30,7 @@ def test_every_variant_has_a_linear_and_an_angular_check(result):
 def test_pic_and_flip_lose_spin_at_the_predicted_rate(result, key):
     """The measured loss per step is within 25 % of (1-α)·2DM/I (measured: PIC +6 %, FLIP(0.95) +15 %)."""
     r, v = result["runs"][key], case.VARIANT[key]
-    measured = case.decay_rate(r["L"] / r["L"][0])
+    measured = case.decay_rate(case.spin(r) / case.spin(r)[0])
     predicted = v.pic_fraction * r["spin_loss_rate"]
     assert abs(measured / predicted - 1.0) <= 0.25
 

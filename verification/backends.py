@@ -27,13 +27,15 @@ Theory and bounds
   round-off could still switch branches; over these short trajectories none does, which is part of what
   the check verifies.
 
-On a backend that implements a part (:mod:`verification.framework.applicable`): each scheme, kernel and dimension runs
-if the backend has it, the others are not applicable. The claim is made material by material, so a run keeps the
-disks of the materials the backend has (with the parameters it fixes) and leaves the others out; the walls may be a
-static wall it has and lose their friction if it has none. The bounds are the same: the same equations on both sides.
+On a backend that implements a part (:mod:`verification.framework.applicable`): each scheme runs if the backend has it,
+with the backend's kernel and, where the variant does not name it, its force; a code without 2D runs the 3D slab of the
+scene (:func:`mpmref.backends.fitting.lifted`); the others are not applicable. The claim is made material by
+material, so a run keeps the disks of the materials the backend has (with the parameters it fixes) and leaves the
+others out; the walls may be a static wall it has and lose their friction if it has none. The bounds are the same: the
+same equations on both sides.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from time import perf_counter
 
@@ -61,7 +63,12 @@ MAIN_FIGURE = "difference_growth.png"
 COMPARED_FIELDS = tuple(name for name in EVOLVING_FIELDS if name != "modes")
 ONE_STEP_RTOL = 1e-12
 #: what the claim lets a backend that implements a part change (module docstring)
-ALLOWS = Allow(materials="subset", walls="static", friction=True)
+ALLOWS = Allow(materials="subset", walls="static", friction=True, kernel=True, dims=True)
+
+
+def allows(key):
+    """:data:`ALLOWS` for variant ``key``, with the force free where the variant does not name it."""
+    return VARIANT[key].allows(ALLOWS)
 
 
 @dataclass(frozen=True)
@@ -106,7 +113,7 @@ def compiled_scenes(params, backend="numpy"):
     """``[(backend, scene)]`` this case runs on a compiled backend (see :mod:`verification.framework.warmup`)."""
     candidate = params.candidate if backend == "numpy" else backend
     triage = Triage(candidate)
-    scenes = [triage.fit(key, _scene(params, dim, kernel, VARIANT[key]), ALLOWS) for dim in params.dims
+    scenes = [triage.fit(key, _scene(params, dim, kernel, VARIANT[key]), allows(key)) for dim in params.dims
               for kernel in params.kernels for key in params.variants if candidate != "numpy"]
     return [(candidate, scene) for scene in scenes if scene is not None]
 
@@ -146,7 +153,7 @@ def _frame(ref, cand):
 def run_pair(job):
     """Step one scene on the reference and the candidate: differences after every step, wall times."""
     params, dim, kernel, key, candidate = job
-    scene = fit(_scene(params, dim, kernel, VARIANT[key]), candidate, ALLOWS).scene
+    scene = fit(_scene(params, dim, kernel, VARIANT[key]), candidate, allows(key)).scene
     ref = Simulation(scene, backend="numpy")
     cand = Simulation(scene, backend=candidate, particles=ref.particles.copy())
     history, frames, wall = [], [], {"numpy": 0.0, candidate: 0.0}
@@ -160,7 +167,7 @@ def run_pair(job):
         history.append(differences(ref, cand))
         if n % every == 0 or n == 1:
             frames.append(_frame(ref, cand))
-    return {"dim": dim, "kernel": kernel, "key": key, "candidate": candidate, "n_particles": ref.n_particles,
+    return {"dim": scene.dim, "kernel": kernel, "key": key, "candidate": candidate, "n_particles": ref.n_particles,
             "history": history, "wall_per_step": {k: w / max(1, params.steps - 1) for k, w in wall.items()},
             "frames": frames}
 
@@ -173,10 +180,11 @@ def run(params=Params(), backend="numpy", executor=None):
     jobs = [(params, dim, kernel, key, candidate) for dim in params.dims for kernel in params.kernels
             for key in params.variants
             if triage.scene(f"{_label_of(dim, kernel, key)}: one step and trajectory",
-                            _scene(params, dim, kernel, VARIANT[key]), ALLOWS, run=_label_of(dim, kernel, key))]
+                            _scene(params, dim, kernel, VARIANT[key]), allows(key), run=_label_of(dim, kernel, key))]
     if not jobs:
         raise triage.nothing_ran()
-    return {"params": params, "candidate": candidate, "executor": executor.describe(),
+    # the parameters as run: the candidate is the backend compared, also when it is not the default's numba
+    return {"params": replace(params, candidate=candidate), "candidate": candidate, "executor": executor.describe(),
             "runs": executor.map(run_pair, jobs), **triage.record()}
 
 

@@ -37,11 +37,15 @@ Theory and bounds
 
 On a backend that implements a part (:mod:`verification.framework.applicable`)
 ---------------------------------------------------------------------------------
-Each scheme runs if the backend has it; an ordering check needs both of its schemes, and is not applicable otherwise.
-The gain bound holds for any hyperelastic material (the modified-energy argument needs only a stored energy
-:math:`V`) and any kernel, and it is computed from the run's own :math:`\dot V`, so a body may be of another
-hyperelastic material the backend has (the same density and P-wave speed) and the kernel may be the backend's; open
-walls may be the backend's walls on a domain padded by their band, which nothing reaches. A fluid stores energy only in
+Each scheme runs if the backend has it (with the backend's force where the scheme's label does not name one); an
+ordering check needs both of its schemes, and is not applicable otherwise. The gain bound holds for any hyperelastic
+material (the modified-energy argument needs only a smooth stored energy :math:`V`), any smooth kernel and any
+dimension, and it is computed from the run's own :math:`\dot V`, so a body may be of another hyperelastic material the
+backend has (the same density and P-wave speed), the kernel may be the backend's quadratic or cubic B-spline (not the
+linear hat: its force jumps where a particle crosses a node, which the argument does not cover, and FLIP with it blows
+up on the disks, the reference too), a code without 2D runs the 3D slabs of the disks and the jelly
+(:func:`mpmref.backends.fitting.lifted`); open walls may be the backend's walls on a domain padded by their band,
+which nothing reaches. A fluid stores energy only in
 its volume, so the jelly of a fluid starts from the uniform dilation :math:`J_0 = 1 + s` instead of the isochoric
 stretch (the same oscillation between stored and kinetic energy, through the volume).
 """
@@ -54,6 +58,7 @@ from time import perf_counter
 import numpy as np
 
 from mpmref import Scene, SceneBuilder, Simulation
+from mpmref.backends.fitting import SMOOTH_KERNELS
 from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import TERMS
 
@@ -145,8 +150,9 @@ def _jelly(params, variant, ledger):
             .walls("open").time(cfl=params.cfl, t_end=params.jelly_t_end).output(energy_ledger=ledger).build())
 
 
-#: what the claims let a backend that implements a part change (module docstring)
-ALLOWS = Allow(materials="substitute", walls="open", kernel=True)
+#: what the claims let a backend that implements a part change (module docstring); a variant that does not name its
+#: force lets it change too (:meth:`~verification.momentum.Variant.allows`)
+ALLOWS = Allow(materials="substitute", walls="open", kernel=SMOOTH_KERNELS, dims=True)
 SCENES = {"disks": _disks, "jelly": _jelly}
 
 
@@ -159,11 +165,12 @@ def make_simulation(params, problem, variant, backend="numpy", ledger=False):
     """The simulation of ``problem`` for ``variant`` on ``backend`` (its scene fitted to what the backend implements,
     :func:`~verification.framework.applicable.fit`), in its initial state; with ``ledger``, it books the energy
     ledger (``[output] energy_ledger``). The jelly starts stretched (module docstring)."""
-    sim = Simulation(fit(problem_scene(params, problem, variant, ledger), backend, ALLOWS).scene, backend=backend)
+    scene = fit(problem_scene(params, problem, variant, ledger), backend, variant.allows(ALLOWS)).scene
+    sim = Simulation(scene, backend=backend)
     if problem == "jelly":
         s = params.jelly_stretch
-        if sim.F is not None:
-            sim.F = np.broadcast_to(np.diag([1.0 + s, 1.0 / (1.0 + s)]), sim.F.shape)
+        if sim.F is not None:  # isochoric in the plane; the slab's depth (3D) unstretched
+            sim.F = np.broadcast_to(np.diag([1.0 + s, 1.0 / (1.0 + s), 1.0][:scene.dim]), sim.F.shape)
         else:  # a fluid: its energy is that of its volume
             sim.J = np.full(sim.J.shape, 1.0 + s)
     return sim
@@ -201,8 +208,8 @@ def run(params=Params(), backend="numpy", executor=None):
     executor = executor or Executor(workers=1)
     triage = Triage(backend)
     jobs = [(params, problem, key, backend) for problem in params.problems for key in params.variants
-            if triage.scene(_gain_name(problem, key), problem_scene(params, problem, VARIANT[key]), ALLOWS,
-                            run=_run_name(problem, key))]
+            if triage.scene(_gain_name(problem, key), problem_scene(params, problem, VARIANT[key]),
+                            VARIANT[key].allows(ALLOWS), run=_run_name(problem, key))]
     if not jobs:
         raise triage.nothing_ran()
     for problem in params.problems:

@@ -40,12 +40,12 @@ applicable.
 
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from mpmref import DomainExitError, NonFiniteError, SceneBuilder, Simulation
+from mpmref import DomainExitError, InstabilityError, NonFiniteError, SceneBuilder, Simulation
 from mpmref.run.stability import StabilityWarning
 
 from .framework.applicable import Allow, Triage, fit
@@ -68,6 +68,14 @@ SCHEMES = {
 MAIN_FIGURE = "extremes.png"
 #: what the claims let a backend that implements a part change (module docstring)
 ALLOWS = Allow(materials="substitute", walls="static", friction=True)
+#: the schemes whose label names their force (APIC with the classic force, MLS-MPM); the others' claims hold for
+#: either force, so a backend may run them with its own
+NAMES_FORCE = ("apic", "mls")
+
+
+def allows(scheme):
+    """:data:`ALLOWS` for ``scheme``, with the force free where its label does not name it."""
+    return ALLOWS if scheme in NAMES_FORCE else replace(ALLOWS, force=True)
 
 @dataclass(frozen=True)
 class Condition:
@@ -146,7 +154,7 @@ def perturbation(x, speed, seed):
 
 def block_simulation(params, scheme, condition, cfl, backend="numpy", out_dir=None):
     """A :class:`~mpmref.run.simulation.Simulation` of the test block with its initial :func:`perturbation`."""
-    sim = Simulation(fit(block_scene(params, scheme, condition, cfl), backend, ALLOWS).scene, backend=backend,
+    sim = Simulation(fit(block_scene(params, scheme, condition, cfl), backend, allows(scheme)).scene, backend=backend,
                      out_dir=out_dir)
     sim.v = perturbation(sim.x, params.mach * sim.scene.max_wave_speed(), params.seed)
     return sim
@@ -168,7 +176,8 @@ def _probe(sim, steps, energy_factor):
     """Run ``steps`` steps; returns whether they were stable, why not, when, and the cell-crossing reading.
 
     ``crossing`` is the detector: the largest :math:`|x_p^{n+1} - x_p^n| / \\Delta x` over particles and
-    steps. The engine's :class:`~mpmref.errors.NonFiniteError` and
+    steps. The engine's :class:`~mpmref.errors.NonFiniteError`, :class:`~mpmref.errors.InstabilityError` (an
+    unbounded velocity change that takes a particle out of the domain) and
     :class:`~mpmref.errors.DomainExitError` are caught and recorded as breaks. A simulation with an
     output folder writes a frame every ``scene.output.every`` steps.
     """
@@ -184,6 +193,8 @@ def _probe(sim, steps, energy_factor):
             sim.step()
         except NonFiniteError:
             return outcome("non-finite", n + 1)
+        except InstabilityError:  # an unbounded velocity change that takes a particle out of the domain
+            return outcome("unbounded", n + 1)
         except DomainExitError:
             return outcome("left domain", n + 1)
         crossing = max(crossing, float(np.max(np.linalg.norm(sim.x - x_old, axis=1))) / dx)
@@ -248,7 +259,7 @@ def crossing_scene(params, scheme):
 def crossing(item):
     """Run the translating block (``item = (params, scheme, backend)``); detector reading and prediction."""
     params, scheme, backend = item
-    sim = Simulation(fit(crossing_scene(params, scheme), backend, ALLOWS).scene, backend=backend)
+    sim = Simulation(fit(crossing_scene(params, scheme), backend, allows(scheme)).scene, backend=backend)
     c = sim.scene.max_wave_speed()
     speed = params.crossing_speed * c
     sim.v = np.tile([speed, 0.0], (sim.n_particles, 1))
@@ -282,7 +293,7 @@ def _applicable(params, scheme, conditions, triage):
     name = f"{scheme}: every check (largest stable CFL per condition, its spread over E, cell-crossing detector)"
     scenes = [(f"{scheme}, {c.label(params.base)}", block_scene(params, scheme, c, params.guaranteed_cfl))
               for c in conditions] + [(f"{scheme}: translating block", crossing_scene(params, scheme))]
-    fitted = [triage.fit(run, scene, ALLOWS) for run, scene in scenes]
+    fitted = [triage.fit(run, scene, allows(scheme)) for run, scene in scenes]
     if any(f is None for f in fitted):
         triage.skip(name, [r for run, _ in scenes for r in triage.reasons(run)])
         return False
@@ -293,7 +304,7 @@ def _fixed_stiffness(params, schemes, backend):
     """The schemes whose blocks across the E sweep have one wave speed: the backend fixes the stiffness of the
     material it runs, so the sweep varies nothing (its spread check is not applicable)."""
     youngs = [c for c in params.conditions() if c.nu == params.base.nu and c.ppc == params.base.ppc]
-    return [s for s in schemes if len({fit(block_scene(params, s, c, params.guaranteed_cfl), backend, ALLOWS)
+    return [s for s in schemes if len({fit(block_scene(params, s, c, params.guaranteed_cfl), backend, allows(s))
                                        .scene.max_wave_speed() for c in youngs}) == 1 < len(youngs)]
 
 

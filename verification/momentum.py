@@ -25,17 +25,22 @@ Theory and bounds
 
 On a backend that implements a part (:mod:`verification.framework.applicable`)
 ---------------------------------------------------------------------------------
-Each scheme runs if the backend has it (its transfer and force); the others are not applicable. The claims hold for
-any material, kernel, precision and wall that no particle reaches, so the disk may be of another hyperelastic material
-the backend has (the same density and P-wave speed: the same Δt), its open walls may be walls of the backend's on a
-domain padded by their band (their nodes hold no mass: nothing reads them), and the kernel and precision may be the
-backend's. Every bound is computed from what ran: :func:`roundoff_bound` from the kernel's support and the machine
-epsilon of the scene's dtype, :func:`spin_loss_rate` from the kernel's :math:`D` and the particles. A fluid disk's
+Each scheme runs if the backend has it (its transfer; and its force where the variant's label names one: APIC with the
+classic force, MLS-MPM); the others are not applicable. The claims hold for any material, kernel, force, precision,
+dimension and wall that no particle reaches, so the disk may be of any material the backend has (the same density and
+rest P-wave speed: the same Δt), its open walls may be walls of the backend's on a domain padded by their band (their
+nodes hold no mass: nothing reads them), the kernel and precision may be the backend's, and a code without 2D runs the
+disk's 3D slab (:func:`mpmref.backends.fitting.lifted`, a thin cylinder spinning about z: :math:`L_z` is the spin,
+and every component of :math:`L` is conserved). Every bound is computed from what ran: :func:`roundoff_bound` from the
+kernel's support, the dimension and the machine epsilon of the scene's dtype, :func:`spin_loss_rate` from each
+particle's inertia :math:`D_p` (:func:`spin_inertia`; the linear hat has no constant one). With the linear hat the step
+is ``linear_cfl``: FLIP with it blows up at the CFL number of the smooth kernels (its cell-crossing instability, the
+reference's too). A fluid disk's
 spin is not held rigid by shear, so over the run its particles drift outward; the PIC rate check reads the decay rate
 until the spin is gone, and a rigid start is what :func:`spin_loss_rate` predicts from.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from time import perf_counter
 
@@ -44,6 +49,7 @@ import numpy as np
 from mpmref import SceneBuilder, Simulation
 from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.diagnostics import angular_momentum
+from mpmref.physics.kernels import compute_stencil
 from mpmref.physics.materials import FixedCorotated
 from mpmref.physics.scheme import resolve
 from mpmref.scene import MethodSpec
@@ -91,6 +97,17 @@ class Variant:
         return 1.0 - spec.flip_alpha if spec.flip else 1.0
 
 
+    @property
+    def names_force(self):
+        """Whether the variant is defined by its force (APIC with the classic force, MLS-MPM); the others' claims
+        hold for either force, so a backend may run them with its own."""
+        return "force" in self.method or self.scheme == "mls"
+
+    def allows(self, allow):
+        """``allow`` with the force free where the variant does not name it."""
+        return allow if self.names_force else replace(allow, force=True)
+
+
 #: the compared schemes; ``scheme = "apic"`` with the default MLS force is MLS-MPM, so it is listed once
 VARIANTS = (
     Variant("pic", "PIC", "pic"),
@@ -115,6 +132,10 @@ class Params:
     nu: float = 0.3
     rho: float = 1.0
     cfl: float = 0.25
+    #: the CFL number with the linear hat (a backend that has no other kernel): at 0.25 FLIP(0.95) and FLIP(1) blow
+    #: up in the quick run (steps 113 and 150 on the reference, 2D and 3D slab: the hat's cell-crossing
+    #: instability); at 0.1 every scheme runs the whole quick and full run
+    linear_cfl: float = 0.1
     steps: int = 1000
     frames: int = 10  # VTK frames per run
     variants: tuple = tuple(v.key for v in VARIANTS)
@@ -160,22 +181,35 @@ def roundoff_bound(steps, n_particles, ppc, support, dim, eps=np.finfo(np.float6
 
 
 def spin_loss_rate(mass, x, center, inertia):
-    r"""Fraction of a rigid spin's angular momentum one PIC G2P drops: :math:`\lambda = 2 D M / I`.
+    r"""Fraction of a rigid spin's angular momentum one PIC G2P drops: :math:`\lambda = 2 \sum_p m_p D_p / I`.
 
     PIC's G2P keeps :math:`v_p = \sum_i w_{ip} v_i` and discards the affine part APIC keeps; for a rigid
-    spin that part carries :math:`m_p D (C_{yx} - C_{xy}) = 2\omega\, m_p D` per particle (Jiang et al.
+    spin that part carries :math:`m_p D_p (C_{yx} - C_{xy}) = 2\omega\, m_p D_p` per particle (Jiang et al.
     2015 §5.3, the angular momentum of the affine term), out of :math:`L = I\omega`,
-    :math:`I = \sum_p m_p |x_p - x_c|^2`, :math:`M = \sum_p m_p`.
+    :math:`I = \sum_p m_p |x_p - x_c|^2`; for the quadratic and cubic B-splines :math:`D_p = D` and
+    :math:`\lambda = 2DM/I`, :math:`M = \sum_p m_p`.
 
     Docs: docs/verification.md#momentum-a-spinning-drifting-disk
 
     Parameters
     ----------
-    mass : (n,) array;  x : (n, 2) array;  center : (2,) spin centre
-    inertia : float     the kernel's :math:`D = k\,\Delta x^2` (:math:`k = 1/4` quadratic, :math:`1/3` cubic)
+    mass : (n,) array;  x : (n, 2) array, in the plane of the spin;  center : (2,) spin centre
+    inertia : float or (n,) array   :math:`D_p`: the kernel's :math:`D = k\,\Delta x^2` (:math:`k = 1/4` quadratic,
+                                    :math:`1/3` cubic), or each particle's in-plane inertia (:func:`spin_inertia`)
     """
     moment = float(np.sum(mass * np.sum((x - center) ** 2, axis=1)))
-    return 2.0 * inertia * float(mass.sum()) / moment
+    return 2.0 * float(np.sum(mass * inertia)) / moment
+
+
+def spin_inertia(scene, x):
+    r"""Each particle's inertia about the spin axis, :math:`\tfrac12 (D_{p,xx} + D_{p,yy})` of
+    :math:`D_p = \sum_i w_{ip} (x_i - x_p)(x_i - x_p)^T` (Jiang et al. 2015 §5.3): :math:`k\,\Delta x^2` for the
+    quadratic and cubic B-splines, and for the linear hat a function of where the particle sits in its cell
+    (:math:`f_a (1 - f_a)\,\Delta x^2` per axis, with :math:`f_a` its fractional position), which no constant
+    gives."""
+    stencil = compute_stencil(scene.kernel, x, scene.grid.origin, scene.grid.dx)
+    w, r = stencil.node_weights(), stencil.node_offset_vectors()
+    return 0.5 * np.einsum("kn,kn->n", w, r[..., 0] ** 2 + r[..., 1] ** 2)
 
 
 def decay_rate(L_rel, floor=1e-2):
@@ -189,8 +223,9 @@ def decay_rate(L_rel, floor=1e-2):
 
 
 # ------------------------------------------------------------------------------------------- runs
-#: what the claims let a backend that implements a part change (module docstring)
-ALLOWS = Allow(materials="substitute", walls="open", kernel=True, dtype=True)
+#: what the claims let a backend that implements a part change (module docstring); a variant that does not name its
+#: force lets it change too (:meth:`Variant.allows`)
+ALLOWS = Allow(materials="any", walls="open", kernel=True, dtype=True, dims=True)
 
 
 def _scene(params, variant):
@@ -204,27 +239,36 @@ def _scene(params, variant):
 
 
 def time_step(params, scene):
-    r""":math:`\Delta t = C\,\Delta x / (c + \omega R + |v|)` with the material's wave speed :math:`c`."""
+    r""":math:`\Delta t = C\,\Delta x / (c + \omega R + |v|)` with the material's wave speed :math:`c` (``cfl``, or
+    ``linear_cfl`` with the linear hat)."""
     speed = scene.max_wave_speed() + params.omega * params.radius + float(np.linalg.norm(params.velocity))
-    return params.cfl * scene.grid.dx / speed
+    cfl = params.linear_cfl if scene.method.kernel == "linear" else params.cfl
+    return cfl * scene.grid.dx / speed
 
 
 def _measure(sim, inertia):
-    """Time, P, L (about the origin, affine part included) and their magnitude scales S_P and S_L."""
+    """Time, the scales S_P and S_L, P and L (about the origin, affine part included; L a scalar in 2D, its three
+    components in 3D) as one row."""
     m, x, v = sim.mass, sim.x, sim.v
     speed = np.linalg.norm(v, axis=1)
-    affine = 0.0 if sim.C is None else inertia * np.sum(m * (np.abs(sim.C[:, 0, 1]) + np.abs(sim.C[:, 1, 0])))
+    affine = 0.0 if sim.C is None else inertia * np.sum(m * _skew_magnitude(sim.C))
     P = m @ v
-    return (sim.time, P[0], P[1], float(angular_momentum(sim.particles, inertia)), float(m @ speed),
-            float(m @ (np.linalg.norm(x, axis=1) * speed)) + affine)
+    return (sim.time, float(m @ speed), float(m @ (np.linalg.norm(x, axis=1) * speed)) + affine, *P,
+            *np.atleast_1d(angular_momentum(sim.particles, inertia)))
+
+
+def _skew_magnitude(C):
+    r""":math:`\sum_{i<j} |C_{ij}| + |C_{ji}|` per particle: the off-diagonal entries that carry the affine spin."""
+    i, j = np.triu_indices(C.shape[1], 1)
+    return np.sum(np.abs(C[:, i, j]) + np.abs(C[:, j, i]), axis=1)
 
 
 def run_variant(job):
     """Run one variant ``job = (params, key, backend)``: momenta every step, VTK frames, timings."""
     params, key, backend = job
-    scene = fit(_scene(params, VARIANT[key]), backend, ALLOWS).scene
+    scene = fit(_scene(params, VARIANT[key]), backend, VARIANT[key].allows(ALLOWS)).scene
     sim = Simulation(scene, backend=backend)
-    inertia = scene.kernel.inertia_factor * scene.grid.dx**2
+    inertia = (scene.kernel.inertia_factor or 0.0) * scene.grid.dx**2  # D of the affine schemes (C: none without)
     dt, every = time_step(params, scene), max(1, params.steps // params.frames)
     rows, frames = [_measure(sim, inertia)], [snapshot(sim)]
     start = perf_counter()
@@ -234,12 +278,13 @@ def run_variant(job):
         if n % every == 0 or n == params.steps:
             frames.append(snapshot(sim))
     wall = perf_counter() - start
-    a = np.array(rows)
-    rate = spin_loss_rate(sim.mass, frames[0][1], np.zeros(2), inertia)
-    return {"t": a[:, 0], "P": a[:, 1:3], "L": a[:, 3], "scale_P": float(a[:, 4].max()),
-            "scale_L": float(a[:, 5].max()), "dt": dt, "n_particles": sim.n_particles, "spin_loss_rate": rate,
-            "support": scene.kernel.support, "eps": float(np.finfo(scene.dtype).eps), "wall_s": wall,
-            "frames": frames}
+    a, dim = np.array(rows), scene.dim
+    x0 = frames[0][1]
+    rate = spin_loss_rate(sim.mass, x0[:, :2], np.zeros(2), spin_inertia(scene, x0))  # the spin is about z
+    return {"t": a[:, 0], "P": a[:, 3:3 + dim], "L": a[:, 3 + dim:], "scale_P": float(a[:, 1].max()),
+            "scale_L": float(a[:, 2].max()), "dt": dt, "n_particles": sim.n_particles, "spin_loss_rate": rate,
+            "support": scene.kernel.support, "dim": dim, "ppc": round(params.ppc ** (dim / 2)),
+            "eps": float(np.finfo(scene.dtype).eps), "wall_s": wall, "frames": frames}
 
 
 def run(params=Params(), backend="numpy", executor=None):
@@ -247,8 +292,8 @@ def run(params=Params(), backend="numpy", executor=None):
     process); the others are listed, their checks with them, as not applicable."""
     executor = executor or Executor(workers=1)
     triage = Triage(backend)
-    keys = [key for key in params.variants
-            if triage.scene(_variant_label(key), _scene(params, VARIANT[key]), ALLOWS, run=VARIANT[key].label)]
+    keys = [key for key in params.variants if triage.scene(_variant_label(key), _scene(params, VARIANT[key]),
+                                                           VARIANT[key].allows(ALLOWS), run=VARIANT[key].label)]
     if not keys:
         raise triage.nothing_ran()
     runs = executor.map(run_variant, [(params, key, backend) for key in keys])
@@ -264,13 +309,20 @@ def _variant_label(key):
 # ----------------------------------------------------------------------------------------- figures
 def drifts(r):
     """Relative linear and angular momentum drift against time: :math:`|P-P_0|/S_P`, :math:`|L-L_0|/S_L`."""
-    return (np.linalg.norm(r["P"] - r["P"][0], axis=1) / r["scale_P"], np.abs(r["L"] - r["L"][0]) / r["scale_L"])
+    return (np.linalg.norm(r["P"] - r["P"][0], axis=1) / r["scale_P"],
+            np.linalg.norm(r["L"] - r["L"][0], axis=1) / r["scale_L"])
+
+
+def spin(r):
+    """The angular momentum about the spin axis against time: :math:`L` in 2D, :math:`L_z` in 3D (the slab of
+    :func:`mpmref.backends.fitting.lifted` spins about z)."""
+    return r["L"][:, -1]
 
 
 def bound_curve(params, r):
-    """:func:`roundoff_bound` after each step of run ``r`` (in the machine epsilon of its dtype)."""
-    return roundoff_bound(np.arange(len(r["t"])), r["n_particles"], params.ppc, r["support"], 2,
-                          r.get("eps", np.finfo(np.float64).eps))
+    """:func:`roundoff_bound` after each step of run ``r`` (in the machine epsilon of its dtype and dimension)."""
+    return roundoff_bound(np.arange(len(r["t"])), r["n_particles"], r.get("ppc", params.ppc), r["support"],
+                          r.get("dim", 2), r.get("eps", np.finfo(np.float64).eps))
 
 
 LINEAR_CHECK = "linear momentum drift ‖P-P0‖ / Σ m‖v‖"
@@ -293,7 +345,7 @@ def _angular_check(v, r, drift, bound):
         return Check(name, drift, "<=", bound, "conserved exactly with the affine term; round-off (k n + N) u")
     if v.pic_fraction > 0:
         predicted = v.pic_fraction * r["spin_loss_rate"]
-        return Check(name, decay_rate(r["L"] / r["L"][0]), ">=", 0.5 * predicted,
+        return Check(name, decay_rate(spin(r) / spin(r)[0]), ">=", 0.5 * predicted,
                      f"half the predicted (1-α)·2DM/I = {predicted:.3g} per step")
     return Check(name, drift, ">", bound, "no affine mode carries the spin: not conserved (exceeds round-off)")
 
@@ -316,9 +368,9 @@ def table(result):
     body = []
     for key, r in result["runs"].items():
         v, (dp, dl) = VARIANT[key], drifts(r)
-        measured = decay_rate(r["L"] / r["L"][0]) if not v.conserves_angular_momentum else 0.0
+        measured = decay_rate(spin(r) / spin(r)[0]) if not v.conserves_angular_momentum else 0.0
         body.append(f"| {v.label} | {len(r['t']) - 1} | {r['n_particles']} | {r['dt']:.3g} | {dp.max():.2e} | "
-                    f"{dl.max():.2e} | {r['L'][-1] / r['L'][0]:.6f} | {measured:.3g} | "
+                    f"{dl.max():.2e} | {spin(r)[-1] / spin(r)[0]:.6f} | {measured:.3g} | "
                     f"{v.pic_fraction * r['spin_loss_rate']:.3g} | {r['wall_s']:.2f} |")
     return "\n".join(head + body)
 
@@ -350,7 +402,7 @@ def plot_angular_momentum(result, path):
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for key, r in result["runs"].items():
         v = VARIANT[key]
-        line, = ax.plot(r["t"], r["L"] / r["L"][0], label=v.label)
+        line, = ax.plot(r["t"], spin(r) / spin(r)[0], label=v.label)
         if v.pic_fraction > 0:
             n = np.arange(len(r["t"]))
             ax.plot(r["t"], np.exp(-v.pic_fraction * r["spin_loss_rate"] * n), ":", color=line.get_color(),

@@ -156,18 +156,22 @@ class Implements:
 
     def _materials_reasons(self, scene):
         """The material types, the parameter values this backend fixes, and the deformation fields they carry."""
-        reasons = []
-        for material in scene.material_list:
-            kind = material_type(material)
-            if kind not in self.materials:
-                reasons.append(f"needs the material {kind}")
-                continue
-            for parameter, fixed in self.parameters.get(kind, {}).items():
-                value = getattr(material, parameter)
-                if value != fixed:
-                    reasons.append(f"needs {kind} {parameter} = {value:g} (this backend fixes {parameter} = {fixed:g})")
+        reasons = [r for material in scene.material_list for r in self._type_reasons(material)]
         carried = dict.fromkeys(field for m in scene.material_list for field in evolved_fields(m))
         return list(dict.fromkeys(reasons)) + self._evolved_reasons(carried)
+
+    def material_reasons(self, material):
+        """What one material object needs that this backend lacks, in words (its type, a parameter value it fixes
+        otherwise, the fields it evolves)."""
+        return self._type_reasons(material) + self._evolved_reasons(evolved_fields(material))
+
+    def _type_reasons(self, material):
+        kind = material_type(material)
+        if kind not in self.materials:
+            return [f"needs the material {kind}"]
+        return [f"needs {kind} {parameter} = {getattr(material, parameter):g} (this backend fixes {parameter} = "
+                f"{fixed:g})" for parameter, fixed in self.parameters.get(kind, {}).items()
+                if getattr(material, parameter) != fixed]
 
     def _evolved_reasons(self, needed):
         lacking = [f for f in needed if f not in self.evolves]

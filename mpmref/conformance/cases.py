@@ -23,6 +23,7 @@ from itertools import product
 import numpy as np
 
 from ..backends.capabilities import EVERYTHING, SCHEMES, Implements
+from ..backends.fitting import closest_method, implemented_methods, implements_material
 from ..errors import SceneError
 from ..physics.catalogue import MATERIALS as MATERIAL_CLASSES
 from ..physics.kernels import KERNELS
@@ -69,7 +70,8 @@ MATERIALS = {
 }
 #: material sets of the stress, return-map and per-material step cases: each material alone, then all together
 MATERIAL_SETS = {**{name: (name,) for name in MATERIALS}, "mixed": tuple(MATERIALS)}
-PLASTIC_SETS = ("snow", "sand", "mixed")
+#: the material sets of the return-map cases: each plastic material alone (read from the material classes), then all
+PLASTIC_SETS = (*(name for name, spec in MATERIALS.items() if MATERIAL_CLASSES[spec["type"]].plastic), "mixed")
 #: the material set of the per-method cases: a solid (F update) and the fluid (J update)
 TRANSFER_MATERIALS = ("fixed_corotated", "fluid")
 MIXED_WALLS = {"x_min": {"type": "sticky"}, "x_max": {"type": "slip"},
@@ -250,10 +252,18 @@ class Fit:
     @cached_property
     def method(self):
         """The method of the cases that are not per method: ``None`` (the scene's default, MLS-MPM) if the target
-        implements it, else the first valid one it implements (with the affine matrix or modes it carries)."""
+        implements it, else the one :func:`mpmref.backends.fitting.fit` gives the default scene when any method may
+        change (the fewest changes; with the affine matrix or modes it carries), or ``None`` if it implements
+        none."""
         if self._check(2, ("method",), method=DEFAULT_METHOD):
             return None
-        return next((m for m in valid_methods() if self._check(2, ("method",), method=m)), None)
+        methods = implemented_methods(self.target)
+        if not methods:
+            return None
+        own = Scene.from_dict(scene_dict(2, ("fixed_corotated",), method=DEFAULT_METHOD)).method
+        scheme, force, gradient, kernel = closest_method(own, methods)
+        method = {"scheme": scheme, "force": force, "kernel": kernel}
+        return method if gradient == force else {**method, "velocity_gradient": gradient}
 
     def method_suffix(self):
         """``-<method>`` for the names of cases on :attr:`method` when it is not the default, else ``""``."""
@@ -269,8 +279,11 @@ class Fit:
 
     @cached_property
     def kinds(self):
-        """The material types of :data:`MATERIALS` that the target implements (with the fields they carry)."""
-        return tuple(k for k in MATERIALS if self._check(2, ("materials",), materials=(k,)))
+        """The material types of :data:`MATERIALS` that the target implements, with the parameters it fixes and the
+        fields they carry (:func:`mpmref.backends.fitting.implements_material`)."""
+        specs = material_dicts(MATERIALS, self.target.parameters)
+        return tuple(k for k, spec in specs.items()
+                     if implements_material(MATERIAL_CLASSES[spec["type"]](**_parameters(spec)), self.target))
 
     def material_set(self, wanted):
         """``(names, suffix)``: the materials of ``wanted`` that the target implements (all of them, the suffix
@@ -300,6 +313,10 @@ class Fit:
             return True
         return ((self.schemes is None or method["scheme"] in self.schemes)
                 and (self.kernels is None or method["kernel"] in self.kernels))
+
+
+def _parameters(spec):
+    return {k: v for k, v in spec.items() if k != "type"}
 
 
 def fit_for(implements=None, materials=None, schemes=None, kernels=None):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..physics.kernels import compute_stencil
+from ..physics.materials import evolved_fields
 from ..physics.polypic import higher_modes
 
 #: the cell size at which the built-in cases' velocities are of order 1; they scale with the cell size, so that a
@@ -28,6 +29,8 @@ N_PARTICLES = {2: 64, 3: 128}
 MIN_WEIGHT = 1.0e-3
 #: the CFL number of a case, Δt (c + 4 s) / Δx, is drawn log-uniformly in this range (:func:`draw_step`)
 CFL_RANGE = (1.0e-4, 0.5)
+#: the plastic volume ratios ``Jp`` of a drawn state are uniform in this range
+JP_RANGE = (0.7, 1.2)
 #: the time of a case (where colliders and scripted bodies are) is drawn log-uniformly in this range, times the
 #: time scale of its :class:`Scales`
 TIME_RANGE = (1.0e-4, 0.2)
@@ -116,7 +119,7 @@ def random_particles(scene, rng, scales=None):
 
     Positions from :func:`random_positions`; random materials of the scene; volume a quarter cell (2D) or
     an eighth (3D) within ±20 %; mass ``rho * vol0``; velocities N(0, s²); ``C`` N(0, affine²); ``F`` from
-    :func:`random_deformation_gradients`; ``J`` in [0.9, 1.1]; ``Jp`` in [0.7, 1.2]; PolyPIC modes from
+    :func:`random_deformation_gradients`; ``J`` in [0.9, 1.1]; ``Jp`` in :data:`JP_RANGE`; PolyPIC modes from
     :func:`random_modes`. ``C``, ``F``, ``J``, ``Jp`` and ``modes`` only where the scene needs them.
     """
     scales = scales or catalogue_scales(scene)
@@ -134,7 +137,7 @@ def random_particles(scene, rng, scales=None):
     if scene.tracks("J"):
         flat["J"] = rng.uniform(0.9, 1.1, n)
     if scene.tracks("Jp"):
-        flat["Jp"] = rng.uniform(0.7, 1.2, n)
+        flat["Jp"] = rng.uniform(*JP_RANGE, n)
     if scene.transfer.polypic:
         flat["modes"] = random_modes(rng, n, dim, scene.kernel.support, grid.dx, speed)
     return flat
@@ -155,7 +158,8 @@ def random_grid(scene, rng, scales=None):
 def draw_step(label, scene, speed=None, limit=None):
     r"""Δt of the case called ``label``: :math:`\Delta t = \mathrm{CFL}\,\Delta x / (c + 4 s)` with the CFL number
     log-uniform in :data:`CFL_RANGE` (nearly four decades, all inside the stable range of every scheme,
-    docs/stability.md), :math:`c` the scene's largest rest wave speed and :math:`s` the state's speed scale
+    docs/stability.md), :math:`c` the largest wave speed of a drawn state (:func:`drawn_wave_speed`) and :math:`s`
+    the state's speed scale
     (``speed``, default :func:`catalogue_scales`' ; four standard deviations bound the drawn speeds). Seeded by the
     label.
 
@@ -165,7 +169,7 @@ def draw_step(label, scene, speed=None, limit=None):
     """
     speed = catalogue_scales(scene).speed if speed is None else speed
     cfl = np.exp(np.random.default_rng(zlib.crc32(f"dt-{label}".encode())).uniform(*np.log(CFL_RANGE)))
-    signal = scene.max_wave_speed() + 4.0 * speed
+    signal = drawn_wave_speed(scene) + 4.0 * speed
     dt = float(cfl * scene.grid.dx / signal)
     if limit is not None:
         dt *= min(1.0, limit / (CFL_RANGE[1] * scene.grid.dx / signal))
@@ -177,7 +181,16 @@ def cfl_number(scene, dt=None, speed=None):
     scene's ``time.dt``, ``speed`` default :func:`catalogue_scales`')."""
     dt = scene.time.dt if dt is None else dt
     speed = catalogue_scales(scene).speed if speed is None else speed
-    return dt * (scene.max_wave_speed() + 4.0 * speed) / scene.grid.dx
+    return dt * (drawn_wave_speed(scene) + 4.0 * speed) / scene.grid.dx
+
+
+def drawn_wave_speed(scene):
+    r"""The largest wave speed of a particle of ``scene`` at rest (:math:`F = I`, :math:`J = 1`) with the plastic
+    volume ratio a drawn state goes down to (``JP_RANGE[0]``): each material's own rule (``wave_speeds``), so that
+    snow is as stiff as its hardening makes the drawn states, and not as stiff as its clamp ``Jp_min`` would allow
+    (a code that never clamps declares ``Jp_min = 1e-300``); the rest speed of every other material."""
+    state = {"F": np.eye(scene.dim)[None], "J": np.ones(1), "Jp": np.full(1, JP_RANGE[0])}
+    return max(float(m.wave_speeds(*(state[f] for f in evolved_fields(m)))[0]) for m in scene.material_list)
 
 
 def draw_time(seed, scale=1.0):

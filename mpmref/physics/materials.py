@@ -13,6 +13,10 @@ import numpy as np
 
 from .parameters import parameter
 
+#: Poisson's ratio of a solid that stands in for a material of another type when none is given
+#: (:meth:`LameParameters.with_wave_speed`)
+STAND_IN_NU = 0.3
+
 
 def lame_parameters(E, nu):
     r"""Lamé parameters from Young's modulus and Poisson's ratio.
@@ -69,6 +73,11 @@ class Material:
     """
 
     rho: float = parameter(default=1000.0, lo=0.0, lo_open=True)
+    #: whether the stored energy is a function of the deformation alone, so that a step without transfer loss
+    #: conserves energy (False: plastic flow dissipates it)
+    hyperelastic = False
+    #: whether the material has a return map and carries the plastic volume ratio ``Jp``
+    plastic = False
 
 
 @dataclass(frozen=True)
@@ -86,16 +95,35 @@ class LameParameters(Material):
     def lam(self):
         return float(lame_parameters(self.E, self.nu)[1])
 
+    def wave_speed(self):
+        r"""Dilatational (P-)wave speed at rest (:math:`F = I`, :math:`J_P = 1`),
+        :math:`c = \sqrt{(\lambda + 2\mu)/\rho}`.
+
+        The speed a scene starts from, for set-up (a Mach number, a first Δt); each step's CFL rule uses every
+        particle's current speed (``wave_speeds``).
+        """
+        return float(np.sqrt((self.lam + 2.0 * self.mu) / self.rho))
+
+    @classmethod
+    def with_wave_speed(cls, rho, c, given):
+        r"""The parameters (a dict) of a material of this class of density :math:`\rho` and rest P-wave speed
+        :math:`c`, keeping the values ``given`` (parameters a code fixes, or carried over from another material).
+
+        .. math:: E = \rho c^2\,\frac{(1+\nu)(1-2\nu)}{1-\nu}
+                  \qquad\text{so that}\qquad \lambda + 2\mu = \rho c^2,
+
+        with :math:`\nu` the given one or :data:`STAND_IN_NU`; a given :math:`E` is kept (the speed is then its own).
+        """
+        nu = given.get("nu", STAND_IN_NU)
+        return {"rho": rho, "E": rho * c**2 * (1 + nu) * (1 - 2 * nu) / (1 - nu), "nu": nu, **given}
+
 
 @dataclass(frozen=True)
 class ElasticSolid(LameParameters):
     """Shared parameters of the hyperelastic solids: Young's modulus ``E``, Poisson ratio ``nu``, density ``rho``."""
 
     tracks = "F"
-
-    def wave_speed(self):
-        r"""Dilatational (P-)wave speed at rest, :math:`c = \sqrt{(\lambda + 2\mu)/\rho}`."""
-        return float(np.sqrt((self.lam + 2.0 * self.mu) / self.rho))
+    hyperelastic = True
 
     def wave_speeds(self, F):
         r"""P-wave speed of each particle in its current state (the CFL rule's :math:`c_p`); see
@@ -195,6 +223,15 @@ class WeaklyCompressibleFluid(Material):
     K: float = parameter(lo=0.0, lo_open=True)
     gamma: float = parameter(default=7.0, lo=1.0, hi=20.0)
     tracks = "J"
+    hyperelastic = True
+
+    @classmethod
+    def with_wave_speed(cls, rho, c, given):
+        r"""The parameters (a dict) of a fluid of density :math:`\rho` and sound speed :math:`c` at rest, keeping the
+        values ``given``: :math:`K = \rho c^2/\gamma` (:meth:`wave_speed`), with the given :math:`\gamma` or its
+        default; a given :math:`K` is kept."""
+        gamma = given.get("gamma", cls.gamma)
+        return {"rho": rho, "K": rho * c**2 / gamma, "gamma": gamma, **given}
 
     def pressure(self, J):
         r"""Tait pressure :math:`p = K(J^{-\gamma} - 1)` of each volume ratio ``J`` (n,).

@@ -61,8 +61,10 @@ class SnowPlasticity(LameParameters):
     snow (:math:`\theta_c = 2.5\times10^{-2}`, :math:`\theta_s = 7.5\times10^{-3}`, :math:`\xi = 10`).
 
     The clamp of :math:`J_P` is this toolkit's choice, not the paper's: ``Jp_min`` bounds the stiffening
-    :math:`e^{\xi(1 - J_P)}` (:math:`e^4 \approx 54.6` at the defaults) so that :meth:`wave_speed`, and
-    with it the CFL time step, has a finite worst case; ``Jp_max`` keeps :math:`J_P` finite for snow that
+    :math:`e^{\xi(1 - J_P)}` (:math:`e^4 \approx 54.6` at the defaults), so that the stiffest snow a run can
+    reach, and with it the CFL time step of its particles (:meth:`wave_speeds`, the speed of each particle at its
+    own :math:`J_P`), has a finite worst case; :meth:`wave_speed` is the speed at rest (:math:`J_P = 1`), where a
+    scene starts; ``Jp_max`` keeps :math:`J_P` finite for snow that
     is torn apart (its softening :math:`e^{-19\xi}` already makes such snow stress-free). An inverted
     trial :math:`F_E` (signed :math:`\sigma_d < 0`) comes back un-inverted with
     :math:`\hat\sigma_d = 1-\theta_c`; its volume ratio is negative, so :math:`J_P` clamps to ``Jp_min``.
@@ -107,16 +109,6 @@ class SnowPlasticity(LameParameters):
         F_new = np.where(inside[:, None, None], F, _compose(U, clamped, Vt))
         ratio = np.prod(sigma, axis=1) / np.prod(clamped, axis=1)
         return F_new, np.clip(Jp * ratio, self.Jp_min, self.Jp_max)
-
-    def wave_speed(self):
-        r"""P-wave speed of the stiffest admissible snow (the CFL bound).
-
-        .. math:: c = \sqrt{(\lambda_0 + 2\mu_0)\,e^{\xi(1 - J_P^{min})}/\rho}
-
-        Hardening scales both Lamé parameters by :math:`e^{\xi(1-J_P)}`, largest at the clamp
-        :math:`J_P = J_P^{min}`; using it keeps the CFL time step safe for any particle state.
-        """
-        return math.sqrt((self.lam + 2.0 * self.mu) * math.exp(self.hardening * (1.0 - self.Jp_min)) / self.rho)
 
     def wave_speeds(self, F, Jp):
         r"""P-wave speed of each particle with its hardened Lamé parameters and current density.
@@ -219,10 +211,6 @@ class DruckerPragerSand(LameParameters):
         changed = tension | (dgamma > 0)
         F_new = np.where(changed[:, None, None], _compose(U, np.exp(eps_new), Vt), F)
         return F_new, Jp * np.exp(np.sum(eps, axis=1) - np.sum(eps_new, axis=1))
-
-    def wave_speed(self):
-        r"""Dilatational (P-)wave speed at rest, :math:`c = \sqrt{(\lambda + 2\mu)/\rho}`."""
-        return math.sqrt((self.lam + 2.0 * self.mu) / self.rho)
 
     def wave_speeds(self, F, Jp):
         r"""Current wave speed of each particle: the elastic rule (:func:`~.materials.elastic_wave_speeds`)

@@ -59,10 +59,12 @@ Terms whose sign theory leaves open and that added energy over a run are finding
 
 On a backend that implements a part (:mod:`verification.framework.applicable`): each run, the friction block and the
 integration study run if the backend implements their scene, within what their claims allow: another hyperelastic
-material it has (the same density and P-wave speed: the closure and every sign hold for any stored energy), open walls
-as its walls on a domain padded by their band (nothing reaches them), an acting wall as a static wall it has and
-friction dropped (a static wall's projection, frictionless or not, never adds energy), the kernel it has. The plastic
-examples (snow88, sand: their claim is the return map's), CPIC (cut2d), asynchronous stepping (stork2d), and the
+material it has (the same density and P-wave speed: the closure and every sign hold for any stored energy), a material
+of its type with the parameters it fixes, open walls as its walls on a domain padded by their band (nothing reaches
+them), an acting wall as a static wall it has and friction dropped (a static wall's projection, frictionless or not,
+never adds energy), the kernel it has, its force where the run's scheme does not name one, and for a code without 2D
+the 3D slab of the example (:func:`mpmref.backends.fitting.lifted`). The plastic examples on a code without their
+material (snow88, sand: their claim is the return map's), CPIC (cut2d), asynchronous stepping (stork2d), and the
 friction block where the backend has no friction, are not applicable to a backend without them. The candidate is the
 backend itself, compared with the reference on the runs it implements.
 

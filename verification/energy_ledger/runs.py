@@ -11,7 +11,7 @@ books one step on the reference and on the candidate (:func:`compare`).
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from time import perf_counter
 
@@ -162,8 +162,14 @@ def example_scene(run, params):
 
 #: what the claims let a backend that implements a part change in the examples and the friction block (the module
 #: docstring of :mod:`verification.energy_ledger`)
-ALLOWS = Allow(materials="substitute", walls="static", friction=True, kernel=True)
-FRICTION_ALLOWS = Allow(materials="substitute", kernel=True)
+ALLOWS = Allow(materials="substitute", walls="static", friction=True, kernel=True, dims=True)
+FRICTION_ALLOWS = Allow(materials="substitute", kernel=True, force=True, dims=True)
+
+
+def run_allows(run):
+    """:data:`ALLOWS` for ``run``: the force free unless the run is a variant that names it
+    (:meth:`~verification.momentum.Variant.allows`)."""
+    return VARIANT[run.variant].allows(ALLOWS) if run.variant is not None else replace(ALLOWS, force=True)
 
 
 def method_label(scene):
@@ -231,7 +237,8 @@ def run_example(params, key, backend):
     """One run to its end (:func:`ledger_run`); for a compared run (:func:`compared_runs`), the candidate's ledger
     beside the reference's from the states half-way and at the end."""
     data, t_end = example_data(RUN[key], params)
-    sim = Simulation(fit(Scene.from_dict(data, base_dir=EXAMPLES), backend, ALLOWS).scene, backend=backend)
+    sim = Simulation(fit(Scene.from_dict(data, base_dir=EXAMPLES), backend, run_allows(RUN[key])).scene,
+                     backend=backend)
     candidate = candidate_of(params, backend) if key in compared_runs(params) else None
     return ledger_run(sim, key, params.frames, t_end=t_end, candidate=candidate)
 
@@ -377,13 +384,14 @@ def parts(params, backend, triage=None):
     """``{name: (function, args)}``: the case's independent runs, each ``function(params, *args, backend)``; with a
     :class:`~verification.framework.applicable.Triage`, only those that ``backend`` implements (it lists the others)."""
     f = FRICTION
-    scenes = {**{f"run/{key}": (f"{key} (the run and its checks)", example_scene(RUN[key], params), ALLOWS)
-                 for key in params.runs},
+    scenes = {**{f"run/{key}": (f"{key} (the run and its checks)", example_scene(RUN[key], params),
+                                run_allows(RUN[key])) for key in params.runs},
               "friction": ("friction block: boundary / (mu m g d)", friction_scene(f["mu"], f["g"], f["cells"],
                                                                                    f["dt"]), FRICTION_ALLOWS),
               "integration": ("integration: fitted slope of sum |integration| against dt",
                               energy.problem_scene(energy.Params.quick(), INTEGRATION["problem"],
-                                                   VARIANT[INTEGRATION["variant"]]), energy.ALLOWS)}
+                                                   VARIANT[INTEGRATION["variant"]]),
+                              VARIANT[INTEGRATION["variant"]].allows(energy.ALLOWS))}
     functions = {**{f"run/{key}": (run_example, (key,)) for key in params.runs},
                  "friction": (run_friction, ()), "integration": (run_integration, ())}
     if triage is None:

@@ -33,7 +33,7 @@ from mpmref.backends import OPTION_HELP, make_backend, reference_argument
 from mpmref.cli import add_threads_option, apply_threads
 
 from . import registry, warmup
-from .applicable import Allow, Inapplicable, fit
+from .applicable import ANYTHING, Inapplicable, declaration_of, fit, unmodelable
 from .common import failed, summary_sentence, verdict_word
 from .executor import Executor
 from .report import case_record, machine, write_case_report, write_index
@@ -139,28 +139,34 @@ def probe_scene(dim=2):
             .box("solid", lower=[0.25] * dim, upper=[0.75] * dim).time(dt=1.0e-3, steps=1).build())
 
 
-#: what the probe may change to fit a backend that implements a part (:mod:`.applicable`)
-PROBE_ALLOWS = Allow(materials="substitute", walls="static", friction=True, kernel=True, dtype=True)
+#: what the probe may change to fit a backend that implements a part (:mod:`.applicable`): anything, since it only
+#: has to make the backend's stages run
+PROBE_ALLOWS = ANYTHING
 
 
 def check_backend(reference):
     """The backend ``reference`` described for the report (:func:`mpmref.backends.describe`), once made for the
-    :func:`probe_scene` fitted to what it implements (:func:`.applicable.fit`; in 3D for a code without 2D) and
-    checked: a backend without the stages every scene needs is refused (:class:`~mpmref.errors.BackendError`, exit 2)
-    before any case runs, and so is one that implements no probe at all. Stages that only some scenes need
-    (asynchronous stepping, rigid bodies) are checked where a case builds such a scene."""
+    :func:`probe_scene` fitted to what it implements (:func:`.applicable.fit`, every axis free: the 3D slab for a
+    code without 2D, its own scheme, kernel and material) and checked: a backend without the stages every scene needs
+    is refused (:class:`~mpmref.errors.BackendError`, exit 2) before any case runs, and so is one that implements no
+    probe at all, or whose declaration mpmref cannot model (one line naming what mpmref lacks,
+    :func:`.applicable.unmodelable`); where it can model a part of it, that line is a warning and the cases run on
+    the rest. Stages that only some scenes need (asynchronous stepping, rigid bodies) are checked where a case builds
+    such a scene."""
     from mpmref.backends import describe
-    from mpmref.errors import NotImplementedByBackend
+    from mpmref.errors import BackendError, NotImplementedByBackend
 
-    reasons = []
-    for dim in (2, 3):
-        try:
-            scene = fit(probe_scene(dim), reference, PROBE_ALLOWS).scene
-        except Inapplicable as exc:
-            reasons += exc.reasons
-            continue
-        return describe(reference, make_backend(reference, scene))
-    raise NotImplementedByBackend(reference, "backend_probe", list(dict.fromkeys(reasons)))
+    lacking = unmodelable(declaration_of(reference))
+    try:
+        scene = fit(probe_scene(), reference, PROBE_ALLOWS).scene
+    except Inapplicable as exc:
+        if lacking:
+            raise BackendError(f"backend {reference!r} declares what mpmref cannot model: {'; '.join(lacking)}: no "
+                               "check of P2G, G2P or a step can run on it") from None
+        raise NotImplementedByBackend(reference, "backend_probe", list(exc.reasons)) from None
+    for line in lacking:
+        print(f"mpmref verify: warning: {line}; the checks run on what mpmref can model", file=sys.stderr)
+    return describe(reference, make_backend(reference, scene))
 
 
 def _run_cases(args, names, executor, compiling):

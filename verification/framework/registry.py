@@ -107,6 +107,7 @@ def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None,
     start = time.perf_counter()
     try:
         outcome.result = case.run(params, backend=backend, executor=executor)
+        outcome.params = ran_with(outcome.result, params)
         outcome.checks = list(case.checks(outcome.result))
         outcome.not_applicable, outcome.adapted = list(listed(outcome.result, "not_applicable")), \
             list(listed(outcome.result, "adapted"))
@@ -120,6 +121,13 @@ def run_case(name, preset="quick", backend="numpy", executor=None, out_dir=None,
         outcome.error_line = f"{where.text()}: {type(exc).__name__}: " + " ".join(str(exc).split())
     outcome.wall_s = time.perf_counter() - start
     return outcome
+
+
+def ran_with(result, params):
+    """The parameters the case ran with, as its result says (``result["params"]``, where a case fills in what it chose:
+    the backends case's candidate), else ``params``."""
+    ran = result.get("params") if isinstance(result, dict) else getattr(result, "params", None)
+    return params if ran is None else ran
 
 
 def listed(result, key):
