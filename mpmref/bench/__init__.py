@@ -35,6 +35,10 @@ Sections of the JSON document (each ``null`` when not run):
 * ``ledger``: ``cases`` (case, scene, particles, dt, steps) and ``results`` (case, backend, threads, particles, the
   ``off`` and ``on`` timing records of the same steps without and with the energy ledger, ``ratio`` on / off;
   :mod:`mpmref.bench.ledger`).
+* ``startup`` (``--only startup``): a first ``mpmref run`` of two examples and a cold ``verify --quick`` from empty
+  caches, here and at ``--against REV`` (a git worktree) in the same run: ``against``, ``this``, ``repeats``, the
+  load averages and ``rows`` (command, ``this`` and ``against`` runs with ``wall_s``, ``cpu_s``, ``status``, and
+  the median wall-time ``ratio``; :mod:`mpmref.bench.startup`).
 * ``cuda`` (``--only cuda``): the GPU backend beside the GPU yardstick and Numba on every core, ``available``,
   ``device``, ``results`` and its own ``goals`` (:mod:`mpmref.bench.gpu`).
 * ``yardstick``: the records given with ``--yardstick`` (a hand-written program's runs), as given.
@@ -65,6 +69,7 @@ from .scenes import table2_cells
 from .sections import BY_NAME
 from .sections import DEFAULT_NAMES as DEFAULT_SECTIONS
 from .sections import NAMES as SECTIONS
+from .startup import DEFAULT_AGAINST
 from .timing import check_threads
 
 SCHEMA = "mpmref-bench/1"
@@ -98,6 +103,7 @@ class BenchOptions:
     quick : bool          tiny throughput and peer cases (a smoke test: the figures mean nothing)
     memory : bool         run the peak-memory probes (Table 2, domain)
     yardstick : tuple     records of a hand-written program's runs (``--yardstick``), which goals compare with
+    against : str         the older commit the startup section measures beside this checkout
     """
 
     size: int = DEFAULT_PARTICLES
@@ -113,6 +119,7 @@ class BenchOptions:
     memory: bool = True
     plot: str = None
     yardstick: tuple = ()
+    against: str = DEFAULT_AGAINST
 
     @property
     def table2_cells(self):
@@ -243,6 +250,8 @@ def add_parser(subparsers):
     p.add_argument("--repeats", type=_positive, default=3, help="timed repeats per figure; the median is reported")
     p.add_argument("--steps", type=_positive, default=10, help="steps per timed repeat, throughput (default 10)")
     p.add_argument("--peer-steps", type=_positive, default=100, help="steps per timed repeat, peer (default 100)")
+    p.add_argument("--against", metavar="REV", default=DEFAULT_AGAINST,
+                   help=f"the startup section's older commit, run beside this checkout (default {DEFAULT_AGAINST})")
     p.add_argument("--quick", action="store_true", help="tiny sizes: a smoke test whose figures mean nothing")
     p.add_argument("--no-memory", action="store_true", help="skip the peak-memory probes (Table 2, domain)")
     p.add_argument("--json", dest="json_path", help="write the results to this JSON file (atomically)")
@@ -264,7 +273,8 @@ def options_from_args(args):
     size = args.size or (QUICK_PARTICLES if args.quick else DEFAULT_PARTICLES)
     return BenchOptions(size=size, full=args.full, threads=args.threads, dtypes=args.dtype, backends=args.backends,
                         sections=sections, repeats=args.repeats, steps=args.steps, peer_steps=args.peer_steps,
-                        quick=args.quick, memory=not args.no_memory, plot=args.plot, yardstick=args.yardstick or ())
+                        quick=args.quick, memory=not args.no_memory, plot=args.plot, yardstick=args.yardstick or (),
+                        against=args.against)
 
 
 def _silent(message):

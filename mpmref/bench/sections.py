@@ -20,6 +20,7 @@ from .peer import run_peer
 from .report import render_peer, render_table2, render_throughput
 from .scenes import peer_cases, throughput_cases
 from .stage_times import plot_scaling, render_scaling, render_stages, run_scaling, run_stages
+from .startup import render_startup, run_startup
 from .table2 import run_table2
 from .throughput import run_throughput
 
@@ -98,6 +99,10 @@ def _ledger(o, log):
     return run_ledger(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
 
 
+def _startup(o, log):
+    return run_startup(o.against, o.repeats, log)
+
+
 #: every section, in the order of the JSON document, of ``--only``'s choices and of a run
 SECTIONS = (
     Section("table2", _table2, render_table2),
@@ -112,6 +117,7 @@ SECTIONS = (
     Section("busy", _busy, render_busy),
     Section("ledger", _ledger, render_ledger),
     Section("cuda", run_cuda, render_cuda, default=False),
+    Section("startup", _startup, render_startup, default=False),
 )
 
 #: the sections by name
