@@ -14,7 +14,7 @@ from test_scene_validation import check_refused
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends import BACKENDS
 from mpmref.errors import TickTooLongError
-from mpmref.steppers.asynchronous import alignment, relevel
+from mpmref.steppers.asynchronous import alignment
 from verification.sync_vs_async import two_bodies
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -33,9 +33,25 @@ def test_quantisation_of_the_advection_limit():
     assert set(sim.particles.level.tolist()) == {10}  # 2^10 = 1024 ticks
 
 
+def relevel(dt, limit, t):
+    """The block step rule written plainly over arrays (Fang et al. 2018 §4): the oracle of the compiled
+    :func:`mpmref.steppers.async_kernels.relevel_one` that runs. Halve while ``dt > limit``, then double while
+    ``2 dt <= limit`` and ``t mod 2 dt == 0``."""
+    dt = dt.copy()
+    while (over := dt > limit).any():
+        dt[over] //= 2
+    while (grow := (2 * dt <= limit) & (t % (2 * dt) == 0)).any():
+        dt[grow] *= 2
+    return dt
+
+
 def test_doubling_waits_for_alignment_and_halving_is_immediate():
     """AsyncMPM acceptance test 3: at dt = 4 with L = 16 the step is 4 at t = 4, 8 at t = 8 and 16 at t = 16; L = 3
     halves to 2."""
+    from mpmref.steppers.async_kernels import relevel_one
+
+    assert [relevel_one(4, 16, t) for t in (4, 8)] == [4, 8] and relevel_one(8, 16, 16) == 16
+    assert relevel_one(4, 3, 4) == 2
     dt = np.array([4])
     assert relevel(dt, np.array([16]), 4)[0] == 4
     assert relevel(dt, np.array([16]), 8)[0] == 8

@@ -218,3 +218,16 @@ def test_the_device_check_runs_in_the_simulator(tmp_path):
     assert checks[0] == "environment" and checks[-1] == "done" and lines[-1]["passed"]
     assert {"conformance", "trajectory", "determinism", "bench", "goal"} <= set(checks)
     assert all(line["identical"] for line in lines if line["check"] == "determinism" and line["p2g"] == "gather")
+
+
+def test_the_summary_flags_the_fields_a_step_evolves_in_their_declared_order():
+    """``CHECKED_FIELDS`` is the state's own list of evolving fields, and the kernel that flags them takes them in
+    that order (``v_old`` beside ``v`` is the velocity before the step, for the largest change)."""
+    import inspect
+
+    from mpmref.backends.cuda.particles import CHECKED_FIELDS, particle_kernels
+    from mpmref.state import EVOLVING_FIELDS
+
+    kernels = particle_kernels("float64", 2, ("fixed_corotated",))
+    names = [n for n in inspect.signature(kernels.summarize.fn).parameters if n != "v_old"]
+    assert CHECKED_FIELDS == EVOLVING_FIELDS and tuple(names[:len(CHECKED_FIELDS)]) == CHECKED_FIELDS

@@ -151,3 +151,13 @@ def test_an_exception_in_findings_stops_the_case_with_an_error(toy_case, monkeyp
     assert run_toy(monkeypatch, tmp_path) == 1
     (case,) = strict_json(tmp_path / "results.json")["cases"]
     assert case["verdict"] == "ERROR" and "deliberate failure in findings" in case["error"]
+
+
+def test_the_one_check_table_escapes_pipes_in_every_text():
+    """Every case's report and the index render checks through one function (``Check.line``): a check named after
+    a norm, ``|P - P0|``, stays one row of five cells."""
+    from verification.framework.common import Check, checks_table
+
+    table = checks_table([Check("|P - P0| / S", 1e-15, "<=", 1e-12, "round-off |k n + N| u")])
+    row = table.splitlines()[-1]
+    assert len(re.findall(r"(?<!\\)\|", row)) == 6 and "\\|P - P0\\|" in row

@@ -284,8 +284,10 @@ def particle_steps(idx, block_dt, owner, alignment, limit, dt_p):
 
 @njit(cache=True)
 def relevel_one(dt, limit, t):
-    """:func:`mpmref.steppers.asynchronous.relevel` for one block: halve while above ``limit``, then double
-    while the double fits and is aligned (``t mod 2 dt = 0``)."""
+    """The block step rule at a block boundary (Fang et al. 2018 §4), for one block: halve ``dt`` while above
+    ``limit`` (it stays aligned, as ``t`` is a multiple of the old step), then double it while the double fits and is
+    aligned (``t mod 2 dt = 0``); ``dt``, ``limit`` and ``t`` in ticks. Called for the blocks due at a tick by
+    :func:`relevel_due`."""
     while dt > limit:
         dt //= 2
     while 2 * dt <= limit and t & (2 * dt - 1) == 0:  # t mod 2 dt = 0 (steps are powers of two)

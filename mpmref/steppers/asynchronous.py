@@ -210,20 +210,6 @@ def within(room):
     return 1 << (int(room).bit_length() - 1)
 
 
-def relevel(dt, limit, t):
-    """The block step rule at a block boundary (Fang et al. 2018 §4).
-
-    Halve while ``dt > limit`` (stays aligned, as ``t`` is a multiple of the old step), then double while
-    ``2 dt <= limit`` and ``t mod 2 dt == 0``. ``dt`` and ``limit`` are int64 arrays; returns the new steps.
-    """
-    dt = dt.copy()
-    while (over := dt > limit).any():
-        dt[over] //= 2
-    while (grow := (2 * dt <= limit) & (t % (2 * dt) == 0)).any():
-        dt[grow] *= 2
-    return dt
-
-
 class _Cohort:
     """The particles in rows ``start .. stop - 1`` of the interval's arrays, which began a step of ``D`` ticks at
     the same tick and end it together at ``end``."""

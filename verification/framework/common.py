@@ -26,9 +26,13 @@ class Check:
         ops = {"<=": lambda a, b: a <= b, ">=": lambda a, b: a >= b, "<": lambda a, b: a < b, ">": lambda a, b: a > b}
         return bool(ops[self.relation](self.value, self.bound))
 
-    def line(self):
-        verdict = "pass" if self.passed else "FAIL"
-        return f"| {self.name} | {self.value:.6g} | {self.relation} {self.bound:.6g} | {verdict} | {self.reason} |"
+    def line(self, case=None):
+        """The check as a row of a Markdown table (:func:`check_header`), its texts' pipes escaped; ``case`` a first
+        cell."""
+        cells = [] if case is None else [cell(case)]
+        cells += [cell(self.name), f"{self.value:.6g}", f"{self.relation} {self.bound:.6g}",
+                  "pass" if self.passed else "FAIL", cell(self.reason)]
+        return "| " + " | ".join(cells) + " |"
 
 
 @dataclass(frozen=True)
@@ -50,9 +54,20 @@ class Finding:
     sentence: str
 
 
+def cell(text):
+    """Markdown table cell text: pipes escaped, so a check named ``|P|`` cannot split the row."""
+    return str(text).replace("|", "\\|")
+
+
+def check_header(with_case=False):
+    """The header rows of a Markdown table of checks (:meth:`Check.line`), with a first ``case`` column or not."""
+    head = ["case"] * with_case + ["check", "figure", "bound", "verdict", "why this bound"]
+    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+
 def checks_table(checks):
-    head = ["| check | value | bound | verdict | why this bound |", "|---|---|---|---|---|"]
-    return "\n".join(head + [c.line() for c in checks])
+    """A Markdown table of ``checks``: the one renderer of the case reports and the index."""
+    return "\n".join(check_header() + [c.line() for c in checks])
 
 
 def failed(checks):

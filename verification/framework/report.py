@@ -26,7 +26,7 @@ from mpmref.io.atomic import atomic_path, write_text_atomic
 from mpmref.io.vtk import write_particles_vtu, write_pvd
 
 from . import html_report, registry
-from .common import backend_sentence, failed, summary_sentence, verdict_word
+from .common import backend_sentence, cell, check_header, failed, summary_sentence, verdict_word
 
 #: the outputs (names of ``[output] fields``, :data:`mpmref.scene.parsers.OUTPUT_FIELDS`) that the VTK frames of
 #: verification runs record
@@ -272,7 +272,7 @@ def _findings_md(findings, with_case):
     """Markdown table of ``findings`` = ``[(case name, Finding), ...]``, with a case column if asked."""
     head = ["case"] * with_case + ["finding", "figure", "what it shows"]
     rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return rows + ["| " + " | ".join([_cell(case)] * with_case + [_cell(f.name), f"{f.value:.6g}", _cell(f.sentence)])
+    return rows + ["| " + " | ".join([cell(case)] * with_case + [cell(f.name), f"{f.value:.6g}", cell(f.sentence)])
                    + " |" for case, f in findings]
 
 
@@ -283,7 +283,7 @@ def case_summary_md(record, case_dir):
              f"Preset `{outcome.preset}`, backends run: {', '.join(record.backends)}, wall time "
              f"{outcome.wall_s:.1f} s, verdict **{outcome.verdict}**.", "", "## Parameters", "",
              "| parameter | value |", "|---|---|"]
-    lines += [f"| {k} | {_cell(v)} |" for k, v in asdict(outcome.params).items()] if outcome.params is not None else []
+    lines += [f"| {k} | {cell(v)} |" for k, v in asdict(outcome.params).items()] if outcome.params is not None else []
     if outcome.error is not None:
         where = [f"Raised in {outcome.error_line}", ""] if outcome.error_line else []
         lines += ["", "## Error", "", *where, "```text", outcome.error.rstrip(), "```"]
@@ -311,12 +311,12 @@ def _not_applicable_md(outcome):
         lines += ["", "## Not applicable to this backend", "",
                   "Checks, or runs and the checks they carry, that the backend does not implement (never a failure):",
                   "", "| not applicable | why |", "|---|---|"]
-        lines += [f"| {_cell(item.name)} | {_cell(item.why)} |" for item in outcome.not_applicable]
+        lines += [f"| {cell(item.name)} | {cell(item.why)} |" for item in outcome.not_applicable]
     if outcome.adapted:
         lines += ["", "## Adapted to this backend", "",
                   "Runs made on a scene fitted to what the backend implements, within what the claim allows "
                   "(the case's docstring says why each keeps its claim):", "", "| runs | what changed |", "|---|---|"]
-        lines += [f"| {_cell(', '.join(a.names))} | {_cell(' '.join(c.rstrip('.') + '.' for c in a.changes))} |"
+        lines += [f"| {cell(', '.join(a.names))} | {cell(' '.join(c.rstrip('.') + '.' for c in a.changes))} |"
                   for a in outcome.adapted]
     return lines
 
@@ -333,25 +333,8 @@ def write_case_report(record, case_dir):
 
 
 # -------------------------------------------------------------------------------------------- tables
-def _cell(text):
-    """Markdown table cell text: pipes escaped, so a check named ``|P|`` cannot split the row."""
-    return str(text).replace("|", "\\|")
-
-
-def _check_header(with_case):
-    head = ["case"] * with_case + ["check", "figure", "bound", "verdict", "why this bound"]
-    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-
-
-def _check_row(c, case=None):
-    cells = [] if case is None else [_cell(case)]
-    cells += [_cell(c.name), f"{c.value:.6g}", f"{c.relation} {c.bound:.6g}", "pass" if c.passed else "FAIL",
-              _cell(c.reason)]
-    return "| " + " | ".join(cells) + " |"
-
-
 def _checks_md(checks):
-    return _check_header(False) + [_check_row(c) for c in checks]
+    return check_header() + [c.line() for c in checks]
 
 
 # -------------------------------------------------------------------------------------------- index
@@ -387,7 +370,7 @@ def index_md(records, meta):
              "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "", "## Failures", ""]
     failing = [(o, c) for o, c in _check_rows(records) if c is None or not c.passed]
     if failing:
-        lines += _check_header(True) + [_error_row(o) if c is None else _check_row(c, case=o.name) for o, c in failing]
+        lines += check_header(True) + [_error_row(o) if c is None else c.line(o.name) for o, c in failing]
     else:
         lines.append("None: every check of every case passes.")
     lines += ["", "## Cases", "", "| case (its report) | backends | checks | verdict | wall time [s] |",
@@ -398,8 +381,8 @@ def index_md(records, meta):
     lines += ["", "## Findings (measured, not judged)", ""]
     findings = [(r.name, f) for r in records for f in r.findings]
     lines += _findings_md(findings, with_case=True) if findings else ["(none in these cases)"]
-    lines += ["", "## Every check", ""] + _check_header(True)
-    lines += [_error_row(o) if c is None else _check_row(c, case=o.name) for o, c in _check_rows(records)]
+    lines += ["", "## Every check", ""] + check_header(True)
+    lines += [_error_row(o) if c is None else c.line(o.name) for o, c in _check_rows(records)]
     return "\n".join(lines) + "\n"
 
 
@@ -409,12 +392,12 @@ def _index_not_applicable_md(records):
     if not items:
         return []
     return (["", "## Not applicable to this backend", "", "| case | not applicable | why |", "|---|---|---|"]
-            + [f"| {_cell(case)} | {_cell(item.name)} | {_cell(item.why)} |" for case, item in items])
+            + [f"| {cell(case)} | {cell(item.name)} | {cell(item.why)} |" for case, item in items])
 
 
 def _error_row(outcome):
     where = f"{outcome.error_line}; " if outcome.error_line else ""
-    return (f"| {outcome.name} | (the case stopped with an error) | — | — | FAIL | {_cell(where)}see "
+    return (f"| {outcome.name} | (the case stopped with an error) | — | — | FAIL | {cell(where)}see "
             f"{outcome.name}/report.md |")
 
 

@@ -12,12 +12,14 @@ from functools import lru_cache
 import numpy as np
 from numba import types
 
+from ...state import EVOLVING_FIELDS
 from .launch import BLOCK, array, device_function, kernel_set, real_types
 from .materials import make_materials
 from .runtime import cuda, load
 
-#: the particle fields whose non-finite values the summary flags, in the order of its first entries
-CHECKED_FIELDS = ("x", "v", "C", "F", "J", "Jp", "modes")
+#: the particle fields whose non-finite values the summary flags, in the order of its first entries: every field that
+#: a step evolves (:data:`mpmref.state.EVOLVING_FIELDS`), which ``summarize`` takes and flags in this order
+CHECKED_FIELDS = EVOLVING_FIELDS
 
 
 def summary_size(dim):
