@@ -8,6 +8,8 @@
 * The 3D slab of a 2D scene holds the 2D particles in every layer, with the 2D velocity field and the mass per depth.
 """
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -172,3 +174,35 @@ def test_a_3d_only_code_gets_the_slab_when_the_claim_holds_in_any_dimension():
 
 def test_material_type_reads_each_class():
     assert {material_type(cls(**stand_in_parameters(cls))) for cls in MATERIALS.values()} == set(MATERIALS)
+
+
+def _case_allowances():
+    """Every allowance a verification case fits its scenes with (each case's ``ALLOWS``, with and without the free
+    force of a variant that does not name it)."""
+    from dataclasses import replace
+
+    from verification import backends, energy, extremes, momentum, transfer_energy
+    from verification.convergence import ALLOWS as convergence
+    from verification.energy_ledger import runs
+
+    allows = [momentum.ALLOWS, energy.ALLOWS, runs.ALLOWS, runs.FRICTION_ALLOWS, backends.ALLOWS, extremes.ALLOWS,
+              transfer_energy.ALLOWS, convergence, ANYTHING]
+    return allows + [replace(a, force=True) for a in allows]
+
+
+EXAMPLES = sorted(str(p) for p in (Path(__file__).resolve().parent.parent / "examples").glob("*.toml"))
+
+
+@settings(max_examples=60)
+@given(declarations, st.sampled_from(EXAMPLES), st.sampled_from(_case_allowances()))
+def test_any_declaration_fits_any_example_with_any_cases_allowance_or_says_why(declaration, path, allow):
+    """The fit never errs: a scene the backend implements, or :class:`Inapplicable` with reasons (every example,
+    every case's allowance, declarations unlike ours)."""
+    scene = Scene.from_toml(path)
+    try:
+        fitted = fit(scene, declaration, allow)
+    except Inapplicable as exc:
+        assert exc.reasons and all(isinstance(r, str) and r for r in exc.reasons)
+        return
+    assert declaration.missing(fitted.scene) == []
+    assert fitted.changes or fitted.scene is scene
