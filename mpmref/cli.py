@@ -112,6 +112,7 @@ def _parser():
 
 def _format_summary(summary, out_dir, backend=None):
     final = summary["final"]
+    against = "; against the start + entered - left" if "entered" in summary else ""
     lines = [
         f"steps            {summary['steps']} (each to a synchronised time; now at step {final['step']}, "
         f"t = {final['time']:.6g})",
@@ -119,14 +120,17 @@ def _format_summary(summary, out_dir, backend=None):
         f"particle-steps/s {summary['particle_steps_per_s']:.4g} (each particle's own steps)",
         f"particles        {final['n_particles']} (at the domain edge: {final['deleted']} deleted, "
         f"{final['clamped']} clamped back inside)",
-        f"mass drift       {summary['mass_drift_rel']:.3e} (relative)",
+        f"mass drift       {summary['mass_drift_rel']:.3e} (relative{against})",
         f"momentum drift   {summary['momentum_drift_rel']:.3e} (relative to total mass x rms speed; gravity and walls "
-        "change it)",
+        f"change it{against})",
         f"energy drift     {summary['energy_drift_rel']:.3e} (relative, kinetic + affine + modes + elastic + "
-        "gravitational)",
+        f"gravitational{against})",
         f"outputs          {out_dir} (open particles.pvd in ParaView"
         f"{', with rigid_bodies.pvd for the rigid bodies' if 'rigid0_x' in final else ''})",
     ]
+    if "entered" in summary:
+        lines.insert(4, f"in and out       {_exchanged(summary['entered'], 'entered')}; "
+                        f"{_exchanged(summary['left'], 'left')} (over the run)")
     if backend is not None:
         version = f" {backend['version']}" if backend["version"] else " (no version given)"
         execution = f", {backend['execution']}" if backend["execution"] else ""
@@ -140,6 +144,12 @@ def _format_summary(summary, out_dir, backend=None):
         lines.insert(4, f"levels           {summary['levels']} at the end (log2 of each particle's step in ticks); "
                         f"{summary['stale_shadows']} stale shadows")
     return "\n".join(lines)
+
+
+def _exchanged(record, direction):
+    """``"entered: N particles, mass M, energy E"`` of a run summary's record of what entered or left."""
+    return (f"{direction}: {record['particles']:.0f} particles, mass {record['mass']:.4g}, "
+            f"energy {record['energy']:.4g}")
 
 
 def _check_out(out_dir, resume, overwrite):

@@ -140,6 +140,21 @@ def gravitational_energy(particles, gravity):
                          * (particles.x.astype(np.float64) @ np.asarray(gravity, dtype=np.float64))))
 
 
+def carried_keys(dim):
+    """The names of the entries of a :func:`carried` record in ``dim`` dimensions."""
+    return ("particles", "mass", *(f"momentum_{'xyz'[a]}" for a in range(dim)), "energy")
+
+
+def carried(particles, materials, gravity, inertia, mode_norms=None):
+    r"""What ``particles`` carry, the record a run keeps of the particles that enter and leave it (float64, (d + 3,),
+    named by :func:`carried_keys`): their count, mass :math:`\sum_p m_p`, momentum :math:`\sum_p m_p v_p` and energy
+    :math:`\sum_p e_p`, each particle's kinetic (velocity, affine and PolyPIC-mode parts), stored and gravitational
+    energy: the :func:`diagnostics` of these particles alone (arguments as there)."""
+    d = diagnostics(particles, materials, gravity, inertia, mode_norms)
+    momentum = [d[f"momentum_{'xyz'[a]}"] for a in range(particles.dim)]
+    return np.array([d["n_particles"], d["mass"], *momentum, d["total_energy"]], dtype=np.float64)
+
+
 def diagnostics(particles, materials, gravity, inertia, mode_norms=None):
     r"""Mass, momenta, kinetic (particle, affine, higher modes), elastic, gravitational and total energy.
 

@@ -41,6 +41,19 @@ static walls and colliders, and a moving collider can add energy. Elsewhere :mat
 ``integration``. The terms telescope: their sum is :math:`\Delta E` identically (``closure`` records the
 round-off). ``plastic`` and ``advection`` are sums over the particles: the ledger also keeps each particle's share
 of the last step (:attr:`EnergyLedger.shares`).
+
+A run's ledger (the cumulative one a stepper keeps in the run's state, :data:`RUN_COLUMNS`) has two more terms, booked
+between steps by the run (:func:`book_exchange`), for the particles that enter it and leave it:
+
+.. math::
+
+    E(t) - E_0 = \sum_{\text{steps}} \Delta E + \underbrace{\textstyle\sum_{p \in \text{in}} e_p}_{\texttt{inflow}}
+    \underbrace{- \textstyle\sum_{p \in \text{out}} e_p}_{\texttt{outflow}},
+
+with :math:`e_p` a particle's kinetic, stored and gravitational energy (the diagnostics' ``total_energy`` of that
+particle alone): ``inflow`` what the particles an emitter releases bring (:mod:`mpmref.run.emitters`, at their
+release, before the step they join), ``outflow`` what the particles deleted at the domain's edge take away
+(:mod:`mpmref.run.domain`, in the state after the step that took them out).
 """
 
 import numpy as np
@@ -57,6 +70,13 @@ FLOWS = ("internal_work", "gravity_work")
 COLUMNS = (*TERMS, *FLOWS, "energy_change", "closure")
 #: the terms that are sums over the particles, whose per-particle shares the ledger keeps
 PER_PARTICLE = ("plastic", "advection")
+#: what the run books between steps (:func:`book_exchange`): the energy of the particles that entered (released by an
+#: emitter) and, negative, of those that left (deleted at the domain's edge)
+EXCHANGE_TERMS = ("inflow", "outflow")
+#: the terms of a synchronous run's cumulative ledger: its steps' and the particles it exchanged
+RUN_TERMS = (*TERMS, *EXCHANGE_TERMS)
+#: what a synchronous run's cumulative ledger holds (:func:`accumulate`; ``diagnostics.csv``'s ``ledger_<column>``)
+RUN_COLUMNS = (*RUN_TERMS, *FLOWS, "energy_change", "closure")
 
 
 class EnergyLedger:
@@ -86,6 +106,9 @@ class EnergyLedger:
 
     Docs: docs/energy_ledger.md#p2g, docs/energy_ledger.md#rigid-bodies-and-the-integration-error
     """
+
+    #: the columns of the run's cumulative ledger (what :func:`book_exchange` books into)
+    columns = RUN_COLUMNS
 
     def __init__(self, scene):
         self.scene = scene
@@ -227,13 +250,30 @@ def energy_scale(kinetic, elastic, potential, bodies=0.0):
 
 
 def accumulate(total, entry):
-    """The cumulative ledger ``total`` (an array over :data:`COLUMNS`, or None before the first step) plus a
-    step's ``entry``."""
-    step = np.array([entry[c] for c in COLUMNS])
+    """The cumulative ledger ``total`` (an array over :data:`RUN_COLUMNS`, or None before the first step) plus a
+    step's ``entry`` (over :data:`COLUMNS`: a step exchanges no particles, the run books those,
+    :func:`book_exchange`)."""
+    step = np.array([0.0 if c in EXCHANGE_TERMS else entry[c] for c in RUN_COLUMNS])
     return step if total is None else np.asarray(total) + step
 
 
-def ledger_columns(total, columns=COLUMNS):
+def book_exchange(total, columns, entered=0.0, left=0.0):
+    r"""The cumulative ledger ``total`` (an array over ``columns``, or None before the first step) with the particles
+    exchanged between two steps booked: the energy :math:`\sum_{p \in \text{in}} e_p` of those that ``entered`` to
+    ``inflow``, minus the energy :math:`\sum_{p \in \text{out}} e_p` of those that ``left`` to ``outflow``, and both to
+    ``energy_change``, which the diagnostics' :math:`E(t) - E_0` includes (``closure`` is unchanged: the terms still
+    add up to it). float64; returns a new array.
+
+    Docs: docs/energy_ledger.md#particles-that-enter-and-leave
+    """
+    booked = np.zeros(len(columns)) if total is None else np.array(total, dtype=np.float64)
+    booked[columns.index("inflow")] += entered
+    booked[columns.index("outflow")] -= left
+    booked[columns.index("energy_change")] += entered - left
+    return booked
+
+
+def ledger_columns(total, columns=RUN_COLUMNS):
     """``diagnostics.csv`` columns ``ledger_<column>`` of a cumulative ledger over ``columns`` (zeros before the
     first step)."""
     values = np.zeros(len(columns)) if total is None else np.asarray(total)
@@ -262,8 +302,10 @@ def node_kinetic_remainder(m, v_tilde, v_star, v):
 
 
 # ------------------------------------------------------------------------------------ asynchronous stepping
-#: the terms of an asynchronous run's ledger: the synchronous step's, and what crosses level interfaces
-ASYNC_TERMS = (*TERMS, "interface")
+#: the terms of a level update: the synchronous step's, and what crosses level interfaces
+LEVEL_TERMS = (*TERMS, "interface")
+#: the terms of an asynchronous run's ledger: its level updates' and the particles it exchanged (:func:`book_exchange`)
+ASYNC_TERMS = (*LEVEL_TERMS, *EXCHANGE_TERMS)
 #: what an asynchronous run's entry holds (:class:`LevelLedger`)
 ASYNC_COLUMNS = (*ASYNC_TERMS, *FLOWS, "energy_change", "closure")
 
@@ -311,6 +353,9 @@ class LevelLedger:
 
     Docs: docs/energy_ledger.md#asynchronous-runs
     """
+
+    #: the columns of the run's cumulative ledger (what :func:`book_exchange` books into)
+    columns = ASYNC_COLUMNS
 
     def __init__(self, scene):
         self.scene = scene
@@ -391,7 +436,7 @@ class LevelLedger:
             "gravity_work": o["gravity_work"],
             "energy_change": (o["K_new"] - o["K"]) + (psi_new - o["Psi"]) + (u_new - o["U"]),
         }
-        entry["closure"] = entry["energy_change"] - sum(entry[t] for t in ASYNC_TERMS)
+        entry["closure"] = entry["energy_change"] - sum(entry[t] for t in LEVEL_TERMS)
         self._add(entry)
         self._open = {}
         return entry

@@ -61,6 +61,17 @@ def due_now(scene, state):
     return any(due(emitter, int(releases[e]), state.time) for e, emitter in enumerate(scene.emitters))
 
 
+def schedule(state):
+    """The emitters' bookkeeping in ``state`` (what each has released, the next id; empty without emitters): what a run
+    continued from that state's particles needs to release what the scene's own run releases, and no more."""
+    return {key: state.stepper[key] for key in (RELEASES, NEXT_ID) if key in state.stepper}
+
+
+def released(before, after):
+    """The particles that :func:`emit` appended to ``before`` (Particles) to make ``after``: its last rows."""
+    return after.select(np.arange(before.n, after.n))
+
+
 def emit(scene, state, templates):
     """``state`` with the releases due at ``state.time`` appended (``templates``: :func:`release_template` of
     each emitter), each with new ids; unchanged if none is due."""

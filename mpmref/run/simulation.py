@@ -10,7 +10,8 @@ import numpy as np
 from ..backends import describe, make_backend, residency
 from ..errors import AllParticlesLeftError, DomainExitError, InstabilityError, MpmrefError, NonFiniteError
 from ..io.run_output import RunOutput
-from ..observe.diagnostics import diagnostics, polypic_mode_norms
+from ..observe.diagnostics import carried, carried_keys, diagnostics, polypic_mode_norms
+from ..observe.ledger import book_exchange
 from ..physics.materials import material_groups
 from ..rigid.dynamics import current_shapes
 from ..rigid.trimesh import TriMesh
@@ -19,8 +20,11 @@ from ..steppers import make_stepper
 from ..steppers.limits import cfl_time_step
 from . import arguments
 from .domain import apply_domain_exit, outside
-from .emitters import due_now, emit, release_template, with_emitters
+from .emitters import due_now, emit, release_template, released, with_emitters
 from .stability import StabilityWarning, above_limit_text, first_unbounded, warn_if_above_limit, within_margin
+
+#: what a run records of the particles exchanged: those released by emitters, and those deleted at the domain's edge
+DIRECTIONS = ("entered", "left")
 
 
 class Simulation:
@@ -171,12 +175,41 @@ class Simulation:
         return None if factor is None else factor * self.scene.grid.dx**2
 
     def diagnostics(self):
-        """Mass, momentum, angular momentum and energies of the current state (dict)."""
-        kernel, grid = self.scene.kernel, self.scene.grid
-        norms = polypic_mode_norms(self.particles, kernel, grid) if self.particles.modes is not None else None
-        d = diagnostics(self.particles, self.scene.material_list, self.scene.gravity, self.inertia, norms)
+        """Mass, momentum, angular momentum and energies of the current state (dict); in a scene whose particles can
+        enter or leave (:func:`exchanges_particles`), what entered and left since the start (:meth:`exchanged`)."""
+        d = self._measure(diagnostics, self.particles)
         return {"step": self.step_count, "time": self.time, **d, "deleted": self.deleted, "clamped": self.clamped,
-                **self.stepper.diagnostics(self.state)}
+                **self.exchanged(), **self.stepper.diagnostics(self.state)}
+
+    def _measure(self, function, particles):
+        """``function(particles, materials, gravity, inertia, mode_norms)`` of the scene
+        (:func:`~mpmref.observe.diagnostics.diagnostics` or :func:`~mpmref.observe.diagnostics.carried`)."""
+        kernel, grid = self.scene.kernel, self.scene.grid
+        norms = polypic_mode_norms(particles, kernel, grid) if particles.modes is not None else None
+        return function(particles, self.scene.material_list, self.scene.gravity, self.inertia, norms)
+
+    def exchanged(self):
+        """What entered the run (released by ``[[emitters]]``) and left it (deleted at the domain's edge) since its
+        start, as ``entered_<key>`` and ``left_<key>`` (the keys of :func:`~mpmref.observe.diagnostics.carried_keys`:
+        particles, mass, momentum, energy); empty in a scene whose particles can neither enter nor leave."""
+        if not exchanges_particles(self.scene):
+            return {}
+        keys = carried_keys(self.scene.dim)
+        return {f"{direction}_{key}": float(value) for direction in DIRECTIONS
+                for key, value in zip(keys, self._state.stepper.get(direction, np.zeros(len(keys))))}
+
+    def _booked(self, stepper, direction, particles):
+        """The state's stepper arrays ``stepper`` with what ``particles`` carry
+        (:func:`~mpmref.observe.diagnostics.carried`) added to the run's record of what ``direction``
+        (``"entered"``, ``"left"``), and with an energy ledger, their energy booked to its ``inflow`` or ``outflow``
+        (:func:`~mpmref.observe.ledger.book_exchange`). Checkpoints carry both."""
+        record = self._measure(carried, particles)
+        stepper = {**stepper, direction: stepper.get(direction, 0.0) + record}
+        ledger = self.stepper.ledger
+        if ledger is not None:
+            stepper["energy_ledger"] = book_exchange(stepper.get("energy_ledger"), ledger.columns,
+                                                     **{direction: record[-1]})
+        return stepper
 
     # --------------------------------------------------------------------------- stepping
     def step(self, dt=None, t_end=None):
@@ -192,7 +225,7 @@ class Simulation:
         dt = None if dt is None else arguments.time_step(dt)
         t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
         if self.scene.emitters and (not self.resident or due_now(self.scene, self._state)):
-            self.state = emit(self.scene, self.state, self._releases)  # releases due now join before the step
+            self._emit()  # releases due now join before the step
         if self.step_count == 0:
             first_dt = dt if dt is not None else self.stepper.time_step(self.particles)
             if first_dt is not None:
@@ -212,6 +245,15 @@ class Simulation:
         self._state = new
         self.last_dt = dt
         return dt
+
+    def _emit(self):
+        """Append the releases due now (:func:`~.emitters.emit`) and book what they carry as entered."""
+        before = self.state
+        after = emit(self.scene, before, self._releases)
+        if after is not before:
+            after = replace(after, stepper=self._booked(after.stepper, "entered",
+                                                        released(before.particles, after.particles)))
+            self.state = after
 
     def _resident_time_step(self, t_end):
         r"""A resident run's Δt by the CFL rule (``None`` with a fixed ``time.dt``, which the stepper takes): the
@@ -296,6 +338,8 @@ class Simulation:
                                         checkpoint=self._save_last_good("all_left"))
         new.clamped += result.clamped
         new.deleted += result.deleted
+        if result.deleted:
+            new.stepper = self._booked(new.stepper, "left", p.select(result.outside))
         return result.particles
 
     def _save_last_good(self, reason):
@@ -514,21 +558,49 @@ def _progress(steps, t_end, t0, enabled):
                 bar_format="{l_bar}{bar}| t={n:.4g}/{total:.4g} [{elapsed}<{remaining}]")
 
 
-def _summary(first, last, steps, wall, particle_steps, stepper_summary):
-    def rel(key):
-        a, b = first.get(key), last.get(key)
-        if a is None:
-            return None
-        scale = max(abs(a), 1e-300)
-        return (b - a) / scale
+def exchanges_particles(scene):
+    """Whether particles can enter a run of ``scene`` (``[[emitters]]``) or leave it (``domain_exit = "delete"``)."""
+    return bool(scene.emitters) or scene.boundary.domain_exit == "delete"
 
-    momentum_keys = [k for k in first if k.startswith("momentum_")]
-    p0 = np.array([first[k] for k in momentum_keys])
-    p1 = np.array([last[k] for k in momentum_keys])
-    ref = max(np.sqrt(first["mass"] * 2 * max(first["kinetic"], last["kinetic"], 1e-300)), 1e-300)
+
+def exchanged_between(first, last, direction):
+    """What entered (``direction`` ``"entered"``) or left (``"left"``) a run between its diagnostics rows ``first`` and
+    ``last`` (:meth:`Simulation.exchanged`), by key: ``particles``, ``mass``, ``momentum_x``, ..., ``energy`` (empty
+    when the rows have no such columns)."""
+    prefix = f"{direction}_"
+    return {k.removeprefix(prefix): last[k] - first[k] for k in first if k.startswith(prefix)}
+
+
+def _summary(first, last, steps, wall, particle_steps, stepper_summary):
+    r"""The run's summary from its ``first`` and ``last`` diagnostics rows: the drifts of what the run conserves, each
+    against the start plus what entered minus what left between the two rows (:func:`exchanged_between`; nothing in a
+    scene whose particles neither enter nor leave), and in such a scene those figures (``entered``, ``left``):
+
+    .. math::
+
+        rac{M_1 - (M_0 + M_{in} - M_{out})}{M_0 + M_{in}}, \qquad
+        rac{\lVert P_1 - (P_0 + P_{in} - P_{out})Vert}{\sqrt{2 \max(M_0, M_1) \max(K_0, K_1)}}, \qquad
+        rac{E_1 - (E_0 + E_{in} - E_{out})}{|E_0| + |E_{in}|},
+
+    the momentum's relative to the total mass times the r.m.s. speed, :math:`K` the particles' kinetic energy in
+    their velocity and :math:`E` the diagnostics' ``total_energy``."""
+    entered, left = (exchanged_between(first, last, direction) for direction in DIRECTIONS)
+
+    def expected_change(key):
+        return entered.get(key, 0.0) - left.get(key, 0.0)
+
+    def drift(key, record):
+        a = first[key]
+        return (last[key] - a - expected_change(record)) / max(abs(a) + abs(entered.get(record, 0.0)), 1e-300)
+
+    axes = [k.removeprefix("momentum_") for k in first if k.startswith("momentum_")]
+    p0, p1 = (np.array([row[f"momentum_{a}"] for a in axes]) for row in (first, last))
+    p_in = np.array([expected_change(f"momentum_{a}") for a in axes])
+    ref = max(np.sqrt(2 * max(first["mass"], last["mass"]) * max(first["kinetic"], last["kinetic"], 1e-300)), 1e-300)
+    exchange = {"entered": entered, "left": left} if entered else {}
     return {
         "steps": steps, "wall_s": wall, "particle_steps_per_s": particle_steps / wall if wall > 0 else float("nan"),
-        "mass_drift_rel": rel("mass"),
-        "momentum_drift_rel": float(np.linalg.norm(p1 - p0) / ref),
-        "energy_drift_rel": rel("total_energy"), "final": last, **stepper_summary,
+        "mass_drift_rel": drift("mass", "mass"),
+        "momentum_drift_rel": float(np.linalg.norm(p1 - p0 - p_in) / ref),
+        "energy_drift_rel": drift("total_energy", "energy"), **exchange, "final": last, **stepper_summary,
     }
