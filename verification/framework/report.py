@@ -91,10 +91,10 @@ def save_figure(fig, path, caption=None, dpi=110):
     return Path(path)
 
 
-#: a colour per term of the energy ledger (:data:`mpmref.observe.ledger.TERMS`), the same in every figure
+#: a colour per term of the energy ledger (:data:`mpmref.observe.ledger.ASYNC_TERMS`), the same in every figure
 LEDGER_COLOURS = {"p2g_transfer": "tab:blue", "boundary": "tab:brown", "g2p_transfer": "tab:orange",
                   "advection": "tab:purple", "plastic": "tab:red", "rigid_bodies": "tab:gray",
-                  "integration": "tab:green", "interface": "tab:olive"}
+                  "integration": "tab:green", "interface": "tab:olive", "inflow": "tab:cyan", "outflow": "tab:pink"}
 
 
 def plot_ledger_areas(ax, t, terms, change):
