@@ -40,6 +40,7 @@ import numpy as np
 from mpmref import Scene, Simulation
 from mpmref.errors import MpmrefError
 from mpmref.io.atomic import write_text_atomic
+from mpmref.run.emitters import schedule
 from mpmref.run.stability import StabilityWarning
 from mpmref.scene.parsers import ASYNC_TIME_KEYS
 
@@ -169,10 +170,21 @@ def snapshot(state):
 
 def resume(scene, backend, state):
     """A simulation of ``scene`` on ``backend`` from a copy of ``state`` (a state of the same scene's run, whatever
-    its outputs: the stepper's own records start afresh, e.g. the energy ledger's totals at zero)."""
+    its outputs: the run's own records start afresh, e.g. the energy ledger's totals and what entered and left at zero;
+    the emitters' releases so far are kept, so that it releases what the scene's run releases next, when it does,
+    :func:`mpmref.run.emitters.schedule`)."""
     sim = Simulation(scene, backend=backend, particles=state.particles.copy())
-    sim.state = replace(snapshot(state), stepper=sim.state.stepper)
+    copied = snapshot(state)
+    sim.state = replace(copied, stepper={**sim.state.stepper, **schedule(copied)})
     return sim
+
+
+def matched(before, after):
+    """Rows ``(i, j)`` of the particles that two states both hold, by their stable ids ``before`` and ``after``
+    (``before[i] == after[j]``): what a comparison of the two compares, whatever entered (emitters), left (deleted at
+    the domain's edge) or was reordered in between."""
+    _, i, j = np.intersect1d(before, after, assume_unique=True, return_indices=True)
+    return i, j
 
 
 def case(name):

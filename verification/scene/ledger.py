@@ -11,9 +11,11 @@ of the energy-ledger case (:func:`verification.energy_ledger.reporting.run_check
   without rigid bodies, PolyPIC's G2P keeps everything, static walls and colliders never add energy, a plastic return
   map never does; each to :math:`10^{-12} S` a step.
 
-The bounds are those of float64 arithmetic: in a float32 scene the checks are not applicable. The ledger books the
-steps, not what the domain's edge removes: when particles are deleted or clamped over the run, its checks are not
-applicable either (the run's report says how many left).
+The bounds are those of float64 arithmetic: in a float32 scene the checks are not applicable. What enters the run
+(emitters) and what leaves it (deleted at the domain's edge) the run books as the ledger's ``inflow`` and ``outflow``
+(:func:`mpmref.observe.ledger.book_exchange`), checked with the rest; a particle clamped back inside at the edge is
+moved by no stage and booked by no term, so when particles are clamped over the run the checks are not applicable
+(the report says how many).
 """
 
 from mpmref.observe.ledger import ASYNC_COLUMNS
@@ -35,14 +37,14 @@ def run(params, backend="numpy", executor=None):
     path = trajectory(params, backend)
     ledgered = as_run(path.scene, ledger=True)
     sim = resume(ledgered, backend, path.states[-1])
-    start = sim.step_count
+    start, clamped = sim.step_count, sim.clamped
     r = ledger_run(sim, ledgered.name, FRAMES, steps=params.steps(sim.n_particles))
     why = []
     if ledgered.dtype.name != "float64":
         why.append(f"the bounds are float64 round-off (10^-12 of S); this scene is {ledgered.dtype.name}")
-    if r["left"]:
-        why.append(f"{r['left']} particles left through the domain's edge (deleted or clamped), which the ledger does "
-                   "not book")
+    if sim.clamped > clamped:
+        why.append(f"{sim.clamped - clamped} particles were clamped back inside at the domain's edge, which moves them "
+                   "outside every stage: the ledger does not book it")
     items = [NotApplicable(f"{ledgered.name}: the ledger's closure and signs", tuple(why))] if why else []
     return {"params": params, "backend": backend, "run": r, "checked": not why, "not_applicable": items,
             "ran": what_ran(ledgered, r["steps"], step_text(ledgered), (start, path.own))}

@@ -37,7 +37,7 @@ from ..backends import COMPARED_FIELDS, mode_difference, worst
 from ..framework.applicable import NotApplicable
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding
-from . import Params, figure_with, resume, trajectory, write_report
+from . import Params, figure_with, matched, resume, trajectory, write_report
 from .momentum import step_text
 
 #: the candidate when the backend under test is the reference itself
@@ -50,8 +50,11 @@ def candidate_of(backend):
 
 def differences(ref, cand):
     """The difference of each particle array, per material, relative to its scale (module docstring):
-    ``{material: {field: error}}``."""
-    p, q = ref.particles, cand.particles
+    ``{material: {field: error}}``, over the particles matched by id (:func:`~verification.scene.matched`); a particle
+    that only one of the two holds (one deleted it at the domain's edge, the other did not) is an infinite difference,
+    ``{"particles": {"ids differ": inf}}``."""
+    i, j = matched(ref.particles.id, cand.particles.id)
+    p, q = ref.particles.select(i), cand.particles.select(j)
     speed = float(np.max(np.linalg.norm(p.v.astype(float), axis=1), initial=0.0))
     scales = {"v": speed, "C": speed / ref.scene.grid.dx}
     norms = polypic_mode_norms(p, ref.scene.kernel, ref.scene.grid) if p.modes is not None else None
@@ -62,6 +65,8 @@ def differences(ref, cand):
                      for f in COMPARED_FIELDS if getattr(p, f) is not None}
         if norms is not None:
             out[name]["modes"] = mode_difference(q.modes[sel], p.modes[sel], norms[sel], p.v)
+    if i.size < max(ref.n_particles, cand.n_particles):
+        out["particles"] = {"ids differ": math.inf}
     return out
 
 

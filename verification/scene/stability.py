@@ -38,7 +38,7 @@ from mpmref.run.stability import StabilityWarning, first_unbounded, stable_cfl
 from ..framework.applicable import HYPERELASTIC, NotApplicable
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding
-from . import Params, as_run, figure_with, resume, trajectory, what_ran, write_report
+from . import Params, as_run, figure_with, matched, resume, trajectory, what_ran, write_report
 
 SMALL_CFL = 0.3
 #: the fixed step above the limit, in units of the kernel's linear limit with exact quadrature
@@ -104,13 +104,15 @@ def probe(scene, backend, steps, state):
     r"""Run ``scene`` for ``steps`` steps on ``backend`` from ``state``: the largest velocity change per step in cells
     (``jump``), the largest :math:`(K + \Psi)/E_{avail}` (``energy``; ``nan`` without a bound), how many steps ran, and
     the step at which the run was caught and how (``caught``, ``how``: ``None`` if never). A particle leaving the
-    domain at a bounded step ends the run (``left``): the scene's own motion, not an instability."""
+    domain at a bounded step ends the run (``left``): the scene's own motion, not an instability. The velocity changes
+    are those of the particles present before and after each step, matched by id (:func:`~verification.scene.matched`:
+    an emitter's release joins, the domain's edge deletes)."""
     sim = resume(scene, backend, state)
     scale = available_energy(scene, sim)
     out = {"jump": 0.0, "energy": math.nan if scale is None else stored(sim) / scale, "caught": None, "how": None,
            "steps": steps, "left": None}
     for n in range(1, steps + 1):
-        v = sim.v.copy()
+        ids, v = sim.id.copy(), sim.v.copy()
         try:
             with warnings.catch_warnings(), np.errstate(all="ignore"):  # past the limit on purpose: no warnings
                 warnings.simplefilter("ignore", StabilityWarning)
@@ -121,11 +123,13 @@ def probe(scene, backend, steps, state):
             return {**out, "steps": n - 1, "left": str(exc)}
         except MpmrefError as exc:  # the engine's InstabilityError, NonFiniteError, every particle gone
             return {**out, "jump": math.inf, "caught": n, "how": type(exc).__name__, "steps": n}
-        change = np.linalg.norm(sim.v.astype(float) - v, axis=1)
+        before, after = matched(ids, sim.id)
+        v, v_new = v[before], sim.v[after]
+        change = np.linalg.norm(v_new.astype(float) - v, axis=1)
         cells = float(np.max(change, initial=0.0)) * dt / scene.grid.dx
         out["jump"] = max(out["jump"], cells if math.isfinite(cells) else math.inf)
         out["energy"] = max(out["energy"], energy)
-        if first_unbounded(v, sim.v, dt, scene.grid.dx) is not None or not math.isfinite(cells):
+        if first_unbounded(v, v_new, dt, scene.grid.dx) is not None or not math.isfinite(cells):
             return {**out, "caught": n, "how": "a velocity change of more than a cell in one step", "steps": n}
         if out["energy"] > ENERGY_FACTOR:
             return {**out, "caught": n, "how": f"K + Ψ above {ENERGY_FACTOR:g} times the energy available", "steps": n}
