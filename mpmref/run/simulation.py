@@ -578,9 +578,9 @@ def _summary(first, last, steps, wall, particle_steps, stepper_summary):
 
     .. math::
 
-        rac{M_1 - (M_0 + M_{in} - M_{out})}{M_0 + M_{in}}, \qquad
-        rac{\lVert P_1 - (P_0 + P_{in} - P_{out})Vert}{\sqrt{2 \max(M_0, M_1) \max(K_0, K_1)}}, \qquad
-        rac{E_1 - (E_0 + E_{in} - E_{out})}{|E_0| + |E_{in}|},
+        \frac{M_1 - (M_0 + M_{in} - M_{out})}{M_0 + M_{in}}, \qquad
+        \frac{\lVert P_1 - (P_0 + P_{in} - P_{out})\rVert}{\sqrt{2 \max(M_0, M_1) \max(K_0, K_1)}}, \qquad
+        \frac{E_1 - (E_0 + E_{in} - E_{out})}{|E_0| + |E_{in}|},
 
     the momentum's relative to the total mass times the r.m.s. speed, :math:`K` the particles' kinetic energy in
     their velocity and :math:`E` the diagnostics' ``total_energy``."""
