@@ -7,7 +7,8 @@
   external (no gravity, no walls) APIC conserves mass and momentum to round-off while particles enter and leave, and
   the energy drift is what the steps' ledger terms say; ``mpmref run`` prints what entered and left on a line of its
   own.
-* A resumed run records the same as the uninterrupted one.
+* A resumed run records the same as the uninterrupted one, and a run whose particles stay in a device's memory the
+  same as a host run.
 """
 
 import csv
@@ -168,3 +169,18 @@ def test_a_resumed_run_records_what_entered_and_left_as_the_uninterrupted_one(tm
     for name in ("entered", "left", "energy_ledger"):
         assert np.array_equal(resumed.state.stepper[name], full.state.stepper[name]), name
     assert full.diagnostics()["left_particles"] > 0
+
+
+def test_a_run_that_keeps_its_particles_in_a_device_memory_books_what_the_host_run_books():
+    """The GPU backend's residency, with the CPU stand-in of tests/test_cuda_residency.py: releases join on the host
+    copy and deletions are found by the host checks, and both are booked to the last bit as a host run books them."""
+    from test_cuda_residency import RemoteBackend
+
+    scene = Scene.from_dict(scene_data())
+    host, remote = Simulation(scene), Simulation(scene, backend=RemoteBackend)
+    assert remote.resident
+    host.run(steps=120)
+    remote.run(steps=120)
+    booked = host.diagnostics()
+    assert booked["left_particles"] == host.deleted > 0 and booked["entered_particles"] > 0
+    assert remote.diagnostics() == booked
