@@ -144,7 +144,7 @@ def test_the_drifts_are_of_what_stays_while_particles_enter_and_leave():
 def test_mpmref_run_prints_what_entered_and_left_on_a_line_of_its_own(tmp_path, capsys):
     path = tmp_path / "exchanging.toml"
     path.write_text(SCENE)
-    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--steps", "100", "--no-progress"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--steps", "40", "--no-progress"]) == 0
     out = capsys.readouterr().out
     with open(tmp_path / "run" / "diagnostics.csv") as f:
         rows = list(csv.DictReader(f))
@@ -179,8 +179,8 @@ def test_a_run_that_keeps_its_particles_in_a_device_memory_books_what_the_host_r
     scene = Scene.from_dict(scene_data())
     host, remote = Simulation(scene), Simulation(scene, backend=RemoteBackend)
     assert remote.resident
-    host.run(steps=120)
-    remote.run(steps=120)
+    host.run(steps=60)
+    remote.run(steps=60)
     booked = host.diagnostics()
     assert booked["left_particles"] == host.deleted > 0 and booked["entered_particles"] > 0
     assert remote.diagnostics() == booked
