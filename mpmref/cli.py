@@ -247,6 +247,7 @@ def _one_line_warnings():
 def main(argv=None):
     try:
         args = _parser().parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)  # the command's words, for a line that resumes it
         with _one_line_warnings():
             return args.func(args)
     except OptionError as exc:

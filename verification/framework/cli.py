@@ -24,13 +24,14 @@ preset; a scene the backend does not implement is refused before any work (exit 
 
 import json
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
 
 from mpmref import SceneBuilder
 from mpmref.backends import OPTION_HELP, make_backend, reference_argument
-from mpmref.cli import add_threads_option, apply_threads
+from mpmref.cli import INTERRUPTED, add_threads_option, apply_threads
 
 from . import registry, warmup
 from .applicable import ANYTHING, Inapplicable, declaration_of, fit, unmodelable
@@ -84,13 +85,16 @@ def cmd_verify(args):
     if compiling is not None:
         _progress(args, "compiling the Numba kernels of later cases in a background process (cache: "
                         f"{os.environ.get('NUMBA_CACHE_DIR', 'Numba default')}; delete it to recompile)")
+    records = {}
     try:
-        records = _run_cases(args, names, executor, compiling)
+        _run_cases(args, names, executor, compiling, records)
+    except KeyboardInterrupt:
+        return interrupted(args, names, records)
     finally:
         warmup.stop(compiling)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
             "machine": machine(), "backend": backend}
-    return finish(args, records, meta)
+    return finish(args, [records[n] for n in names], meta)
 
 
 def cmd_verify_scene(args):
@@ -111,12 +115,25 @@ def cmd_verify_scene(args):
     backend = describe(args.backend, make_backend(args.backend, declared))  # NotImplementedByBackend: exit 2
     executor = Executor(scheduler=args.scheduler, workers=args.workers)
     start = time.perf_counter()
-    names = list(scene_checks.CHECKS)
-    records = [_run_case(args, name, f"[{i}/{len(names)}] {name}", executor, params=params,
-                         case=scene_checks.case(name)) for i, name in enumerate(names, 1)]
+    names, records = list(scene_checks.CHECKS), {}
+    try:
+        for i, name in enumerate(names, 1):
+            records[name] = _run_case(args, name, f"[{i}/{len(names)}] {name}", executor, params=params,
+                                      case=scene_checks.case(name))
+    except KeyboardInterrupt:
+        return interrupted(args, names, records)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
             "machine": machine(), "backend": backend, "scene": str(args.scene)}
-    return finish(args, records, meta)
+    return finish(args, list(records.values()), meta)
+
+
+def interrupted(args, names, records):
+    """Say in one line, after Ctrl-C stopped the cases (their workers ended, :mod:`.executor`), what is kept and what
+    running the command again does; the exit status 130."""
+    kept = f" ({', '.join(records)}: reports in {args.out}/<case>/)" if records else ""
+    print(f"mpmref verify: interrupted; {len(records)} of {len(names)} cases finished{kept}; the index was not "
+          f"written; the same command runs every case again: {shlex.join(['mpmref', *args.argv])}", file=sys.stderr)
+    return INTERRUPTED
 
 
 def finish(args, records, meta):
@@ -169,15 +186,14 @@ def check_backend(reference):
     return describe(reference, make_backend(reference, scene))
 
 
-def _run_cases(args, names, executor, compiling):
-    """Run and report each case, with a progress line when it starts and when it ends; the records come
-    back in the order of ``names``. The NumPy-only cases run first; a case that runs a compiled backend
+def _run_cases(args, names, executor, compiling, records):
+    """Run and report each case, with a progress line when it starts and when it ends, its record put in ``records``
+    under its name as it finishes. The NumPy-only cases run first; a case that runs a compiled backend
     runs between them as soon as the background compilation (:mod:`.warmup`) has compiled every kernel it
     needs (:func:`.warmup.can_start`), or else after the whole compilation, so that no kernel is compiled
     twice."""
     later = [n for n in names if warmup.compiles(n, args.preset, args.backend)]
     first = [n for n in names if n not in later]
-    records = {}
     for i in range(1, len(names) + 1):
         early = next((n for n in later if warmup.can_start(compiling, n)), None)
         if early is None and not first:
@@ -186,7 +202,6 @@ def _run_cases(args, names, executor, compiling):
         if name == early:
             later.remove(name)
         records[name] = _run_case(args, name, f"[{i}/{len(names)}] {name}", executor)
-    return [records[n] for n in names]
 
 
 def _run_case(args, name, tag, executor, params=None, case=None):

@@ -32,6 +32,7 @@ from mpmref import Simulation
 from mpmref.backends import make_backend, resolve
 
 from . import registry
+from .executor import interrupts_held, worker_signals
 
 
 def declared_scenes(name, preset, backend):
@@ -150,10 +151,18 @@ def start(names, preset, backend):
     queue = context.Array("i", [0, len(scenes)])
     done = context.Array("b", len(scenes))
     job = (names, preset, backend)
-    process = context.Process(target=compile_scenes, args=(*job, queue, False, done), daemon=True,
+    process = context.Process(target=compile_in_background, args=(*job, queue, done), daemon=True,
                               name="mpmref-warm-up")
-    process.start()
+    with interrupts_held():  # the new interpreter starts with SIGINT blocked: Ctrl-C is the main process's to take
+        process.start()
     return WarmUp(process, queue, done, job, needs)
+
+
+def compile_in_background(names, preset, backend, queue, done):
+    """:func:`compile_scenes` from the front of ``queue`` in the background process, which leaves Ctrl-C to the main
+    process and, ended by :func:`stop`, exits without leaking (:func:`~.executor.worker_signals`)."""
+    worker_signals()
+    compile_scenes(names, preset, backend, queue, False, done)
 
 
 def compiles(name, preset, backend):
@@ -182,7 +191,7 @@ def wait(warm_up, progress):
 
 
 def stop(warm_up):
-    """End the warm-up process if it is still running (every case has run)."""
+    """End the warm-up process if it is still running (every case has run, or Ctrl-C stopped them)."""
     if warm_up is not None and warm_up.is_alive():
         warm_up.process.terminate()
     if warm_up is not None:

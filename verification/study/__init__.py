@@ -32,7 +32,16 @@ from .report import write_report
 from .runs import METRICS, finished, load, run
 from .variations import Variation, label, parse_vary
 
-__all__ = ["run_study", "make_plan", "parse_vary", "Variation", "SameComputationWarning"]
+__all__ = ["run_study", "make_plan", "parse_vary", "Variation", "SameComputationWarning", "Interrupted"]
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a study's runs (its workers are ended, :mod:`verification.framework.executor`): ``out`` keeps
+    the results of ``finished`` of its ``total`` runs, and the study run again runs only the others."""
+
+    def __init__(self, out, finished, total):
+        super().__init__(out, finished, total)
+        self.out, self.finished, self.total = out, finished, total
 
 
 class SameComputationWarning(UserWarning):
@@ -137,7 +146,10 @@ def _execute(plan, executor, overwrite, progress):
         if progress is not None:
             progress(done[0], len(todo), label(plan.runs[todo[j]]["params"]))
 
-    executor.map(run, [plan.runs[i]["spec"] for i in todo], on_result=arrived)
+    try:
+        executor.map(run, [plan.runs[i]["spec"] for i in todo], on_result=arrived)
+    except KeyboardInterrupt:
+        raise Interrupted(plan.out, sum(r is not None and not r.get("error") for r in results), len(results)) from None
     return results
 
 

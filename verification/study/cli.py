@@ -17,6 +17,7 @@ value, reference or option (before any run); 130 when interrupted (the finished 
 """
 
 import math
+import shlex
 import sys
 import warnings
 from pathlib import Path
@@ -26,7 +27,7 @@ from mpmref.cli import OptionError, add_threads_option, apply_threads, end_time_
 from mpmref.errors import ArgumentError
 
 from ..framework.executor import Executor
-from . import SameComputationWarning, run_study
+from . import Interrupted, SameComputationWarning, run_study
 from .orders import orders_text, series_label
 from .runs import load
 from .variations import SYNTAX, label, parse_vary
@@ -98,15 +99,23 @@ def cmd_study(args):
                               measures=args.measure, exact=args.exact, setup=args.setup, frames=args.frames,
                               overwrite=args.overwrite, ledger=not args.no_ledger,
                               executor=Executor(scheduler=args.scheduler, workers=args.workers), progress=bar.update)
-    except KeyboardInterrupt:
-        folder = args.out or Path("reports") / "study" / "<scene name>"
-        print(f"mpmref study: interrupted; the finished runs are kept in {folder / 'runs'}, and the same command "
-              "runs the others", file=sys.stderr)
+    except KeyboardInterrupt as stop:
+        print(f"mpmref study: {interrupted(stop, args.argv)}", file=sys.stderr)
         return INTERRUPTED
     finally:
         bar.close()
     print(summary(study))
     return 1 if any(r["error"] for r in study["runs"]) else 0
+
+
+def interrupted(stop, argv):
+    """The line that says what an interrupted study keeps and the command that goes on with it: the same command,
+    without ``--overwrite``, which would run the finished runs again."""
+    again = shlex.join(["mpmref", *(word for word in argv if word != "--overwrite")])
+    if not isinstance(stop, Interrupted):  # while planning, or writing the report
+        return f"interrupted outside the runs; the same command reuses the runs that finished: {again}"
+    return (f"interrupted; {stop.finished} of {stop.total} runs finished (their results are in {stop.out / 'runs'}); "
+            f"the same command reuses them and runs the other {stop.total - stop.finished}: {again}")
 
 
 def _one_line(show):
