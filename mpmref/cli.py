@@ -8,6 +8,7 @@ exit, every particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint 
 
 import argparse
 import contextlib
+import copy
 import importlib
 import os
 import shlex
@@ -16,6 +17,7 @@ import time
 import warnings
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import NamedTuple
 
 from .backends import OPTION_HELP, reference_argument
 from .errors import ArgumentError, BackendError, MpmrefError, SceneError
@@ -210,6 +212,76 @@ def resume_command(args, out_dir):
     return shlex.join(words + (["--no-progress"] if args.no_progress else []))
 
 
+#: a run or a study estimated to take longer than this (seconds) is warned about before it starts
+LONG_RUN_S = 3600.0
+
+
+class Length(NamedTuple):
+    """The estimated length of a run (:func:`run_length`): ``steps`` to its end time, of ``particles`` at the start,
+    at the ``rate`` (particle-steps per second) that ``probed`` steps took here: ``seconds`` in all."""
+
+    steps: float
+    particles: int
+    rate: float
+    probed: int
+    seconds: float
+
+    def __str__(self):
+        return (f"{self.steps:.3g} steps of {self.particles} particles at {self.rate:.3g} particle-steps/s, measured "
+                f"on {self.probed} steps here")
+
+
+def run_length(scene, backend, t_end, state=None, budget_s=0.1, most_steps=20):
+    """The estimated :class:`Length` of a run of ``scene`` on ``backend`` from ``state`` (default: its start) to time
+    ``t_end``: a copy steps here, without outputs or warnings, for about ``budget_s`` seconds (one step at least,
+    ``most_steps`` at most); the steps to ``t_end`` at their mean Δt, times the particles, against the particle-steps
+    per second they took. A CFL Δt that shrinks later makes the run longer. ``None`` when a step fails: the run
+    itself reports why."""
+    from .run.simulation import Simulation
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            probe = Simulation(scene, backend=backend)
+            if state is not None:
+                probe.state = copy.deepcopy(state)
+            probe.warm_up()  # already compiled for the run: loaded from memory or Numba's cache
+            t0, spent, steps, updates = probe.time, 0.0, 0, 0
+            while steps < 1 or (spent < budget_s and steps < most_steps and probe.time < t_end):
+                tick = time.perf_counter()
+                probe.step(t_end=t_end)
+                spent, steps, updates = spent + time.perf_counter() - tick, steps + 1, updates + probe.last_updates
+    except Exception:  # the run that follows raises it with its context (a checkpoint, exit 3)
+        return None
+    total = steps * (t_end - t0) / (probe.time - t0)
+    return Length(total, probe.n_particles, updates / max(spent, 1e-9), steps, total * spent / steps)
+
+
+def length_line(command, seconds, how, stop):
+    """The line that announces a run's or a study's estimated length (``seconds``; ``how``: how it was estimated):
+    a warning past :data:`LONG_RUN_S`, with ``stop``, what Ctrl-C does."""
+    if seconds > LONG_RUN_S:
+        return f"{command}: warning: this will take about {duration(seconds)} ({how}); {stop}"
+    return f"{command}: the steps will take about {duration(seconds)} ({how})"
+
+
+def duration(seconds):
+    """``seconds`` in the unit that reads best: ``"0.14 s"``, ``"40 s"``, ``"12 min"``, ``"3.5 h"``, ``"9.1 days"``,
+    ``"1220 years"``, ``"3.2e+04 years"``."""
+    units = (("s", 1, 120), ("min", 60, 120), ("h", 3600, 48), ("days", 86400, 730), ("years", 365.25 * 86400, None))
+    unit, size = next((unit, size) for unit, size, below in units if below is None or seconds < below * size)
+    value = seconds / size
+    return f"{value:.0f} {unit}" if 10 <= value < 1e4 else f"{value:.2g} {unit}"
+
+
+def _announce_length(sim, args):
+    """Print the estimated length of running ``sim`` to ``--t-end`` (:func:`run_length`) on standard error."""
+    length = run_length(sim.scene, args.backend, args.t_end, sim.state)
+    if length is not None:
+        print(length_line("mpmref", length.seconds, length, "Ctrl-C stops it with a checkpoint that --resume "
+                          "continues"), file=sys.stderr)
+
+
 def cmd_run(args):
     from .scene import Scene
 
@@ -219,6 +291,8 @@ def cmd_run(args):
     apply_threads(args.threads)
     sim = _open_simulation(scene, args, out_dir)
     _warm_up(sim)
+    if args.t_end is not None:
+        _announce_length(sim, args)
     args.start_step = sim.step_count
     try:
         summary = sim.run(steps=args.steps, until_step=args.until_step, t_end=args.t_end,

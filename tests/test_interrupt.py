@@ -121,7 +121,8 @@ def test_an_interrupted_study_stops_at_once_and_the_same_command_runs_only_the_r
     print(f"study, SIGINT to the {target}: exit {status} after {took:.2f} s")
     assert (status, stdout, alive) == (130, "", [])
     assert "leaked" not in stderr and "Traceback" not in stderr, stderr
-    line, = stderr.strip().splitlines()
+    length, line = stderr.strip().splitlines()
+    assert length.startswith("mpmref study: the steps will take about ")
     assert f"1 of 2 runs finished (their results are in {out / 'runs'})" in line
     assert line.endswith(f"the same command reuses them and runs the other 1: mpmref {' '.join(args)}")
 

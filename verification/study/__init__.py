@@ -50,7 +50,7 @@ class SameComputationWarning(UserWarning):
 
 
 def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures=(), exact=None,
-              setup=None, frames=False, overwrite=False, ledger=True, executor=None, progress=None):
+              setup=None, frames=False, overwrite=False, ledger=True, executor=None, progress=None, announce=None):
     """Run a study of ``scene`` and write its report into ``out``; returns what ``results.json`` holds (with its
     ``paths``).
 
@@ -85,6 +85,9 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures
         Where the runs go (default: this process).
     progress : callable, optional
         ``progress(done, total, run)``, called as each run finishes (the command line's progress bar).
+    announce : callable, optional
+        ``announce(runs)``, called with the runs still to do (the plan's: each with its validated ``scene`` and its
+        ``spec``) before they start (the command line estimates their length there).
     """
     start = time.perf_counter()
     plan = make_plan(scene, vary, t_end, backend, out, measures, setup, frames, ledger)
@@ -94,7 +97,7 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures
     info = describe(backend, make_backend(backend, plan.runs[0]["scene"]))
     executor = executor or Executor(workers=1)
     _check_portable({"measure": list(measures), "setup": [setup]}, executor)
-    results = _execute(plan, executor, overwrite, progress)
+    results = _execute(plan, executor, overwrite, progress, announce)
     records = [_record(r, result, exact_fn) for r, result in zip(plan.runs, results)]
     user = list(dict.fromkeys(k for r in records for k in r.get("metrics", {}) if k not in METRICS
                               and not k.startswith("ledger_")))
@@ -126,8 +129,9 @@ def _check_portable(functions, executor):
                                     "Executor(workers=1))") from None
 
 
-def _execute(plan, executor, overwrite, progress):
-    """Every run's result: reused from an earlier study where one exists (unless ``overwrite``), else run."""
+def _execute(plan, executor, overwrite, progress, announce):
+    """Every run's result: reused from an earlier study where one exists (unless ``overwrite``), else run (after
+    ``announce`` of the runs to do)."""
     results = [None if overwrite else finished(r["spec"]) for r in plan.runs]
     for result in results:
         if result is not None:
@@ -136,6 +140,8 @@ def _execute(plan, executor, overwrite, progress):
     for spec in {os.path.dirname(plan.runs[i]["spec"].result) for i in todo}:
         os.makedirs(spec, exist_ok=True)
 
+    if announce is not None and todo:
+        announce([plan.runs[i] for i in todo])
     done = [0]
     if progress is not None:
         progress(0, len(todo), None)

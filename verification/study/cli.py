@@ -23,7 +23,15 @@ import warnings
 from pathlib import Path
 
 from mpmref.backends import OPTION_HELP, importable_from_here, reference_argument
-from mpmref.cli import OptionError, add_threads_option, apply_threads, end_time_option, option_value
+from mpmref.cli import (
+    OptionError,
+    add_threads_option,
+    apply_threads,
+    end_time_option,
+    length_line,
+    option_value,
+    run_length,
+)
 from mpmref.errors import ArgumentError
 
 from ..framework.executor import Executor
@@ -95,10 +103,11 @@ def cmd_study(args):
         with warnings.catch_warnings():
             warnings.simplefilter("always", SameComputationWarning)
             warnings.showwarning = _one_line(warnings.showwarning)
+            executor = Executor(scheduler=args.scheduler, workers=args.workers)
             study = run_study(args.scene, args.vary, args.t_end, backend=args.backend, out=args.out,
                               measures=args.measure, exact=args.exact, setup=args.setup, frames=args.frames,
-                              overwrite=args.overwrite, ledger=not args.no_ledger,
-                              executor=Executor(scheduler=args.scheduler, workers=args.workers), progress=bar.update)
+                              overwrite=args.overwrite, ledger=not args.no_ledger, executor=executor,
+                              progress=bar.update, announce=lambda runs: _announce_length(runs, executor))
     except KeyboardInterrupt as stop:
         print(f"mpmref study: {interrupted(stop, args.argv)}", file=sys.stderr)
         return INTERRUPTED
@@ -106,6 +115,23 @@ def cmd_study(args):
         bar.close()
     print(summary(study))
     return 1 if any(r["error"] for r in study["runs"]) else 0
+
+
+def _announce_length(runs, executor):
+    """Print the estimated length of the study's ``runs`` on ``executor`` on standard error: each run's
+    (:func:`mpmref.cli.run_length`, the scene as declared: a ``--setup`` function is not called), the local workers
+    taking them side by side (a Dask cluster's are counted as one)."""
+    lengths = [n for n in (run_length(r["scene"], r["spec"].backend, r["spec"].t_end) for r in runs) if n is not None]
+    if not lengths:
+        return
+    side_by_side = 1 if executor.scheduler is not None else min(executor.workers, len(lengths))
+    seconds = sum(n.seconds for n in lengths)
+    work = sum(n.steps * n.particles for n in lengths)
+    how = (f"{len(lengths)} runs, {work:.3g} particle-steps at {work / seconds:.3g} particle-steps/s measured on "
+           f"each run's first steps here, {side_by_side} at a time")
+    wall = max(max(n.seconds for n in lengths), seconds / side_by_side)
+    print(length_line("mpmref study", wall, how, "Ctrl-C stops it and keeps the finished runs, which the same "
+                      "command reuses"), file=sys.stderr)
 
 
 def interrupted(stop, argv):
