@@ -56,3 +56,12 @@ class Gamma1(Mpm88Backend):
     built in."""
 
     implements = replace(Mpm88Backend.implements, parameters={"fluid": {"gamma": 1.0}})
+
+
+class WrongC(NumpyBackend):
+    """A complete code whose G2P gives an affine matrix 25 % too large: wrong wherever C matters, invisible where it
+    stays at zero (a block in free fall)."""
+
+    def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
+        new = super().g2p(particles, v_grid, v_tilde, dt, prepared, kicks)
+        return new.with_(C=1.25 * new.C)

@@ -36,6 +36,7 @@ from mpmref.cli import INTERRUPTED, add_threads_option, apply_threads
 from . import registry, warmup
 from .applicable import ANYTHING, Inapplicable, declaration_of, fit, unmodelable
 from .common import failed, summary_sentence, verdict_word
+from .coverage import not_exercised
 from .executor import Executor
 from .report import case_record, machine, write_case_report, write_index
 
@@ -124,7 +125,25 @@ def cmd_verify_scene(args):
         return interrupted(args, names, records)
     meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
             "machine": machine(), "backend": backend, "scene": str(args.scene)}
-    return finish(args, list(records.values()), meta)
+    status = finish(args, list(records.values()), meta)
+    say_coverage(records.get("reference"))
+    return status
+
+
+def say_coverage(record):
+    """Beside ``--scene``'s verdict, what the states its comparison along the scene's run exercised
+    (:mod:`.coverage`), one line; and a warning naming what they did not, whose errors these checks could not see."""
+    result = None if record is None else record.outcome.result
+    items = (result or {}).get("exercised", ())
+    if not items:
+        return
+    done = [f"{i.name} ({i.figure:.3g})" for i in items if i.exercised]
+    print(f"exercised along the compared runs: {', '.join(done) or 'none of the fields and features checked'}")
+    missing = not_exercised(items)
+    if missing:
+        print(f"mpmref verify: warning: along the compared runs {missing}: a code wrong there passes these checks "
+              "(the reference check's findings give the figures; a scene that exercises them, or mpmref conformance "
+              "check --scene, compares them)", file=sys.stderr)
 
 
 def interrupted(args, names, records):

@@ -37,6 +37,7 @@ from ..backends import COMPARED_FIELDS, mode_difference, worst
 from ..framework.applicable import NotApplicable
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding
+from ..framework.coverage import Tracker
 from . import Params, figure_with, matched, resume, trajectory, write_report
 from .momentum import step_text
 
@@ -75,7 +76,8 @@ def run(params, backend="numpy", executor=None):
     after every step (``executor`` is not used)."""
     path = trajectory(params, backend)
     candidate = candidate_of(backend)
-    segments = [compare_from(path.scene, candidate, state, params.segment) for state in path.states]
+    tracker = Tracker(path.scene)
+    segments = [compare_from(path.scene, candidate, state, params.segment, tracker) for state in path.states]
     void = [NotApplicable(f"{path.scene.name}: the comparisons from step {start}", ("the reference's own step from "
                                                                                      "that state stops (the engine's "
                                                                                      "error)",))
@@ -83,17 +85,21 @@ def run(params, backend="numpy", executor=None):
     return {"params": params, "backend": backend, "candidate": candidate, "scene": path.scene.name,
             "starts": path.kept, "segments": segments, "rtol": DEFAULT_RTOL[path.scene.dtype.name],
             "dtype": path.scene.dtype.name, "stopped": path.stopped, "not_applicable": void,
+            "exercised": tracker.items(),
             "ran": (f"Scene '{path.scene.name}' ({path.scene.dim}D, {path.scene.method.scheme}): {params.segment} "
                     f"steps on both backends from each of steps {', '.join(map(str, path.kept))} of the first "
                     f"{path.span} of its own {path.own} (run on {backend}), {step_text(path.scene)}.")}
 
 
-def compare_from(scene, candidate, state, steps):
+def compare_from(scene, candidate, state, steps, tracker=None):
     """``steps`` steps of ``scene`` on the reference and on ``candidate`` from ``state``: the differences after each.
     A step that the engine stops (an instability, a particle out of the domain) ends the segment; one stopped on the
-    candidate but not on the reference is an infinite difference, named by the error."""
+    candidate but not on the reference is an infinite difference, named by the error. ``tracker``
+    (:class:`~verification.framework.coverage.Tracker`) sees every state compared."""
     ref, cand = resume(scene, "numpy", state), resume(scene, candidate, state)
     history = []
+    if tracker is not None:
+        tracker.see(ref.state)
     for _ in range(steps):
         dt = ref.stepper.time_step(ref.particles)
         try:
@@ -110,6 +116,8 @@ def compare_from(scene, candidate, state, steps):
             history.append({"the candidate's step": {f"raised {type(exc).__name__}": math.inf}})
             break
         history.append(differences(ref, cand))
+        if tracker is not None:
+            tracker.see(ref.state)
     return history
 
 
@@ -137,11 +145,14 @@ def checks(result):
 
 
 def findings(result):
-    """How the scene's own run on the backend stopped early, if it did: the segments start from the states it reached
-    (the last good one among them)."""
+    """What the compared states exercised (:mod:`verification.framework.coverage`: a field that stayed at round-off,
+    a wall no particle reached, would not show a wrong code), and how the scene's own run on the backend stopped early,
+    if it did: the segments start from the states it reached (the last good one among them)."""
+    covered = [Finding(f"{result['scene']}: exercised, {item.name}", item.figure, item.sentence)
+               for item in result.get("exercised", ())]
     if result["stopped"] is None:
-        return []
-    return [Finding(f"{result['scene']}: the scene's own run stopped at step", max(result["starts"]) + 1,
+        return covered
+    return covered + [Finding(f"{result['scene']}: the scene's own run stopped at step", max(result["starts"]) + 1,
                     f"{result['stopped']}. Measured, not judged here: the comparisons start from the states it "
                     "reached, the last one just before it stopped.")]
 
