@@ -6,8 +6,9 @@ each of the Δt the reference takes (the scene's fixed step, or its CFL step of 
 comparison meets what the scene does, a landing or a splash as well as a free fall, and each segment starts from the
 state the backend itself reached. After every step, for each material and each particle array the scene evolves, the
 difference :math:`\max|a - r| / S` relative to the array's scale :math:`S` (:func:`differences`): the largest
-:math:`|x|` for the positions; the scene's largest speed :math:`|v|_{max}` for the velocities; :math:`|v|_{max}/\Delta
-x` for the affine matrices (the velocity gradient a grid of cell :math:`\Delta x` carries at that speed: an error
+:math:`|x|` for the positions; the step's velocity scale :math:`V = \max(|v|_{max}, |g|\Delta t)` for the velocities
+(:func:`speed_scale`: at rest under gravity the velocities are round-off of :math:`g\Delta t`); :math:`V/\Delta x` for
+the affine matrices (the velocity gradient a grid of cell :math:`\Delta x` carries at that speed: an error
 :math:`\delta` in :math:`C_p` is an error :math:`\delta |v|_{max}` in velocity a cell away, and a field that is
 uniform, :math:`C_p` zero but for round-off, is not judged against its own round-off); the largest entry for
 :math:`F`, :math:`J` and :math:`J_P`; PolyPIC's modes by the velocity they put on the stencil
@@ -49,14 +50,14 @@ def candidate_of(backend):
     return CANDIDATE if backend == "numpy" else backend
 
 
-def differences(ref, cand):
+def differences(ref, cand, dt=0.0):
     """The difference of each particle array, per material, relative to its scale (module docstring):
     ``{material: {field: error}}``, over the particles matched by id (:func:`~verification.scene.matched`); a particle
     that only one of the two holds (one deleted it at the domain's edge, the other did not) is an infinite difference,
-    ``{"particles": {"ids differ": inf}}``."""
+    ``{"particles": {"ids differ": inf}}``. ``dt``: the step just taken (:func:`speed_scale`)."""
     i, j = matched(ref.particles.id, cand.particles.id)
     p, q = ref.particles.select(i), cand.particles.select(j)
-    speed = float(np.max(np.linalg.norm(p.v.astype(float), axis=1), initial=0.0))
+    speed = speed_scale(p.v, ref.scene.gravity, dt)
     scales = {"v": speed, "C": speed / ref.scene.grid.dx}
     norms = polypic_mode_norms(p, ref.scene.kernel, ref.scene.grid) if p.modes is not None else None
     out = {}
@@ -69,6 +70,17 @@ def differences(ref, cand):
     if i.size < max(ref.n_particles, cand.n_particles):
         out["particles"] = {"ids differ": math.inf}
     return out
+
+
+def speed_scale(v, gravity, dt):
+    r"""The velocity scale of a step: :math:`\max(\max_p |v_p|,\; |g|\,\Delta t)`.
+
+    A body at rest under gravity has :math:`v_p` at round-off: each step adds :math:`g\Delta t` and the stress that
+    holds the body takes it back, so its velocities are differences of terms of size :math:`|g|\Delta t`, and their
+    round-off is relative to that, not to the velocities themselves (against which two correct codes at rest differ
+    by order one: measured, a jelly settled on its floor, :math:`C` differing by 1.2 of :math:`\max|v|/\Delta x`)."""
+    largest = float(np.max(np.linalg.norm(v.astype(float), axis=1), initial=0.0))
+    return max(largest, float(np.linalg.norm(gravity)) * dt)
 
 
 def run(params, backend="numpy", executor=None):
@@ -115,7 +127,7 @@ def compare_from(scene, candidate, state, steps, tracker=None):
         except MpmrefError as exc:
             history.append({"the candidate's step": {f"raised {type(exc).__name__}": math.inf}})
             break
-        history.append(differences(ref, cand))
+        history.append(differences(ref, cand, dt))
         if tracker is not None:
             tracker.see(ref.state)
     return history
