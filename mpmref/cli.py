@@ -13,6 +13,7 @@ import importlib
 import os
 import shlex
 import sys
+import threading
 import time
 import warnings
 from importlib.metadata import entry_points
@@ -187,15 +188,39 @@ def _open_simulation(scene, args, out_dir):
         raise OptionError(f"--out {out_dir}: cannot write there ({exc.strerror or exc})") from None
 
 
-def _warm_up(sim):
+def _warm_up(sim, who="mpmref"):
     """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene before the timed
-    run, saying so and how long it took."""
+    run, saying so, where they are cached, and how long it took (:func:`compiling`)."""
     if not sim.compiles:
         return
-    print("mpmref: compiling kernels for this scene…", end="", file=sys.stderr, flush=True)
-    start = time.perf_counter()
-    sim.warm_up()
-    print(f" done in {time.perf_counter() - start:.1f} s", file=sys.stderr, flush=True)
+    with compiling(who):
+        sim.warm_up()
+
+
+@contextlib.contextmanager
+def compiling(who="mpmref", stream=None, every_s=1.0):
+    """Say on ``stream`` (standard error) that the kernels of a scene are being compiled, the first run only, and
+    where Numba caches them; on a terminal, the seconds so far, every ``every_s``; then how long it took."""
+    stream = stream or sys.stderr
+    cache = os.environ.get("NUMBA_CACHE_DIR") or "Numba's default cache, beside the sources"
+    line = f"{who}: compiling kernels for this scene (the first run only: they are cached in {cache})…"
+    print(line, end="", file=stream, flush=True)
+    start, done = time.perf_counter(), threading.Event()
+    ticker = None
+    if stream.isatty():
+        def tick():
+            while not done.wait(every_s):
+                print(f"\r{line} {time.perf_counter() - start:.0f} s", end="", file=stream, flush=True)
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
+        if ticker is not None:
+            ticker.join()
+            print(f"\r{line}", end="", file=stream)
+        print(f" done in {time.perf_counter() - start:.1f} s", file=stream, flush=True)
 
 
 def resume_command(args, out_dir):

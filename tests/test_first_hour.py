@@ -1,10 +1,12 @@
 """The first hour, the safety half: stability guard, domain-exit policies, CLI refusals and Ctrl-C, Numba warm-up."""
 
+import io
 import os
 import re
 import shlex
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -273,8 +275,29 @@ def test_cli_says_it_compiles_before_the_timed_run(tmp_path, capsys):
     pytest.importorskip("numba")
     assert main(run_args(tmp_path / "o", "--steps", "1", "--backend", "numba")) == 0
     captured = capsys.readouterr()
-    assert re.search(r"compiling kernels for this scene… done in \d+\.\d s", captured.err)
+    cache = re.escape(os.environ["NUMBA_CACHE_DIR"])
+    assert re.search(rf"compiling kernels for this scene \(the first run only: they are cached in {cache}\)… done in "
+                     r"\d+\.\d s", captured.err)
     assert "kernel compilation excluded" in captured.out
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_a_compilation_on_a_terminal_counts_its_seconds():
+    """On a terminal the line counts the seconds while the kernels compile, then says how long it took; elsewhere
+    (a log) it is one line."""
+    from mpmref.cli import compiling
+
+    terminal, log = _Terminal(), io.StringIO()
+    with compiling("mpmref", stream=terminal, every_s=0.05):
+        time.sleep(0.3)
+    with compiling("mpmref study", stream=log):
+        pass
+    assert re.search(r"\r.*first run only.* \d+ s", terminal.getvalue()) and terminal.getvalue().endswith(" s\n")
+    assert log.getvalue().count("\n") == 1 and log.getvalue().startswith("mpmref study: compiling kernels")
 
 
 def test_numba_cache_defaults_to_a_per_user_folder(tmp_path):

@@ -116,3 +116,14 @@ def test_past_an_hour_the_line_is_a_warning_that_says_how_to_stop(seconds, warne
     line = length_line("mpmref", seconds, "how", "what Ctrl-C does")
     assert line.startswith("mpmref: warning: this will take about") == warned
     assert line.endswith("(how); what Ctrl-C does" if warned else "(how)")
+
+
+def test_a_study_on_a_compiled_backend_says_it_compiles_before_its_runs(scene_file, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("numba")
+    interrupt_at_start(monkeypatch, Executor, "map")
+    args = ["study", str(scene_file), "--vary", "grid.cells=8,16", "--t-end", "1e9", "--out", str(tmp_path / "s"),
+            "--backend", "numba", "--workers", "2", "--no-progress"]
+    assert main(args) == 130
+    first = capsys.readouterr().err.splitlines()[0]
+    assert re.fullmatch(r"mpmref study: compiling kernels for this scene \(the first run only: they are cached in "
+                        r".+\)… done in \d+\.\d s", first), first

@@ -16,6 +16,7 @@ Exit status: 0 when every run finished; 1 when a run failed (the others are repo
 value, reference or option (before any run); 130 when interrupted (the finished runs are kept).
 """
 
+import contextlib
 import math
 import shlex
 import sys
@@ -27,6 +28,7 @@ from mpmref.cli import (
     OptionError,
     add_threads_option,
     apply_threads,
+    compiling,
     end_time_option,
     length_line,
     option_value,
@@ -121,7 +123,11 @@ def _announce_length(runs, executor):
     """Print the estimated length of the study's ``runs`` on ``executor`` on standard error: each run's
     (:func:`mpmref.cli.run_length`, the scene as declared: a ``--setup`` function is not called), the local workers
     taking them side by side (a Dask cluster's are counted as one)."""
-    lengths = [n for n in (run_length(r["scene"], r["spec"].backend, r["spec"].t_end) for r in runs) if n is not None]
+    if not runs:
+        return
+    with compiling("mpmref study") if _compiles(runs[0]) else contextlib.nullcontext():
+        lengths = [n for n in (run_length(r["scene"], r["spec"].backend, r["spec"].t_end) for r in runs)
+                   if n is not None]
     if not lengths:
         return
     side_by_side = 1 if executor.scheduler is not None else min(executor.workers, len(lengths))
@@ -132,6 +138,17 @@ def _announce_length(runs, executor):
     wall = max(max(n.seconds for n in lengths), seconds / side_by_side)
     print(length_line("mpmref study", wall, how, "Ctrl-C stops it and keeps the finished runs, which the same "
                       "command reuses"), file=sys.stderr)
+
+
+def _compiles(run):
+    """Whether the backend of ``run`` compiles kernels for its scene (the probe of the runs' length compiles them
+    first, here)."""
+    from mpmref import Simulation
+
+    try:
+        return Simulation(run["scene"], backend=run["spec"].backend).compiles
+    except Exception:  # the probe and the run report it
+        return False
 
 
 def interrupted(stop, argv):
