@@ -65,6 +65,20 @@ def polar_rotation(F):
 
 
 @dataclass(frozen=True)
+class CompiledLaw:
+    """How the compiled backends (Numba, GPU) compute a material, declared next to its reference class (its class
+    attribute ``compiled``): the names of its law's pointwise functions in ``module`` (the three signatures are those
+    of :mod:`mpmref.backends.pointwise.laws`, where the toolkit's own are), and the parameters they read, in order:
+    the material's *parameter row*. ``return_map`` is ``None`` for an elastic material (``plastic`` false)."""
+
+    stress: str
+    wave_speed: str
+    parameters: tuple
+    return_map: str = None
+    module: str = "mpmref.backends.pointwise.laws"
+
+
+@dataclass(frozen=True)
 class Material:
     """What every material declares: its rest density ``rho`` (:math:`\\rho`, so that :math:`m_p = \\rho V_p^0`).
 
@@ -148,6 +162,9 @@ class FixedCorotated(ElasticSolid):
     :math:`J = \det F`, :math:`\mu, \lambda` the Lamé parameters.
     """
 
+    #: the compiled backends' law (:class:`CompiledLaw`)
+    compiled = CompiledLaw("fixed_corotated_stress", "elastic_wave_speed", ("mu", "lam", "rho"))
+
     def energy_density(self, F):
         _, sigma = polar_rotation(F)
         J = np.prod(sigma, axis=1)
@@ -185,6 +202,9 @@ class NeoHookean(ElasticSolid):
 
     :math:`d` is the dimension, :math:`J = \det F > 0`.
     """
+
+    #: the compiled backends' law (:class:`CompiledLaw`)
+    compiled = CompiledLaw("neo_hookean_stress", "elastic_wave_speed", ("mu", "lam", "rho"))
 
     def energy_density(self, F):
         logJ = log_volume_ratio(np.linalg.det(F))
@@ -224,6 +244,8 @@ class WeaklyCompressibleFluid(Material):
     gamma: float = parameter(default=7.0, lo=1.0, hi=20.0)
     tracks = "J"
     hyperelastic = True
+    #: the compiled backends' law (:class:`CompiledLaw`)
+    compiled = CompiledLaw("fluid_stress", "fluid_wave_speed", ("K", "gamma", "rho"))
 
     @classmethod
     def with_wave_speed(cls, rho, c, given):

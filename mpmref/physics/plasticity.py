@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .materials import FixedCorotated, LameParameters, determinant, elastic_wave_speeds, signed_svd
+from .materials import CompiledLaw, FixedCorotated, LameParameters, determinant, elastic_wave_speeds, signed_svd
 from .parameters import parameter
 
 SIGMA_FLOOR = 1.0e-6
@@ -80,6 +80,10 @@ class SnowPlasticity(LameParameters):
     Jp_max: float = parameter(default=20.0, lo=1.0)
     tracks = "F"
     plastic = True
+    #: the compiled backends' law (:class:`~mpmref.physics.materials.CompiledLaw`)
+    compiled = CompiledLaw("snow_stress", "snow_wave_speed",
+                           ("mu", "lam", "rho", "hardening", "theta_c", "theta_s", "Jp_min", "Jp_max"),
+                           return_map="snow_return_map")
 
     def hardening_factor(self, Jp):
         r"""Stiffness multiplier :math:`e^{\xi(1 - J_P)}` of both Lamé parameters."""
@@ -167,6 +171,9 @@ class DruckerPragerSand(LameParameters):
     cohesion: float = parameter(default=0.0, lo=0.0, hi=1.0)
     tracks = "F"
     plastic = True
+    #: the compiled backends' law (:class:`~mpmref.physics.materials.CompiledLaw`)
+    compiled = CompiledLaw("sand_stress", "elastic_wave_speed", ("mu", "lam", "rho", "alpha", "cohesion"),
+                           return_map="sand_return_map")
 
     @property
     def alpha(self):

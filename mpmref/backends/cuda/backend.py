@@ -11,10 +11,10 @@ from ...physics.polypic import higher_modes
 from ...state import GridState, Particles
 from ..base import serial_context, wall_table
 from ..capabilities import Implements
+from ..pointwise.grid import collider_table
+from ..pointwise.laws import laws_of, parameter_table
 from ..residency import Summary, is_device, on_host
-from .grid_update import collider_table
 from .kernels import Config, Kernels
-from .materials import PLASTIC, material_table
 from .particles import CHECKED_FIELDS, summary_size
 from .runtime import device_name, require_device
 from .sort import INDEX, exclusive_scan
@@ -98,9 +98,8 @@ class CudaBackend:
         wall_type, wall_friction = wall_table(scene.boundary, d)
         self.wall_type, self.wall_friction = to(wall_type), to(wall_friction.astype(self.dtype))
         self.colliders = to(collider_table(scene.colliders))
-        rules, params = material_table(scene.material_list, self.dtype)
-        self.rules, self.params = to(rules), to(params)
-        self.plastic = any(r in PLASTIC for r in rules)
+        self.rules, self.params = to(laws_of(scene.material_list)[1]), to(parameter_table(scene.material_list))
+        self.plastic = any(m.plastic for m in scene.material_list)
         modes = higher_modes(d, scene.kernel.support) if scene.transfer.polypic else np.zeros((0, d))
         self.mode_index = to(np.ascontiguousarray(modes, dtype=np.int64))
         self._kept, self._scratch, self._empty = {}, {}, {}
@@ -266,10 +265,9 @@ class CudaBackend:
         force = self._none(0, d) if folded else to(grid_state.force)
         v = self._take("grid_v", (N, d))
         v_tilde = self._none(0, d) if folded else self._take("grid_v_tilde", (N, d))
-        kernel = self.kernels.grid_update_folded if folded else self.kernels.grid_update
-        kernel(N, mass, momentum, force, self.node_shape, float(dt), float(time), self.gravity, self.wall_type,
-               self.wall_friction, int(self.scene.boundary.width), self.colliders, len(self.scene.colliders),
-               self.origin64, self.dx, v, v_tilde)
+        self.kernels.grid_update(N, mass, momentum, force, self.node_shape, float(dt), float(time), self.gravity,
+                                 self.wall_type, self.wall_friction, int(self.scene.boundary.width), self.colliders,
+                                 len(self.scene.colliders), self.origin64, self.dx, v, v_tilde)
         if folded:
             v_tilde = None
         if on_device:
@@ -301,8 +299,8 @@ class CudaBackend:
         return self._result(particles, changes)
 
     def return_map(self, particles):
-        """Plastic projection of the snow and sand particles (:mod:`~mpmref.backends.cuda.materials`; a new state, the
-        others' ``F`` and ``Jp`` copied)."""
+        """Plastic projection of the plastic materials' particles (:mod:`~mpmref.backends.cuda.materials`; a new state,
+        the others' ``F`` and ``Jp`` copied)."""
         if not self.plastic or particles.Jp is None:
             return particles
         p = self.to_device(particles)

@@ -14,9 +14,10 @@ from functools import lru_cache
 import numpy as np
 from numba import types
 
-from .launch import array, kernel_set, real_types, scalar
+from ...physics.kernels import KERNELS
+from ..pointwise.stencil import AXIS, KERNEL_CODES, axis_basis, fraction
+from .launch import array, device, kernel_set, real_types, scalar
 from .runtime import cuda, load
-from .stencil import make_stencil
 
 
 @lru_cache(maxsize=None)
@@ -27,9 +28,8 @@ def g2p_kernel(dtype, dim, kernel, affine, poly, flip, mls_gradient, tracks_F, t
     load()
     T, nb = real_types(dtype)
     D = dim
-    st = make_stencil(dtype, kernel)
-    st_base, st_weight, st_slope, st_axis_basis = st.base, st.weight, st.slope, st.axis_basis
-    S = st.S
+    KERNEL, S = KERNEL_CODES[kernel], KERNELS[kernel].support
+    st_fraction, st_weights, st_axis_basis = device(fraction), device(AXIS[kernel]), device(axis_basis)
     K = S**D
     M = max(K - 1 - D, 1)
     NEED_B = affine or mls_gradient
@@ -47,12 +47,11 @@ def g2p_kernel(dtype, dim, kernel, affine, poly, flip, mls_gradient, tracks_F, t
         w = cuda.local.array((D, S), nb)
         at = cuda.local.array(D, types.int64)
         for a in range(D):
-            xi = (x[p, a] - origin[a]) / h
-            b = st_base(xi)
-            f[a] = xi - T(b)
+            b, f[a] = st_fraction(KERNEL, T, (x[p, a] - origin[a]) / h)
             base[a] = min(max(b, 0), node_shape[a] - S)  # a particle outside the valid region reads no other memory
+            weights = st_weights(T, f[a])[0]
             for k in range(S):
-                w[a, k] = st_weight(f[a], k)
+                w[a, k] = weights[k]
         q = cuda.local.array((D, S, S), nb)
         norm = cuda.local.array((D, S), nb)
         if poly:
@@ -92,7 +91,7 @@ def g2p_kernel(dtype, dim, kernel, affine, poly, flip, mls_gradient, tracks_F, t
                     dv_flip[a] += weight * (vi - v_tilde[node, a])
             if not mls_gradient:
                 for b in range(D):
-                    g[b] = st_slope(f[b], at[b]) / h
+                    g[b] = st_weights(T, f[b])[1][at[b]] / h
                     for c in range(D):
                         if c != b:
                             g[b] = g[b] * w[c, at[c]]

@@ -9,9 +9,9 @@ parameters and the time step are arguments: one compiled kernel serves every gri
 
 from typing import NamedTuple
 
+from ..pointwise.laws import laws_of
 from .g2p import g2p_kernel
 from .grid_update import grid_update_kernel
-from .materials import laws
 from .p2g import p2g_kernels
 from .particles import particle_kernels
 from .sort import sort_kernels
@@ -39,11 +39,11 @@ class Config(NamedTuple):
         t = scene.transfer
         return cls(dtype=scene.dtype.name, dim=scene.dim, kernel=t.kernel, affine=t.affine, poly=t.polypic,
                    flip=t.flip, mls_force=t.mls_force, mls_gradient=t.mls_gradient, tracks_F=t.tracks_F,
-                   tracks_J=t.tracks_J, laws=laws(scene.material_list), colliders=bool(scene.colliders))
+                   tracks_J=t.tracks_J, laws=laws_of(scene.material_list)[0], colliders=bool(scene.colliders))
 
 
 class Kernels:
-    """The kernels of one configuration: the sort, P2G (plain and fused), the grid update (after each), G2P and the
+    """The kernels of one configuration: the sort, P2G (plain and fused), the grid update (after either), G2P and the
     per-particle kernels (stress, return map, summary)."""
 
     def __init__(self, config):
@@ -51,8 +51,7 @@ class Kernels:
         self.sort = sort_kernels(c.dtype, c.dim, c.kernel)
         self.p2g = p2g_kernels(c.dtype, c.dim, c.kernel, c.affine, c.poly, c.mls_force, c.laws, False)
         self.p2g_fused = p2g_kernels(c.dtype, c.dim, c.kernel, c.affine, c.poly, c.mls_force, c.laws, True)
-        self.grid_update = grid_update_kernel(c.dtype, c.dim, False, c.colliders).grid_update
-        self.grid_update_folded = grid_update_kernel(c.dtype, c.dim, True, c.colliders).grid_update
+        self.grid_update = grid_update_kernel(c.dtype, c.dim, c.colliders).grid_update
         self.g2p = g2p_kernel(c.dtype, c.dim, c.kernel, c.affine, c.poly, c.flip, c.mls_gradient, c.tracks_F,
                               c.tracks_J).g2p
         self.particles = particle_kernels(c.dtype, c.dim, c.laws)
@@ -67,8 +66,6 @@ class Kernels:
             out |= {f"{label}.{k}": v for k, v in vars(made).items()
                     if k != "row" and (atomic or k not in ("scatter", "clear"))}
         out["grid_update"] = self.grid_update
-        if fused:
-            out["grid_update_folded"] = self.grid_update_folded
         out["g2p"] = self.g2p
         out |= {f"particles.{k}": v for k, v in vars(self.particles).items()}
         return out

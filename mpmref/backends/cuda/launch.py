@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 from numba import from_dtype, types
 
+from ..pointwise import on_device
 from .runtime import load, simulated
 
 #: threads per block of every launch; the simulator, which runs each thread of a block as a Python thread, gets
@@ -29,6 +30,12 @@ def device_function(fn):
     """``fn`` as a numba-cuda device function, inlined into its callers by NVVM (see above)."""
     cuda = load()
     return (cuda.jit(device=True) if SIMULATED else cuda.jit(device=True, forceinline=True))(fn)
+
+
+def device(function):
+    """The device version of a pointwise function (:func:`mpmref.backends.pointwise.on_device`), made with
+    :func:`device_function`: the same source the Numba backend compiles for the CPU."""
+    return on_device(function, device_function)
 
 
 def array(dtype, ndim):

@@ -22,11 +22,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import types
 
-from .launch import array, device_function, kernel_set, real_types, scalar
+from ...physics.kernels import KERNELS
+from ..pointwise.laws import WORK
+from ..pointwise.stencil import AXIS, KERNEL_CODES, axis_basis, fraction
+from .launch import array, device, device_function, kernel_set, real_types, scalar
 from .materials import make_materials
 from .runtime import cuda, load
 from .sort import INDEX
-from .stencil import make_stencil
 
 
 class Row(NamedTuple):
@@ -61,13 +63,12 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
     """The P2G kernels of one configuration (a namespace of :class:`~.launch.DeviceKernel` ``prelude``, ``gather``
     and ``scatter``, and the :class:`Row` ``row``): particles of ``dtype`` in ``dim`` dimensions, the kernel named
     ``kernel``, an ``affine`` scheme, PolyPIC's modes (``poly``), the MLS or classic force, the material laws
-    ``laws`` (:func:`.materials.laws`), ``fused`` or not."""
+    ``laws`` (:func:`~mpmref.backends.pointwise.laws.laws_of`), ``fused`` or not."""
     load()
     T, nb = real_types(dtype)
     D = dim
-    st = make_stencil(dtype, kernel)
-    st_base, st_weight, st_slope, st_axis_basis = st.base, st.weight, st.slope, st.axis_basis
-    S = st.S
+    KERNEL, S = KERNEL_CODES[kernel], KERNELS[kernel].support
+    st_fraction, st_weights, st_axis_basis = device(fraction), device(AXIS[kernel]), device(axis_basis)
     K = S**D  # nodes of a stencil
     M = K - 1 - D  # PolyPIC's higher modes
     mats = make_materials(dtype, dim, laws)
@@ -93,8 +94,9 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         norm = cuda.local.array((D, S), nb)
         at = cuda.local.array(D, types.int64)
         for a in range(D):
+            weights = st_weights(T, f[a])[0]
             for j in range(S):
-                w[j] = st_weight(f[a], j)
+                w[j] = weights[j]
             st_axis_basis(w, f[a], h, q[a], norm[a])
         for o in range(K):
             digits(o, at)
@@ -117,8 +119,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         h = T(dx)
         f = cuda.local.array(D, nb)
         for a in range(D):
-            xi = (x[p, a] - origin[a]) / h
-            f[a] = xi - T(st_base(xi))
+            f[a] = st_fraction(KERNEL, T, (x[p, a] - origin[a]) / h)[1]
             rows[k, FX + a] = f[a]
         m = mass[p]
         rows[k, MASS] = m
@@ -126,9 +127,9 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
             rows[k, MOM + a] = m * v[p, a]
         tau = cuda.local.array((D, D), nb)
         Fp = cuda.local.array((D, D), nb)
-        law = rules[material[p]]
-        Jv, Jpv = mats_load_state(p, F, J, Jp, law, Fp)
-        mats_stress(law, params[material[p]], Fp, Jv, Jpv, tau)
+        work = cuda.local.array((WORK, D, D), nb)
+        Jv, Jpv = mats_load_state(p, F, J, Jp, Fp)
+        mats_stress(rules[material[p]], params[material[p]], Fp, Jv, Jpv, tau, work)
         scale = -vol0[p] / T(inertia) if mls_force else -vol0[p] * (T(dt) if fused else one)
         for a in range(D):
             for b in range(D):
@@ -152,7 +153,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
         w = one
         for a in range(D):
             fa = rows[k, FX + a]
-            wa[a] = st_weight(fa, at[a])
+            wa[a] = st_weights(T, fa)[0][at[a]]
             d[a] = (T(at[a]) - fa) * h
             w *= wa[a]
         if QF >= 0:
@@ -160,7 +161,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
                 if mls_force:
                     g[a] = w * d[a]
                 else:
-                    g[a] = st_slope(rows[k, FX + a], at[a]) / h
+                    g[a] = st_weights(T, rows[k, FX + a])[1][at[a]] / h
                     for b in range(D):
                         if b != a:
                             g[a] = g[a] * wa[b]
@@ -266,7 +267,7 @@ def p2g_kernels(dtype, dim, kernel, affine, poly, mls_force, laws, fused):
     shape = array(np.int64, 1)
     made = kernel_set(
         prelude=(prelude, (ints, real2, real2, real3, real3, real3, real1, real1, real1, real1, array(np.int32, 1),
-                           array(np.int64, 1), real2, array(np.int64, 2), real1, f64, f64, f64, real2)),
+                           array(np.int64, 1), array(np.float64, 2), array(np.int64, 2), real1, f64, f64, f64, real2)),
         gather=(gather, (ints, ints, real2, shape, f64, real1, real2, real2)),
         scatter=(scatter, (ints, real2, shape, f64, real1, real2, real2)),
         clear=(clear, (real1, real2, real2)))

@@ -13,6 +13,7 @@ import numpy as np
 from numba import types
 
 from ...state import EVOLVING_FIELDS
+from ..pointwise.laws import WORK
 from .launch import BLOCK, array, device_function, kernel_set, real_types
 from .materials import make_materials
 from .runtime import cuda, load
@@ -48,9 +49,9 @@ def particle_kernels(dtype, dim, laws):
             return
         Fp = cuda.local.array((D, D), nb)
         out = cuda.local.array((D, D), nb)
-        law = rules[material[p]]
-        Jv, Jpv = load_state(p, F, J, Jp, law, Fp)
-        mats_stress(law, params[material[p]], Fp, Jv, Jpv, out)
+        work = cuda.local.array((WORK, D, D), nb)
+        Jv, Jpv = load_state(p, F, J, Jp, Fp)
+        mats_stress(rules[material[p]], params[material[p]], Fp, Jv, Jpv, out, work)
         for a in range(D):
             for b in range(D):
                 tau[p, a, b] = out[a, b]
@@ -61,11 +62,11 @@ def particle_kernels(dtype, dim, laws):
         if p >= material.shape[0]:
             return
         Fp = cuda.local.array((D, D), nb)
-        law = rules[material[p]]
+        work = cuda.local.array((WORK, D, D), nb)
         for a in range(D):
             for b in range(D):
                 Fp[a, b] = F[p, a, b]
-        Jp_out[p] = mats_return_map(law, params[material[p]], Fp, Jp[p])
+        Jp_out[p] = mats_return_map(rules[material[p]], params[material[p]], Fp, Jp[p], work)
         for a in range(D):
             for b in range(D):
                 F_out[p, a, b] = Fp[a, b]
@@ -122,9 +123,8 @@ def particle_kernels(dtype, dim, laws):
                 dv = abs(va - float(v_old[p, a]))
                 change = dv if dv > change else change
             Fp = cuda.local.array((D, D), nb)
-            law = rules[material[p]]
-            Jv, Jpv = load_state(p, F, J, Jp, law, Fp)
-            signal = mats_wave_speed(law, params[material[p]], Fp, Jv, Jpv) + math.sqrt(speed2)
+            Jv, Jpv = load_state(p, F, J, Jp, Fp)
+            signal = mats_wave_speed(rules[material[p]], params[material[p]], Fp, Jv, Jpv) + math.sqrt(speed2)
             shared[FLAGS + 2 * D, t] = change if finite(change) else -math.inf
             shared[FLAGS + 2 * D + 1, t] = signal if finite(signal) else -math.inf
         cuda.syncthreads()
@@ -142,7 +142,7 @@ def particle_kernels(dtype, dim, laws):
                 cuda.atomic.max(out, q, shared[q, 0])
 
     real1, real2, real3 = array(dtype, 1), array(dtype, 2), array(dtype, 3)
-    materials = (array(np.int32, 1), array(np.int64, 1), real2)
+    materials = (array(np.int32, 1), array(np.int64, 1), array(np.float64, 2))
     return kernel_set(
         stress=(stress, (real3, real1, real1) + materials + (real3,)),
         return_map=(return_map, (real3, real1) + materials + (real3, real1)),

@@ -24,9 +24,10 @@ from functools import lru_cache
 import numpy as np
 from numba import types
 
-from .launch import BLOCK, array, kernel_set, scalar
+from ...physics.kernels import KERNELS
+from ..pointwise.stencil import KERNEL_CODES, fraction
+from .launch import BLOCK, array, device, kernel_set, scalar
 from .runtime import cuda, load
-from .stencil import make_stencil
 
 INDEX = np.int32
 #: the lower corner of the empty box of cells (larger than any cell index)
@@ -40,9 +41,8 @@ def sort_kernels(dtype, dim, kernel):
     ``scan_blocks`` and ``add_block_offsets``."""
     load()
     T = np.dtype(dtype).type
-    stencil = make_stencil(dtype, kernel)
-    stencil_base = stencil.base
-    S = stencil.S
+    KERNEL, S = KERNEL_CODES[kernel], KERNELS[kernel].support
+    base_of = device(fraction)
     D = dim
     ints = array(INDEX, 1)
 
@@ -61,7 +61,7 @@ def sort_kernels(dtype, dim, kernel):
             key = 0
             fits = True
             for a in range(D):
-                b = stencil_base((x[p, a] - origin[a]) / T(dx))
+                b = base_of(KERNEL, T, (x[p, a] - origin[a]) / T(dx))[0]
                 fits = fits and 0 <= b and b + S <= node_shape[a]
                 key = key * node_shape[a] + b
                 low[a, t] = b

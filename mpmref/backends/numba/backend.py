@@ -6,19 +6,20 @@ import numba
 import numpy as np
 
 from ...physics.interface import N_CLASSES
-from ...physics.materials import WeaklyCompressibleFluid, material_groups
+from ...physics.materials import material_groups
 from ...physics.polypic import higher_modes
 from ...state import GridState
 from ..base import MaterialTable, wall_table
+from ..pointwise.grid import collider_table
+from ..pointwise.laws import parameter_table
 from . import cpic, materials, transfers
 from .blocks import block_keys, colour_classes, counting_sort, slab_colours
 from .buffers import BufferPool
-from .grid_update import block_grid_velocity, grid_velocity
+from .grid_update import block_grid_velocity, collider_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
 from .kicks import class_first_rows, class_totals, node_kicks
 from .rows import NO_ROWS, RowStages
 from .sparse import BlockLayout
-from .stencil import BASE_SHIFT
 from .threads import describe_threads, threads_for
 
 
@@ -31,22 +32,6 @@ def dense_with_classes(state):
 
 def _or_empty(array, dtype, *shape):
     return array if array is not None else np.empty(shape, dtype=dtype)
-
-
-def _stress_adapter(kernel):
-    """A :class:`~mpmref.backends.base.MaterialTable` stress kernel from one of
-    :data:`.materials.MATERIAL_ARRAY_KERNELS`."""
-    def stress(material, particles, idx, tau):
-        n, d = particles.x.shape
-        dtype = particles.x.dtype
-        kernel(material, _or_empty(particles.F, dtype, 0, d, d), _or_empty(particles.J, dtype, 0),
-               _or_empty(particles.Jp, dtype, 0), idx, tau)
-    return stress
-
-
-#: the Numba material kernels in the shape of :class:`~mpmref.backends.base.MaterialTable`
-MATERIAL_KERNELS = {cls: (_stress_adapter(stress), return_map)
-                    for cls, (stress, return_map) in materials.MATERIAL_ARRAY_KERNELS.items()}
 
 
 #: P2G hands out slabs when each of their two colours has at least this many, else single blocks in
@@ -85,8 +70,8 @@ class NumbaBackend(RowStages):
 
     Only what the scene declares is compiled: the transfer kernels for its dimension, kernel, scheme and
     force (:func:`~.transfers.make_p2g`, :func:`~.transfers.make_g2p`), and the stress and return-map
-    kernels of its materials. Level-set colliders are applied with the backend-neutral
-    :meth:`mpmref.physics.colliders.Collider.apply` after the compiled wall projection.
+    kernels of its materials' declared laws (:mod:`.materials`). Walls and level-set colliders are the pointwise
+    ones of :mod:`mpmref.backends.pointwise.grid`, compiled.
 
     The grid is sparse (:mod:`.sparse`): P2G, the grid update and G2P store and visit only the blocks that
     the particles' stencils reach. Node arrays come in two forms. A stage given the ``prepared`` sort of
@@ -105,9 +90,10 @@ class NumbaBackend(RowStages):
         grid = scene.grid
         self.dtype = scene.dtype
         self.transfer = scene.transfer
-        self.fluids_only = all(isinstance(m, WeaklyCompressibleFluid) for m in scene.material_list)
-        self._p2g = transfers.make_p2g(self.transfer, grid.block, self.fluids_only)
-        self._p2g_fused = transfers.make_p2g(self.transfer, grid.block, self.fluids_only, fused=True)
+        #: the one law of J of every material, which P2G computes the stress by (:func:`.transfers.inline_stress_law`)
+        self.stress_law = transfers.inline_stress_law(scene.material_list)
+        self._p2g = transfers.make_p2g(self.transfer, grid.block, self.stress_law)
+        self._p2g_fused = transfers.make_p2g(self.transfer, grid.block, self.stress_law, fused=True)
         self._g2p = transfers.make_g2p(self.transfer, grid.block)
         self.origin = np.asarray(grid.origin, dtype=np.float64)
         self.dx = float(grid.dx)
@@ -116,14 +102,15 @@ class NumbaBackend(RowStages):
         self.node_shape = np.array(grid.node_shape, dtype=np.int64)
         modes = higher_modes(scene.dim, scene.kernel.support) if self.transfer.polypic else np.zeros((0, scene.dim))
         self.mode_index = np.ascontiguousarray(modes, dtype=np.int64)
-        self.shift = BASE_SHIFT[scene.kernel.name]
+        self.shift = scene.kernel.base_shift
         self.block = grid.block
         self.blocks_per_axis = grid.blocks_per_axis
-        self.wall_type, self.wall_friction = wall_table(scene.boundary, scene.dim)
-        self.gravity = np.asarray(scene.gravity, dtype=np.float64)
-        self.materials = MaterialTable(scene.material_list, MATERIAL_KERNELS)
-        self.fluid_params = materials.fluid_parameters(scene.material_list)
-        self.wave_params = materials.wave_parameters(scene.material_list)
+        self.wall_type, wall_friction = wall_table(scene.boundary, scene.dim)
+        self.wall_friction = wall_friction.astype(self.dtype)
+        self.colliders = collider_table(scene.colliders)
+        self.gravity = np.asarray(scene.gravity, dtype=self.dtype)
+        self.materials = MaterialTable(scene.material_list, materials.material_kernels(scene.material_list))
+        self.params = parameter_table(scene.material_list)
         self.buffers = BufferPool(self.dtype)
         self.n_blocks = int(np.prod(grid.blocks_per_axis))
         #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
@@ -172,13 +159,9 @@ class NumbaBackend(RowStages):
         return Blocks(order if rows is None else rows[order], block_start, self.blocks_per_axis, layout, rows)
 
     def wave_speeds(self, particles, idx):
-        """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, in one compiled
-        pass over every material (:func:`.materials.wave_speeds_kernel`)."""
-        d = particles.dim
-        out = np.empty(idx.size)
-        materials.wave_speeds_kernel(self._or_empty(particles.F, 0, d, d), self._or_empty(particles.J, 0),
-                                     self._or_empty(particles.Jp, 0), particles.material, idx, *self.wave_params, out)
-        return out
+        """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, each by its material's
+        law (:func:`.materials.wave_speeds`)."""
+        return materials.wave_speeds(self.materials, particles, idx)
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
@@ -253,7 +236,7 @@ class NumbaBackend(RowStages):
         node (and per class); returns the rows."""
         layout = blocks.layout
         n, d = particles.x.shape
-        if self.fluids_only:
+        if self.stress_law is not None:
             stress = self._or_empty(None, 0, d, d)
         elif blocks.rows is None:
             stress = self.stress(particles)
@@ -267,7 +250,7 @@ class NumbaBackend(RowStages):
         try:
             kernel(particles.x, particles.v, self._or_empty(particles.C, 0, d, d),
                    self._or_empty(particles.modes, 0, 0, d), particles.mass, particles.vol0, stress,
-                   self._or_empty(particles.J, 0), particles.material, self.fluid_params, self.sparse_layout(layout),
+                   self._or_empty(particles.J, 0), particles.material, self.params, self.sparse_layout(layout),
                    self.mode_index, Groups(blocks.order, *blocks.p2g_groups), class_rows, dt, grid)
         finally:
             numba.set_parallel_chunksize(chunk)
@@ -309,10 +292,8 @@ class NumbaBackend(RowStages):
             block_grid_velocity(grid_state.mass, grid_state.momentum, force, dt, self.gravity, self.node_shape,
                                 self.block, layout.blocks, *walls)
         if self.scene.colliders:
-            has_mass = grid_state.mass > 0
             node_x = self.node_x if layout is None else self.origin + layout.node_index * self.dx
-            for collider in self.scene.colliders:
-                v = collider.apply(v, node_x, has_mass, time)
+            collider_velocity(grid_state.mass, node_x, self.colliders, len(self.scene.colliders), float(time), v)
         return v, None if folded else v_tilde
 
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):

@@ -33,8 +33,8 @@ strides of a dense grid.
 
 from typing import Callable, NamedTuple
 
+from ..pointwise.stencil import KERNEL_CODES
 from . import transfers2d, transfers3d
-from .stencil import KERNEL_CODES
 
 
 class DimensionTransfers(NamedTuple):
@@ -43,8 +43,8 @@ class DimensionTransfers(NamedTuple):
 
     Attributes
     ----------
-    p2g_kernel : Callable   ``p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=False)``
-                            -> ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout,
+    p2g_kernel : Callable   ``p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=False)``
+                            -> ``p2g(x, v, C, modes, mass, vol0, stress, J, material, params, layout,
                             mode_index, particle_groups, class_rows, dt, grid)`` (:func:`.transfers2d.p2g_kernel`)
     g2p_kernel : Callable   ``g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK)`` -> ``g2p(x, v, F, J,
                             rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new,
@@ -65,13 +65,22 @@ TRANSFER_KERNELS = {d: DimensionTransfers(m.p2g_kernel, m.g2p_kernel, m.kick_gat
                     for d, m in ((2, transfers2d), (3, transfers3d))}
 
 
-def make_p2g(transfer, block, fluids_only, fused=False):
-    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, for a scene
-    of ``fluids_only`` or one with solids (FLIP, the tracked deformation and which solids are invisible to
-    P2G, so those variants share one compiled kernel), ``fused`` or not (the internal force folded into the
-    momentum); see :func:`.transfers2d.p2g_kernel`."""
+def make_p2g(transfer, block, stress_law, fused=False):
+    """P2G kernel for a :class:`~mpmref.physics.scheme.TransferSpec` on a grid of ``block``-cell blocks, computing the
+    stress by ``stress_law`` (the one law of :math:`J` of a scene's materials, :func:`inline_stress_law`) or reading the
+    stress stage's (``None``: FLIP, the tracked deformation and which solids are invisible to P2G, so those variants
+    share one compiled kernel), ``fused`` or not (the internal force folded into the momentum); see
+    :func:`.transfers2d.p2g_kernel`."""
     return TRANSFER_KERNELS[transfer.dim].p2g_kernel(KERNEL_CODES[transfer.kernel], transfer.support, transfer.affine,
-                                                     transfer.polypic, transfer.mls_force, block, fluids_only, fused)
+                                                     transfer.polypic, transfer.mls_force, block, stress_law, fused)
+
+
+def inline_stress_law(materials):
+    """The law P2G computes the stress by itself: the one law of every material of ``materials`` when it is a law of
+    the volume ratio :math:`J` alone (``tracks == "J"``: a function of one number per particle, cheaper to compute
+    there than to store and read back); ``None`` otherwise (P2G reads the stress stage's)."""
+    laws = {type(m).compiled for m in materials}
+    return laws.pop() if len(laws) == 1 and all(m.tracks == "J" for m in materials) else None
 
 
 def make_g2p(transfer, block):

@@ -13,22 +13,27 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
+from ..pointwise.laws import WORK, functions, law_digest
+from ..pointwise.stencil import axis_basis, kernel_axis
 from .g2p import G2P_CHUNK, deform_particle, gather_modes, move_particle
-from .materials import fluid_stress_into
+from .materials import bound
 from .p2g import p2g_node
 from .source_digest import SOURCE_DIGEST
 from .sparse import block_rows_2d, hops, local_rows
-from .stencil import axis_stencil, kernel_axis, offsets, polypic_axis_basis, scaled
+from .stencil import axis_stencil, offsets, scaled
 from .tuple_math import add_outer, axpy, cross, matrix, row, scaled_row, zeros, zeros2
+
+#: the law by which P2G computes the stress where it does: each kernel reads its own (:func:`.materials.bound`)
+law_stress = None
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=False):
+def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=False):
     r"""P2G kernel: node mass, momentum and internal force (Hu et al. 2018 Eq. 18; see
     :func:`mpmref.backends.numpy.transfers.p2g` for the equations).
 
-    The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout,
-    mode_index, particle_groups, class_rows, dt, grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per
+    The returned function ``p2g(x, v, C, modes, mass, vol0, stress, J, material, params, layout, mode_index,
+    particle_groups, class_rows, dt, grid)`` adds into the zeroed ``grid`` (rows, 1 + 2d), one row per
     node of the active blocks of a :class:`~.sparse.BlockLayout` (``layout`` a
     :class:`~.kernel_args.SparseLayout`: ``origin``, ``dx``, ``inertia``, ``slot_of`` the block-pointer table,
     ``table_strides`` the table's strides; rows located by :func:`~.sparse.block_rows_2d`):
@@ -37,11 +42,11 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
     the colours of :mod:`.blocks` (run it with a parallel chunk size of 1: groups hold unequal numbers of
     particles, so they are handed to the threads one at a time). Per particle it first computes what every
     node of its stencil shares, once: the Kirchhoff stress :math:`\tau_p` (read from ``stress``, the stress
-    stage's (n, d, d) output; with ``FLUIDS_ONLY``, every material of the scene is a weakly compressible
-    fluid, ``stress`` is empty, and the stress, a function of :math:`J_p` alone, is computed here with the
-    stress stage's own :func:`~mpmref.backends.numba.materials.fluid_stress_into` and the parameters
-    ``fluid_params[material[p]]``, cheaper than storing it and reading it back; the solids' laws stay out of
-    this kernel, which is why one compiled P2G serves every scene with solids), the force matrix
+    stage's (n, d, d) output; with ``STRESS_LAW``, the one law of every material of the scene, a law of :math:`J`
+    alone (a :class:`~mpmref.physics.materials.CompiledLaw`, the fluid's in the examples), ``stress`` is empty and
+    the stress is computed here by that law's pointwise function with the parameter rows ``params[material[p]]``,
+    cheaper than storing it and reading it back; the solids' laws stay out of this kernel, which is why one
+    compiled P2G serves every scene with solids), the force matrix
     :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine momentum
     :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets :math:`x_i - x_p` and
     (classic) weight derivatives. Per node it then forms only products: :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)`
@@ -64,10 +69,12 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
     SOURCES = SOURCE_DIGEST
     N = BLOCK**2  # nodes (rows) per block
 
-    @njit(parallel=True, cache=True, fastmath={"contract"})
-    def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout, mode_index, particle_groups,
+    FLUIDS_ONLY = bool(STRESS_LAW)  # a law, or none
+    LAW = law_digest(STRESS_LAW) if FLUIDS_ONLY else ""
+
+    def p2g(x, v, C, modes, mass, vol0, stress, J, material, params, layout, mode_index, particle_groups,
             class_rows, dt, grid):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
+        SOURCES, LAW  # noqa: B018 - closure constants: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         order, group_start, groups, colour_start = particle_groups
         inv_dx = 1.0 / dx
@@ -77,6 +84,7 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
             for si in prange(colour_start[colour + 1] - first):
                 group = groups[first + si]
                 fluid_tau = np.empty((2, 2), grid.dtype)  # one allocation per group
+                work = np.empty((WORK if FLUIDS_ONLY else 0, 2, 2), grid.dtype)
                 folded = np.empty((2, 2), grid.dtype)
                 q = np.empty((2 if POLY else 0, S, S))
                 qnorm = np.empty((2 if POLY else 0, S))
@@ -86,8 +94,7 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
                     p = order[k]
                     shift = class_rows[p] if class_rows.shape[0] > 0 else 0  # the particle's class's rows
                     if FLUIDS_ONLY:  # a closure constant: the other branch is not compiled
-                        prm = fluid_params[material[p]]
-                        fluid_stress_into(J[p], prm[0], prm[1], fluid_tau)
+                        law_stress(params[material[p]], fluid_tau, J[p], real(1.0), fluid_tau, work)
                         tau = fluid_tau
                     else:
                         tau = stress[p]
@@ -115,7 +122,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
                         fx_arr[0], fx_arr[1] = f0, f1
-                        polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
+                        for a in range(2):
+                            axis_basis(w_arr[a], fx_arr[a], dx, q[a], qnorm[a])
                     for i in range(S):
                         row_i = (k1 if c0[i] else k0) + r0[i] + shift
                         for j in range(S):
@@ -125,7 +133,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
                             p2g_node(grid, row_i + r1[j], w, d, fw, (i, j), m, mv, mC, Q, p, modes, q, mode_index,
                                      AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
 
-    return p2g
+    return njit(parallel=True, cache=True, fastmath={"contract"})(
+        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None))
 
 
 @lru_cache(maxsize=None)
@@ -186,7 +195,8 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                     for j in range(S):
                         w_arr[0, j], w_arr[1, j] = w0[j], w1[j]
                     fx_arr[0], fx_arr[1] = f0, f1
-                    polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
+                    for a in range(2):
+                        axis_basis(w_arr[a], fx_arr[a], dx, q[a], qnorm[a])
                 for i in range(S):
                     row_i = (k1 if c0[i] else k0) + r0[i]
                     for j in range(S):
@@ -243,8 +253,8 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             first = kick_rows[k]
             if first < 0:
                 continue
-            b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-            b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+            b0, f0, w0, _ = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+            b1, f1, w1, _ = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
             k0, k1 = block_rows_2d(b0, b1, slot_of, table_strides, BLOCK)
             s0, s1 = (first + k0) // N, (first + k1) // N  # the blocks the stencil reaches: these and the next
             if not (kicked[s0] or kicked[s0 + 1] or kicked[s1] or kicked[s1 + 1]):

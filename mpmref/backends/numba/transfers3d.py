@@ -12,17 +12,22 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
+from ..pointwise.laws import WORK, functions, law_digest
+from ..pointwise.stencil import axis_basis, kernel_axis
 from .g2p import G2P_CHUNK, deform_particle, gather_modes, move_particle
-from .materials import fluid_stress_into
+from .materials import bound
 from .p2g import p2g_node
 from .source_digest import SOURCE_DIGEST
 from .sparse import block_rows_3d, hops, local_rows
-from .stencil import axis_stencil, kernel_axis, offsets, polypic_axis_basis, scaled
+from .stencil import axis_stencil, offsets, scaled
 from .tuple_math import add_outer, axpy, cross, matrix, row, scaled_row, zeros, zeros2
+
+#: the law by which P2G computes the stress where it does: each kernel reads its own (:func:`.materials.bound`)
+law_stress = None
 
 
 @lru_cache(maxsize=None)
-def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=False):
+def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=False):
     r"""P2G kernel in 3D: node mass, momentum and internal force (Hu et al. 2018 Eq. 18), as the 2D
     :func:`~.transfers2d.p2g_kernel` (same arguments, same per-particle and per-node arithmetic) over the
     :math:`S^3` nodes of each particle's stencil, in the order ``(i, j, l)`` of the axes.
@@ -32,10 +37,12 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
     SOURCES = SOURCE_DIGEST
     N = BLOCK**3  # nodes (rows) per block
 
-    @njit(parallel=True, cache=True, fastmath={"contract"})
-    def p2g(x, v, C, modes, mass, vol0, stress, J, material, fluid_params, layout, mode_index, particle_groups,
+    FLUIDS_ONLY = bool(STRESS_LAW)  # a law, or none
+    LAW = law_digest(STRESS_LAW) if FLUIDS_ONLY else ""
+
+    def p2g(x, v, C, modes, mass, vol0, stress, J, material, params, layout, mode_index, particle_groups,
             class_rows, dt, grid):
-        SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
+        SOURCES, LAW  # noqa: B018 - closure constants: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
         order, group_start, groups, colour_start = particle_groups
         inv_dx = 1.0 / dx
@@ -45,6 +52,7 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
             for si in prange(colour_start[colour + 1] - first):
                 group = groups[first + si]
                 fluid_tau = np.empty((3, 3), grid.dtype)  # one allocation per group
+                work = np.empty((WORK if FLUIDS_ONLY else 0, 3, 3), grid.dtype)
                 folded = np.empty((3, 3), grid.dtype)
                 q = np.empty((3 if POLY else 0, S, S))
                 qnorm = np.empty((3 if POLY else 0, S))
@@ -54,8 +62,7 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
                     p = order[k]
                     shift = class_rows[p] if class_rows.shape[0] > 0 else 0  # the particle's class's rows
                     if FLUIDS_ONLY:  # a closure constant: the other branch is not compiled
-                        prm = fluid_params[material[p]]
-                        fluid_stress_into(J[p], prm[0], prm[1], fluid_tau)
+                        law_stress(params[material[p]], fluid_tau, J[p], real(1.0), fluid_tau, work)
                         tau = fluid_tau
                     else:
                         tau = stress[p]
@@ -85,7 +92,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
                         for j in range(S):
                             w_arr[0, j], w_arr[1, j], w_arr[2, j] = w0[j], w1[j], w2[j]
                         fx_arr[0], fx_arr[1], fx_arr[2] = f0, f1, f2
-                        polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
+                        for a in range(3):
+                            axis_basis(w_arr[a], fx_arr[a], dx, q[a], qnorm[a])
                     for i in range(S):
                         ka, kb = (k10, k11) if c0[i] else (k00, k01)
                         for j in range(S):
@@ -101,7 +109,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, FLUIDS_ONLY, FUSED=Fal
                                 p2g_node(grid, row_ij + r2[l], w, d, fw, (i, j, l), m, mv, mC, Q, p, modes, q,
                                          mode_index, AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
 
-    return p2g
+    return njit(parallel=True, cache=True, fastmath={"contract"})(
+        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None))
 
 
 @lru_cache(maxsize=None)
@@ -147,7 +156,8 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
                     for j in range(S):
                         w_arr[0, j], w_arr[1, j], w_arr[2, j] = w0[j], w1[j], w2[j]
                     fx_arr[0], fx_arr[1], fx_arr[2] = f0, f1, f2
-                    polypic_axis_basis(w_arr, fx_arr, dx, q, qnorm)
+                    for a in range(3):
+                        axis_basis(w_arr[a], fx_arr[a], dx, q[a], qnorm[a])
                 for i in range(S):
                     ka, kb = (k10, k11) if c0[i] else (k00, k01)
                     for j in range(S):
@@ -198,9 +208,9 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
             first = kick_rows[k]
             if first < 0:
                 continue
-            b0, f0, w0, _ = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-            b1, f1, w1, _ = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-            b2, f2, w2, _ = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
+            b0, f0, w0, _ = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+            b1, f1, w1, _ = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
+            b2, f2, w2, _ = kernel_axis(KERNEL, np.float64, (x[p, 2] - origin[2]) / dx)
             k00, k01, k10, k11 = block_rows_3d(b0, b1, b2, slot_of, table_strides, BLOCK)
             reached = False  # whether a block the stencil reaches (these four and the next along z) has a kick
             for start in (k00, k01, k10, k11):

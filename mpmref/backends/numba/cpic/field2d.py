@@ -12,8 +12,8 @@ from numba import njit, prange
 from ....physics.cdf import DET_THRESHOLD_2D, EDGE_MARGIN, NORMAL_THRESHOLD, ColoredDistanceField
 from ....rigid.dynamics import current_shapes
 from ....rigid.polyline import surface_samples
+from ...pointwise.stencil import QUADRATIC, kernel_axis
 from ..source_digest import SOURCE_DIGEST
-from ..stencil import kernel_axis, quadratic_axis
 from .common import (
     add_pair,
     add_side_sums,
@@ -89,8 +89,8 @@ def rasterise(x, seg, start, seg_a, seg_b, origin, dx, shape, d, nearest, A, T, 
         for k in range(9):
             oi, oj = k // 3, k % 3
             for s in range(start[r], start[r + 1]):
-                b0, f0, w0, dw0 = quadratic_axis((x[s, 0] - origin[0]) / dx)
-                b1, f1, w1, dw1 = quadratic_axis((x[s, 1] - origin[1]) / dx)
+                b0, f0, w0, dw0 = kernel_axis(QUADRATIC, np.float64, (x[s, 0] - origin[0]) / dx)
+                b1, f1, w1, dw1 = kernel_axis(QUADRATIC, np.float64, (x[s, 1] - origin[1]) / dx)
                 i0, i1 = b0 + oi, b1 + oj
                 if i0 < 0 or i1 < 0 or i0 >= shape[0] or i1 >= shape[1]:
                     continue
@@ -150,8 +150,8 @@ def tag_kernel(KERNEL, S, PER_BODY):
                 p = order[q]
                 if tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
                                 near_r, S0, S1, M, rhs):
-                    b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                    b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                    b0, f0, w0, dw0 = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+                    b1, f1, w1, dw1 = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
                     incompatible[p] = incompatibility_mask(p, b0, b1, S, strides, A, T, A_new, T_new)
                     if PER_BODY:  # a closure constant: the per-body fits compile only where asked for
                         per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_new, T_new, fit_phi, fit_normal,
@@ -204,8 +204,8 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
     :math:`|\det M| > 3\cdot 10^{-3}`, then :math:`\phi_p = c\,\Delta x` and :math:`\mathbf n_p = \mathbf n/|\mathbf n|`
     (0 if :math:`|\mathbf n|^2 \le 10^{-4}`). Hu et al. 2018 §4; docs/cpic.md.
     """
-    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
-    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
+    b0, f0, w0, dw0 = kernel_axis(QUADRATIC, np.float64, (x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = kernel_axis(QUADRATIC, np.float64, (x[p, 1] - origin[1]) / dx)
     if not in_band(b0, b1, shape, d):  # far from every body: no tags (the common case, kept cheap)
         return False
     near_r[:] = False
@@ -310,8 +310,8 @@ def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_
     :math:`\mathbf n_{pr}` and ``fit_near[p, r]`` (``M``, ``rhs``: scratch)."""
     if not tagged_by_several(p, A_p):
         return
-    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
-    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
+    b0, f0, w0, dw0 = kernel_axis(QUADRATIC, np.float64, (x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = kernel_axis(QUADRATIC, np.float64, (x[p, 1] - origin[1]) / dx)
     for r in range(A_p.shape[1]):
         if not A_p[p, r]:
             continue

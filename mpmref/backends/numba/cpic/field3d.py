@@ -11,8 +11,8 @@ from numba import njit, prange
 from ....physics.cdf import BARYCENTRIC_TOLERANCE, DET_THRESHOLD_3D, NORMAL_THRESHOLD, ColoredDistanceField
 from ....rigid.dynamics import current_shapes
 from ....rigid.trimesh import surface_samples
+from ...pointwise.stencil import QUADRATIC, kernel_axis
 from ..source_digest import SOURCE_DIGEST
-from ..stencil import kernel_axis, quadratic_axis
 from .common import (
     add_pair,
     add_side_sums,
@@ -89,7 +89,7 @@ def rasterise(x, tri, start, a, e1, e2, normal, origin, dx, shape, d, nearest, A
     base = np.empty((x.shape[0], 3), dtype=np.int64)  # each sample's stencil base node, computed once
     for s in range(x.shape[0]):
         for axis in range(3):
-            base[s, axis] = quadratic_axis((x[s, axis] - origin[axis]) / dx)[0]
+            base[s, axis] = kernel_axis(QUADRATIC, np.float64, (x[s, axis] - origin[axis]) / dx)[0]
     gram = np.empty((a.shape[0], 4))  # per triangle: g11, g12, g22 and the determinant g11 g22 - g12^2
     for t in range(a.shape[0]):
         g11 = e1[t, 0] * e1[t, 0] + e1[t, 1] * e1[t, 1] + e1[t, 2] * e1[t, 2]
@@ -154,9 +154,9 @@ def tag_kernel(KERNEL, S, PER_BODY):
                 p = order[q]
                 if tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, phi, normal, near,
                                 near_r, S0, S1, M, rhs):
-                    b0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)[0]
-                    b1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)[0]
-                    b2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)[0]
+                    b0 = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)[0]
+                    b1 = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)[0]
+                    b2 = kernel_axis(KERNEL, np.float64, (x[p, 2] - origin[2]) / dx)[0]
                     incompatible[p] = incompatibility_mask(p, b0, b1, b2, S, strides, A, T, A_new, T_new)
                     if PER_BODY:  # a closure constant: the per-body fits compile only where asked for
                         per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_new, T_new, fit_phi, fit_normal,
@@ -205,9 +205,9 @@ def tag_particle(p, x, origin, dx, shape, d, A, T, tag_A, tag_T, A_new, T_new, p
     :func:`mpmref.backends.numba.cpic.field2d.tag_particle`: sticky tags,
     :math:`S_s = \sum_{i: A_{ir} = 1, T_{ir} = s} w_{ip} d_i`, then :func:`reconstruct_particle`); returns whether it is
     tagged. Hu et al. 2018 §4; docs/cpic.md."""
-    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
-    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
-    b2, f2, w2, dw2 = quadratic_axis((x[p, 2] - origin[2]) / dx)
+    b0, f0, w0, dw0 = kernel_axis(QUADRATIC, np.float64, (x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = kernel_axis(QUADRATIC, np.float64, (x[p, 1] - origin[1]) / dx)
+    b2, f2, w2, dw2 = kernel_axis(QUADRATIC, np.float64, (x[p, 2] - origin[2]) / dx)
     band = False
     for k in range(27):
         flat = stencil_node(b0, b1, b2, k, shape)
@@ -294,9 +294,9 @@ def per_body_fits(p, x, origin, dx, shape, d_body, A, T, A_p, T_p, fit_phi, fit_
     :math:`\mathbf n_{pr}` and ``fit_near[p, r]`` (``M``, ``rhs``: scratch)."""
     if not tagged_by_several(p, A_p):
         return
-    b0, f0, w0, dw0 = quadratic_axis((x[p, 0] - origin[0]) / dx)
-    b1, f1, w1, dw1 = quadratic_axis((x[p, 1] - origin[1]) / dx)
-    b2, f2, w2, dw2 = quadratic_axis((x[p, 2] - origin[2]) / dx)
+    b0, f0, w0, dw0 = kernel_axis(QUADRATIC, np.float64, (x[p, 0] - origin[0]) / dx)
+    b1, f1, w1, dw1 = kernel_axis(QUADRATIC, np.float64, (x[p, 1] - origin[1]) / dx)
+    b2, f2, w2, dw2 = kernel_axis(QUADRATIC, np.float64, (x[p, 2] - origin[2]) / dx)
     for r in range(A_p.shape[1]):
         if not A_p[p, r]:
             continue

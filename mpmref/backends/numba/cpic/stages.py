@@ -11,6 +11,7 @@ from numba import njit
 from ....physics.cdf import ColoredDistanceField
 from ....rigid.dynamics import initial_state
 from ....state import GridState
+from ...pointwise.stencil import KERNEL_CODES
 from ..kernel_args import (
     Bodies,
     BodyFits,
@@ -22,7 +23,6 @@ from ..kernel_args import (
     NodeField,
     SideTags,
 )
-from ..stencil import KERNEL_CODES
 from . import field2d, field3d, transfer2d, transfer3d
 
 

@@ -8,8 +8,8 @@ import numpy as np
 from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
+from ...pointwise.stencil import kernel_axis
 from ..source_digest import SOURCE_DIGEST
-from ..stencil import kernel_axis
 from .common import crossed_body, tagged_by_several
 
 
@@ -125,8 +125,8 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
                     m = mass[p]
                     s00, s01 = vol0[p] * tau[p, 0, 0], vol0[p] * tau[p, 0, 1]
                     s10, s11 = vol0[p] * tau[p, 1, 0], vol0[p] * tau[p, 1, 1]
-                    b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                    b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                    b0, f0, w0, dw0 = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+                    b1, f1, w1, dw1 = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
                     base = b0 * strides[0] + b1 * strides[1]
                     inc = incompatible[p]
                     for i in range(S):
@@ -245,8 +245,8 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
             block = blocks[bi]
             for q in range(block_start[block], block_start[block + 1]):
                 p = order[q]
-                b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
+                b0, f0, w0, dw0 = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+                b1, f1, w1, dw1 = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
                 base = b0 * strides[0] + b1 * strides[1]
                 inc = incompatible[p]
                 vp0, vp1 = 0.0, 0.0

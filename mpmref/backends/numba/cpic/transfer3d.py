@@ -9,8 +9,8 @@ import numpy as np
 from numba import njit, prange
 
 from ....physics.cdf import PENALTY_WINDOW
+from ...pointwise.stencil import kernel_axis
 from ..source_digest import SOURCE_DIGEST
-from ..stencil import kernel_axis
 from .common import crossed_body, tagged_by_several
 
 
@@ -132,9 +132,9 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
                 for q in range(block_start[block], block_start[block + 1]):
                     p = order[q]
                     m = mass[p]
-                    b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                    b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-                    b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
+                    b0, f0, w0, dw0 = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+                    b1, f1, w1, dw1 = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
+                    b2, f2, w2, dw2 = kernel_axis(KERNEL, np.float64, (x[p, 2] - origin[2]) / dx)
                     base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
                     inc = incompatible[p]
                     vs = (v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], v[p, 2] + gravity_dv[2])
@@ -233,9 +233,9 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
             vp, B, G, vi = np.empty(3), np.empty((3, 3)), np.empty((3, 3)), np.empty(3)
             for q in range(block_start[block], block_start[block + 1]):
                 p = order[q]
-                b0, f0, w0, dw0 = kernel_axis(KERNEL, (x[p, 0] - origin[0]) / dx)
-                b1, f1, w1, dw1 = kernel_axis(KERNEL, (x[p, 1] - origin[1]) / dx)
-                b2, f2, w2, dw2 = kernel_axis(KERNEL, (x[p, 2] - origin[2]) / dx)
+                b0, f0, w0, dw0 = kernel_axis(KERNEL, np.float64, (x[p, 0] - origin[0]) / dx)
+                b1, f1, w1, dw1 = kernel_axis(KERNEL, np.float64, (x[p, 1] - origin[1]) / dx)
+                b2, f2, w2, dw2 = kernel_axis(KERNEL, np.float64, (x[p, 2] - origin[2]) / dx)
                 base = b0 * strides[0] + b1 * strides[1] + b2 * strides[2]
                 inc = incompatible[p]
                 vs = (v[p, 0] + gravity_dv[0], v[p, 1] + gravity_dv[1], v[p, 2] + gravity_dv[2])
