@@ -165,9 +165,9 @@ def test_numba_and_numpy_output_pass_and_the_report_is_written(drop, tmp_path):
     path, folder = drop
     scene = Scene.from_toml(path)
     own = compare(scene, folder / "numba" / "particles.pvd", members=7, executor=Executor(workers=1))
-    assert own.passed and own.deviations.max() == 0.0  # the control is the same code: the same bits
+    assert own.passed and own.measures.deviations.max() == 0.0  # the control is the same code: the same bits
     numpy = compare(scene, folder / "numpy", members=7, executor=Executor(workers=2))
-    assert numpy.passed and 0.0 < numpy.deviations.max() <= PARTICLE_FACTOR * numpy.spreads.max()
+    assert numpy.passed and 0.0 < numpy.measures.deviations.max() <= PARTICLE_FACTOR * numpy.measures.spreads.max()
     assert {v.phase for v in numpy.verdicts} == {"round-off"} and len(numpy.frames) == 7
     index = write_report(numpy, tmp_path)
     result = json.loads((tmp_path / "results.json").read_text())
@@ -177,7 +177,7 @@ def test_numba_and_numpy_output_pass_and_the_report_is_written(drop, tmp_path):
     for name in ("deviation.png", "test.png", "statistics_jelly.png", "statistics_water.png"):
         assert (tmp_path / name).stat().st_size > 1000
     mesh = meshio.read(tmp_path / "deviation_000120.vtu")
-    assert np.allclose(np.ravel(mesh.point_data["deviation"]), numpy.particle_deviation[-1])
+    assert np.allclose(np.ravel(mesh.point_data["deviation"]), numpy.measures.particle_deviation[-1])
 
 
 def test_a_code_that_departs_at_a_frame_is_named_there(drop, tmp_path):
@@ -204,7 +204,7 @@ def test_three_dimensional_output_of_the_numba_backend_passes(tmp_path):
     path.write_text(scene_text(3).replace("steps = 120", "steps = 40"))
     assert main(["run", str(path), "--out", str(tmp_path / "run"), "--backend", "numba", "--no-progress"]) == 0
     result = compare(Scene.from_toml(path), tmp_path / "run", members=7, executor=Executor(workers=1))
-    assert result.passed and "water:angular_momentum_z" in result.names and len(result.frames) == 3
+    assert result.passed and "water:angular_momentum_z" in result.measures.names and len(result.frames) == 3
 
 
 def test_command_line_refuses_a_bad_frame_and_too_small_an_ensemble(drop, tmp_path, capsys):

@@ -26,23 +26,17 @@ STEP_SLACK = 0.25
 
 @dataclass
 class Comparison:
-    """Everything ``mpmref compare`` found: the scene in the code's precision, the frames, the ensemble's and the
-    code's statistics, the particle distances and the verdict of each frame (:class:`~.verdict.FrameVerdict`)."""
+    """Everything ``mpmref compare`` found: the scene in the code's precision, the frames, what the verdict is made of
+    (``measures``, a :class:`Measures`: the statistics, their round-off floors, the particle distances) and the
+    verdict of each frame (:class:`~.verdict.FrameVerdict`)."""
 
     scene: object
     frames: list
     backend: str
     members: int
     seed: int
-    names: list
-    samples: np.ndarray  # (frames, members + 1, statistics)
-    code: np.ndarray  # (frames, statistics)
-    spreads: np.ndarray  # (frames,)
-    deviations: np.ndarray  # (frames,)
-    particle_spread: np.ndarray = field(repr=False)  # (frames, n): each particle's largest member distance
-    particle_deviation: np.ndarray = field(repr=False)  # (frames, n): each particle's code distance
+    measures: object = field(repr=False)
     verdicts: list = field(default_factory=list)
-    roundoff_limit: float = 0.0
     wall_s: float = 0.0
     where: str = ""
 
@@ -240,8 +234,7 @@ def judged(scene, frames, ensemble, backend, members, seed, wall=0.0):
     """The :class:`Comparison` of the code's ``frames`` with an :class:`Ensemble` of ``scene`` run to their stops."""
     m = measured(scene, frames, ensemble)
     verdicts = judge(frame_labels(scene, frames), m)
-    return Comparison(scene, frames, backend, members, seed, m.names, m.samples, m.code, m.spreads, m.deviations,
-                      m.particle_spread, m.particle_deviation, verdicts, m.roundoff_limit, wall, ensemble.where)
+    return Comparison(scene, frames, backend, members, seed, m, verdicts, wall, ensemble.where)
 
 
 def describe_method(comparison):
@@ -249,4 +242,4 @@ def describe_method(comparison):
     c = comparison
     return (f"ensemble of {c.members} members and the control, run by the {c.backend} backend in {c.dtype.name}, "
             f"initial positions perturbed by up to {PERTURBATION_ULPS:g} eps (relative; seed {c.seed}); "
-            f"round-off phase while the ensemble's spread <= {c.roundoff_limit:.3g} ({ROUNDOFF_ULPS:g} eps L)")
+            f"round-off phase while the ensemble's spread <= {c.measures.roundoff_limit:.3g} ({ROUNDOFF_ULPS:g} eps L)")

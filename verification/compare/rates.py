@@ -10,7 +10,8 @@ ensembles of that seed (float64 and float32, the Numba backend):
 * the outside program with each planted bug (float64), which must fail.
 
 It writes ``DIR/rates.json`` and ``DIR/rates.md`` (the table docs/comparing_runs.md quotes), and keeps each verdict's
-measures in ``DIR/seed_<s>/measures.pkl`` so that ``--rejudge`` reads the verdicts again without running anything.
+measures in ``DIR/seed_<s>/measures.pkl``: a seed already there is judged again from them, not run again (a stopped
+measurement resumes), and ``--rejudge`` runs nothing.
 """
 
 import argparse
@@ -154,11 +155,11 @@ def main(argv=None):
     executor, started, by_seed = Executor(workers=args.workers), time.perf_counter(), {}
     for seed in range(1, args.seeds + 1):
         folder = args.out / f"seed_{seed}"
-        if args.rejudge:
+        if args.rejudge or (folder / "measures.pkl").is_file():  # judged again, or a seed an earlier run finished
             kept = pickle.loads((folder / "measures.pkl").read_bytes())
-            records = json.loads((folder / "refused.json").read_text())
-            by_seed[seed] = {**records, **{name: verdict_record(rejudged(*kept[name]), CODES[name][2])
-                                           for name in kept}}
+            records = {**json.loads((folder / "refused.json").read_text()),
+                       **{name: verdict_record(rejudged(*kept[name]), CODES[name][2]) for name in kept}}
+            by_seed[seed] = {name: records[name] for name in CODES}
         else:
             by_seed[seed] = one_seed(seed, args.members, executor, folder)
         print(f"seed {seed}: " + "; ".join(f"{k} {'pass' if r['passed'] else 'FAIL ' + r['first']['label']}"

@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.ticker import SymmetricalLogLocator
 
 from mpmref.io.atomic import write_text_atomic
 from mpmref.io.vtk import write_particles_vtu
@@ -47,8 +48,8 @@ def judged_frame(comparison):
 
 def departure(comparison, index):
     """The particles that moved most from the control at frame ``index``: ``[{id, x, deviation, ensemble_spread}]``."""
-    deviation = comparison.particle_deviation[index]
-    spread = comparison.particle_spread[index]
+    m = comparison.measures
+    deviation, spread = m.particle_deviation[index], m.particle_spread[index]
     order = np.argsort(-deviation, kind="stable")[:TOP_PARTICLES]
     x = comparison.frames[index].x
     return [{"id": int(i), "x": x[i].tolist(), "deviation": float(deviation[i]), "ensemble_spread": float(spread[i])}
@@ -92,26 +93,33 @@ def results(comparison, files):
         "materials": failure.materials(), "particles": departure(c, failure.index)}
     return {"passed": c.passed, "summary": summary(c), "first_failure": first, "scene": c.scene.name,
             "dtype": c.dtype.name, "backend": c.backend, "members": c.members, "seed": c.seed, "alpha": ALPHA,
-            "particle_factor": PARTICLE_FACTOR, "roundoff_limit": c.roundoff_limit, "method": describe_method(c),
-            "wall_s": c.wall_s, "ran_on": c.where, "statistics": c.names,
+            "particle_factor": PARTICLE_FACTOR, "roundoff_limit": c.measures.roundoff_limit,
+            "method": describe_method(c), "wall_s": c.wall_s, "ran_on": c.where, "statistics": c.measures.names,
             "frames_read": [str(f.path) for f in c.frames], "frames": frame_rows(c), "files": files}
+
+
+def _positive(values):
+    """``values`` with the zeros (a run equal to the control, to the bit) left out of a log plot."""
+    values = np.asarray(values, dtype=np.float64)
+    return np.where(values > 0.0, values, np.nan)
 
 
 def deviation_figure(comparison, path):
     plt = pyplot()
     t = times(comparison)
+    m = comparison.measures
     fig, ax = plt.subplots(figsize=(7, 3.6))
-    tiny = np.finfo(np.float64).tiny
-    ax.semilogy(t, np.maximum(comparison.spreads, tiny), "o-", color="tab:gray", label="ensemble spread")
-    ax.semilogy(t, np.maximum(comparison.deviations, tiny), "s-", color="tab:red", label="code's deviation")
-    ax.axhline(comparison.roundoff_limit, ls="--", color="k", lw=1, label="round-off limit")
+    ax.semilogy(t, _positive(m.spreads), "o-", color="tab:gray", label="ensemble spread")
+    ax.semilogy(t, _positive(m.deviations), "s-", color="tab:red", label="code's deviation")
+    ax.axhline(m.roundoff_limit, ls="--", color="k", lw=1, label="round-off limit")
     _mark_failure(ax, comparison, t)
     ax.set_xlabel("time")
     ax.set_ylabel("largest particle distance from the control")
     ax.legend(fontsize=8)
     return save_figure(fig, path, "The code's largest particle distance from the control and the ensemble's, against "
-                       "time: while the ensemble's is below the round-off limit, the code's must stay within "
-                       f"{PARTICLE_FACTOR:g} times it.")
+                       "time (a frame where the code equals the control to the bit is left out): while the "
+                       f"ensemble's is below the round-off limit, the code's must stay within {PARTICLE_FACTOR:g} "
+                       "times it.")
 
 
 def _mark_failure(ax, comparison, t):
@@ -139,27 +147,34 @@ def test_figure(comparison, path):
 
 
 def statistics_figures(comparison, folder):
-    """One figure per material: each statistic against time, the ensemble's band (min to max) and the code's line."""
+    """One figure per material: each statistic's departure from the ensemble's mean against time, the members' band
+    (smallest to largest) and the code's line, on a scale linear within the statistic's round-off floor and
+    logarithmic beyond (departures of round-off and of a bug both show)."""
     plt = pyplot()
     t = times(comparison)
+    m = comparison.measures
+    mean = m.samples.mean(axis=1)
     paths = []
-    for material in dict.fromkeys(name.split(":")[0] for name in comparison.names):
-        columns = [j for j, name in enumerate(comparison.names) if name.startswith(material + ":")]
+    for material in dict.fromkeys(name.split(":")[0] for name in m.names):
+        columns = [j for j, name in enumerate(m.names) if name.startswith(material + ":")]
         rows = math.ceil(len(columns) / COLUMNS)
         fig, axes = plt.subplots(rows, COLUMNS, figsize=(2.6 * COLUMNS, 2.0 * rows), squeeze=False)
         for ax, j in zip(axes.flat, columns):
-            band = comparison.samples[:, :, j]
-            ax.fill_between(t, band.min(axis=1), band.max(axis=1), color="tab:gray", alpha=0.4, lw=0)
-            ax.plot(t, comparison.code[:, j], color="tab:red", lw=1)
+            band = m.samples[:, :, j] - mean[:, j:j + 1]
+            ax.fill_between(t, band.min(axis=1), band.max(axis=1), color="tab:gray", alpha=0.5, lw=0)
+            ax.plot(t, m.code[:, j] - mean[:, j], color="tab:red", lw=1)
+            ax.set_yscale("symlog", linthresh=m.floor[j])
+            ax.yaxis.set_major_locator(SymmetricalLogLocator(linthresh=m.floor[j], base=1e3))
             _mark_failure(ax, comparison, t)
-            ax.set_title(comparison.names[j].split(":")[1], fontsize=8)
+            ax.set_title(m.names[j].split(":")[1], fontsize=8)
             ax.tick_params(labelsize=6)
         for ax in list(axes.flat)[len(columns):]:
             ax.axis("off")
         fig.tight_layout()
         paths.append(save_figure(fig, Path(folder) / f"statistics_{material}.png",
-                                 f"Material {material}: each statistic against time, the ensemble's band (grey, its "
-                                 "smallest to largest member) and the code (red)."))
+                                 f"Material {material}: each statistic minus the ensemble's mean against time, the "
+                                 "members' band (grey) and the code (red); linear within the statistic's round-off "
+                                 "floor, logarithmic beyond."))
     return paths
 
 
@@ -167,8 +182,7 @@ def deviation_vtu(comparison, folder):
     """``deviation_<step>.vtu`` of the frame :func:`judged_frame` (module docstring)."""
     index = judged_frame(comparison)
     frame = comparison.frames[index]
-    deviation = comparison.particle_deviation[index]
-    spread = comparison.particle_spread[index]
+    deviation, spread = comparison.measures.particle_deviation[index], comparison.measures.particle_spread[index]
     ratio = deviation / np.maximum(spread, np.finfo(np.float64).tiny)
     ids = np.arange(len(frame.x), dtype=np.int64)
     step = comparison.verdicts[index].step
@@ -200,8 +214,8 @@ def index_html(comparison, figures, vtu):
                      "ParaView beside the code's own frame):</p><table><tr><th>id</th><th>x</th><th>distance</th>"
                      f"<th>ensemble's distance</th></tr>{items}</table>")
     body = (f"<h1>mpmref compare: {e(c.scene.name)}</h1><div class='verdict {style}'>{e(summary(c))}</div>"
-            f"<p class='meta'>{e(describe_method(c))}; {len(c.names)} statistics; false-alarm rate of the whole "
-            f"comparison {ALPHA:g}; {c.wall_s:.1f} s on {e(c.where)}. Also as <a href='results.json'>results.json"
+            f"<p class='meta'>{e(describe_method(c))}; {len(c.measures.names)} statistics; false-alarm rate of the "
+            f"whole comparison {ALPHA:g}; {c.wall_s:.1f} s on {e(c.where)}. Also as <a href='results.json'>results.json"
             f"</a>.</p>{particles}<h2>Frames</h2><table><tr><th>frame</th><th>step</th><th>phase</th>"
             "<th>ensemble spread</th><th>code's deviation</th><th>T² / limit</th><th>largest |z| / limit</th>"
             f"<th>verdict</th><th>statistics named</th></tr>{rows}</table><h2>Figures</h2><div class='figures'>"
