@@ -57,6 +57,10 @@ class RemoteBackend:
     def to_host(self, particles):
         return Particles(**{k: host_of(a) for k, a in particles.arrays().items()})
 
+    @staticmethod
+    def host_array(array):
+        return host_of(array)
+
     def summarize(self, particles, previous=None):
         self.summaries += 1
         p = self.to_host(particles)

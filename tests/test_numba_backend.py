@@ -173,9 +173,9 @@ def test_a_state_someone_holds_is_never_overwritten_and_a_plain_loop_swaps_two_b
 def test_buffer_pool_lets_go_of_shapes_no_longer_asked_for():
     """The asynchronous stepper advances groups of many sizes: the pool keeps sets of the latest two shapes
     of a kind only, so its memory does not grow with the number of sizes seen."""
-    from mpmref.backends.numba.buffers import BufferPool
+    from mpmref.backends.residency import ArrayPool
 
-    pool = BufferPool("float32")
+    pool = ArrayPool(np.empty, "float32")
     for n in range(1, 50):
         pool.take("particles", (n, 2), (n,))
     pool.take("grid", (7, 5))

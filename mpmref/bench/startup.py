@@ -2,7 +2,8 @@
 
 ``mpmref bench --only startup [--against REV]`` runs, each in a fresh process with an empty Numba cache (a new
 ``NUMBA_CACHE_DIR`` and ``XDG_CACHE_HOME`` per run), the commands of :data:`COMMANDS`: a first ``mpmref run`` of
-``examples/mpm88.toml`` and of ``examples/jelly.toml`` on the Numba backend, and a cold ``mpmref verify --quick``.
+``examples/mpm88.toml``, of ``examples/jelly.toml`` and of ``examples/snow88.toml`` (the plastic laws) on the Numba
+backend, and a cold ``mpmref verify --quick``.
 Each runs once on this checkout and once on ``REV`` (a git worktree of the same repository, on the same Python, the
 older code first on the import path), alternating, ``--repeats`` times; the table gives the median wall time and
 the CPU time of each (the process and its children), and this checkout's wall time over ``REV``'s. The load average
@@ -29,6 +30,8 @@ COMMANDS = (
                                      "--out", "OUT", "--no-progress"]),
     ("run jelly (10 steps, numba)", ["run", "examples/jelly.toml", "--steps", "10", "--backend", "numba",
                                      "--out", "OUT", "--no-progress"]),
+    ("run snow88 (10 steps, numba)", ["run", "examples/snow88.toml", "--steps", "10", "--backend", "numba",
+                                      "--out", "OUT", "--no-progress"]),
     ("verify --quick", ["verify", "--quick", "--out", "OUT", "--no-progress"]),
 )
 

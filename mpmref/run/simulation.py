@@ -3,7 +3,7 @@
 import time as _time
 import warnings
 from dataclasses import replace
-from functools import cached_property
+from functools import cached_property, partial
 
 import numpy as np
 
@@ -17,7 +17,7 @@ from ..rigid.dynamics import current_shapes
 from ..rigid.trimesh import TriMesh
 from ..scene.sampling import sample_particles
 from ..steppers import make_stepper
-from ..steppers.limits import cfl_time_step
+from ..steppers.limits import cfl_time_step, signal_speeds
 from . import arguments
 from .domain import apply_domain_exit, outside
 from .emitters import due_now, emit, release_template, released, with_emitters
@@ -71,9 +71,11 @@ class Simulation:
         #: whether the particles stay in the backend's memory from step to step (mpmref.backends.residency): a
         #: resident backend, a stepper with one Δt for every particle, no step hooks (Python functions of host arrays)
         self.resident = residency.resident(self.backend) and self.stepper.uniform_step and hooks is None
-        if self.resident and getattr(self.stepper, "ledger", None) is not None:
-            self.stepper.ledger = residency.HostObserver(self.stepper.ledger, self.backend)
-        self._host = self._signal_speed = None  # a resident run's host copy of its state; its largest c_p + |v_p|
+        #: where the particles are kept, asked alike of every backend (:func:`mpmref.backends.residency.memory_of`)
+        self.memory = residency.memory_of(self.backend, self.resident, self._cfl_signal_speeds())
+        if getattr(self.stepper, "ledger", None) is not None:
+            self.stepper.ledger = self.memory.observer(self.stepper.ledger)
+        self._host = self._signal_speed = None  # the state's host copy (a resident run's); its largest c_p + |v_p|
         state = self.stepper.initial_state(particles if particles is not None else sample_particles(scene))
         self.state = with_emitters(scene, state)
         self._releases = [release_template(scene, e) for e in scene.emitters]
@@ -91,18 +93,14 @@ class Simulation:
     @property
     def state(self):
         """The whole :class:`~mpmref.state.State`, with NumPy particle arrays (a resident run's host copy)."""
-        if not self.resident:
-            return self._state
         if self._host is None or self._host[0] is not self._state:
-            self._host = (self._state, replace(self._state, particles=self.backend.to_host(self._state.particles)))
+            self._host = (self._state, self.memory.host_state(self._state))
         return self._host[1]
 
     @state.setter
     def state(self, value):
-        if self.resident:
-            value = replace(value, particles=self.backend.to_device(value.particles))
-            self._signal_speed = None
-        self._state = value
+        self._state = self.memory.device_state(value)
+        self._signal_speed = None
 
     @property
     def particles(self):
@@ -110,10 +108,7 @@ class Simulation:
 
     @particles.setter
     def particles(self, value):
-        if self.resident:
-            self.state = replace(self._state, particles=value)
-        else:
-            self._state.particles = value
+        self.state = replace(self._state, particles=value)
 
     @property
     def step_count(self):
@@ -147,10 +142,7 @@ class Simulation:
             value = np.asarray(value, dtype=old.dtype)
             if value.shape != old.shape:
                 raise ValueError(f"'{name}' must have shape {old.shape}, got {value.shape}")
-            if self.resident:
-                self.particles = self.particles.with_(**{name: value.copy()})
-            else:
-                setattr(self.particles, name, value.copy())
+            self.particles = self.particles.with_(**{name: value.copy()})
 
         return property(getter, setter)
 
@@ -224,25 +216,18 @@ class Simulation:
         """
         dt = None if dt is None else arguments.time_step(dt)
         t_end = None if t_end is None else arguments.end_time(t_end, self.time, after=True)
-        if self.scene.emitters and (not self.resident or due_now(self.scene, self._state)):
+        if self.scene.emitters and due_now(self.scene, self._state):
             self._emit()  # releases due now join before the step
         if self.step_count == 0:
             first_dt = dt if dt is not None else self.stepper.time_step(self.particles)
             if first_dt is not None:
                 warn_if_above_limit(self.scene, self.stepper.cfl_number(self.particles, first_dt))
-        if self.resident and dt is None:
-            dt = self._resident_time_step(t_end)
+        if dt is None:
+            dt = self._time_step(t_end)
         new = self.stepper.advance(self._state, dt=dt, t_end=t_end)
         dt = new.time - self._state.time
         self.last_updates = self.stepper.updates(self._state, new)
-        if self.resident:
-            new = self._checked_resident(new, dt)
-        else:
-            self._check_finite(new.particles, dt)
-            if self.stepper.uniform_step:
-                self._check_bounded(new.particles, dt)
-            new.particles = self._apply_domain_policy(new)
-        self._state = new
+        self._state = self._checked(new, dt)
         self.last_dt = dt
         return dt
 
@@ -255,37 +240,46 @@ class Simulation:
                                                         released(before.particles, after.particles)))
             self.state = after
 
-    def _resident_time_step(self, t_end):
-        r"""A resident run's Δt by the CFL rule (``None`` with a fixed ``time.dt``, which the stepper takes): the
-        stepper's rule (:mod:`mpmref.steppers.limits`) with :math:`\max_p(c_p + |v_p|)` reduced where the particles
-        are (:meth:`~mpmref.backends.residency.Resident.summarize`), shortened so as not to pass ``t_end``."""
+    def _cfl_signal_speeds(self):
+        r"""The CFL rule's :math:`c_p + |v_p|` of host particles (:func:`~mpmref.steppers.limits.signal_speeds`), or
+        ``None`` where the run does not take Δt from it (a fixed ``time.dt``, or a stepper that sets its own)."""
+        if self.scene.time.dt is not None or not self.stepper.uniform_step:
+            return None
+        return partial(signal_speeds, self.scene.material_list)
+
+    def _time_step(self, t_end):
+        r"""The run's Δt by the CFL rule (``None`` with a fixed ``time.dt`` or a stepper that sets its own, which the
+        stepper takes): the stepper's rule (:mod:`mpmref.steppers.limits`) with :math:`\max_p(c_p + |v_p|)` of the
+        state's summary, reduced where the particles are (:mod:`mpmref.backends.residency`), shortened so as not to
+        pass ``t_end``."""
         t = self.scene.time
-        if t.dt is not None:
+        if t.dt is not None or not self.stepper.uniform_step:
             return None
         if self._signal_speed is None:
-            self._signal_speed = self.backend.summarize(self._state.particles).signal_speed
+            self._signal_speed = self.memory.summarize(self._state.particles).signal_speed
         dt = cfl_time_step(t.cfl, self.scene.grid.dx, self._signal_speed)
         return dt if t_end is None else min(dt, t_end - self.time)
 
-    def _checked_resident(self, new, dt):
-        """A resident run's checks of the step to ``new``: the backend's :class:`~mpmref.backends.residency.Summary`
-        of it (a reduction where the particles are) passes a finite, bounded step that stays inside the domain as it
-        is; any other goes through the host checks of every run (:meth:`_check_finite`, :meth:`_check_bounded`, the
-        domain policy) on host copies, with the same errors, warnings and last good state, and comes back to the
-        backend's memory."""
-        summary = self.backend.summarize(new.particles, self._state.particles)
+    def _checked(self, new, dt):
+        """The checks of the step to ``new``: its :class:`~mpmref.backends.residency.Summary` (reduced where the
+        particles are) passes a finite step that stays inside the domain, bounded where the stepper has one Δt, as it
+        is; any other goes through the host checks (:meth:`_check_finite`, :meth:`_check_bounded`, the domain policy)
+        on host arrays, with their errors, warnings and last good state, and comes back to where the run keeps it."""
+        summary = self.memory.summarize(new.particles, self._state.particles)
         lo, hi = self.scene.valid_region()
+        uniform = self.stepper.uniform_step
         if (not summary.nonfinite and new.particles.n > 0 and summary.inside(lo, hi)
-                and within_margin(summary.velocity_change, self.scene.dim, dt, self.scene.grid.dx)):
+                and (not uniform or within_margin(summary.velocity_change, self.scene.dim, dt, self.scene.grid.dx))):
             self._last_bounded = None
             self._signal_speed = summary.signal_speed
             return new
-        host = replace(new, particles=self.backend.to_host(new.particles))
+        host = self.memory.host_state(new)
         self._check_finite(host.particles, dt)
-        self._check_bounded(host.particles, dt)
+        if uniform:
+            self._check_bounded(host.particles, dt)
         host.particles = self._apply_domain_policy(host)
         self._signal_speed = None
-        return replace(host, particles=self.backend.to_device(host.particles))
+        return self.memory.device_state(host)
 
     def _check_finite(self, new, dt):
         for name, arr in new.arrays().items():

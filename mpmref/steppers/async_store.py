@@ -14,15 +14,13 @@ store's rows. So that the next interval does not write into the state it reads, 
 store that nothing outside the pool refers to: two of them alternate, as the two sets of a double buffer.
 """
 
-import sys
-
 import numpy as np
 
+from ..backends.residency import unreferenced
 from ..state import Particles
 
-#: references to a store's array that the store itself holds (its dict and its :class:`Particles`), plus those of
-#: ``sys.getrefcount``'s argument and the loop variable in :meth:`RowStore.free`
-_HELD = 4
+#: references to a store's array that the store itself holds: its dict and its :class:`Particles`
+_HELD = 2
 
 
 class RowStore:
@@ -52,7 +50,7 @@ class RowStore:
 
     def free(self):
         """Whether nothing but the store refers to its arrays (no state holds a view of them)."""
-        return all(sys.getrefcount(a) <= _HELD for a in self.arrays.values())
+        return all(unreferenced(a, _HELD) for a in self.arrays.values())
 
     def fits(self, particles, capacity):
         """Whether the store holds the fields of ``particles`` and at least ``capacity`` rows."""

@@ -1,7 +1,6 @@
 """The GPU backend object: the reference's stages as numba-cuda kernels, the particles resident on the device."""
 
-import sys
-from functools import cached_property
+from functools import cached_property, wraps
 from typing import NamedTuple
 
 import numpy as np
@@ -13,7 +12,7 @@ from ..base import serial_context, wall_table
 from ..capabilities import Implements
 from ..pointwise.grid import collider_table
 from ..pointwise.laws import laws_of, parameter_table
-from ..residency import Summary, is_device, on_host
+from ..residency import ArrayPool, Summary
 from .kernels import Config, Kernels
 from .particles import CHECKED_FIELDS, summary_size
 from .runtime import device_name, require_device
@@ -21,9 +20,24 @@ from .sort import INDEX, exclusive_scan
 
 #: P2G modes: ``gather`` (the default: no float atomics, the same bits every run) and ``atomic`` (opt-in)
 P2G_MODES = ("gather", "atomic")
-#: references to a kept array that mean nobody else holds it: the pool's list, the loop variable and the argument
-#: of ``sys.getrefcount``
-_FREE = 3
+
+
+def either_memory(stage=None, *, outputs=True):
+    """A stage written for the backend's own arrays, run on host inputs too: inputs whose first is on the host are
+    copied to the device, and the outputs (``outputs``) back (how the conformance harness and a run with step hooks
+    call the stages; a resident run hands the device arrays from one stage to the next)."""
+
+    def either(stage):
+        @wraps(stage)
+        def run(self, first, *args, **kwargs):
+            if self.holds(first.x if isinstance(first, Particles) else first.mass):
+                return stage(self, first, *args, **kwargs)
+            out = stage(self, *(self._on_device(a) for a in (first, *args)), **kwargs)
+            return self._on_host(out) if outputs else out
+
+        return run
+
+    return either if stage is None else either(stage)
 
 
 class Prepared(NamedTuple):
@@ -102,24 +116,17 @@ class CudaBackend:
         self.plastic = any(m.plastic for m in scene.material_list)
         modes = higher_modes(d, scene.kernel.support) if scene.transfer.polypic else np.zeros((0, d))
         self.mode_index = to(np.ascontiguousarray(modes, dtype=np.int64))
-        self._kept, self._scratch, self._empty = {}, {}, {}
+        self.pool = ArrayPool(self.cuda.device_array, self.dtype)
+        self._device_array = type(self.cuda.device_array(0))
+        self._scratch, self._empty = {}, {}
 
     # ------------------------------------------------------------------ memory
     def _constant(self, array):
         return self.cuda.to_device(np.ascontiguousarray(array))
 
-    def _take(self, kind, shape, dtype=None):
-        """A device array for a stage's output: a kept one nobody else holds any more, else a new one (at most two
-        kept per kind and shape: a run that holds the current and the previous state swaps between them)."""
-        dtype = np.dtype(dtype or self.dtype)
-        kept = self._kept.setdefault((kind, shape, dtype.str), [])
-        for array in kept:
-            if sys.getrefcount(array) <= _FREE:
-                return array
-        array = self.cuda.device_array(shape, dtype)
-        if len(kept) < 2:
-            kept.append(array)
-        return array
+    def _take(self, kind, shape):
+        """A device array for a stage's output, from the backend's :class:`~mpmref.backends.residency.ArrayPool`."""
+        return self.pool.take(kind, shape)[0]
 
     def _work(self, kind, shape, dtype=INDEX):
         """A device array of the backend's own, reused by every call (a stage's intermediate)."""
@@ -139,25 +146,42 @@ class CudaBackend:
         return array if array is not None else self._none(*shape)
 
     # ------------------------------------------------------------------ residency (mpmref.backends.residency)
+    def holds(self, array):
+        """Whether ``array`` is in this GPU's memory (one of numba-cuda's device arrays, or its simulator's): the one
+        test of where an array lives."""
+        return isinstance(array, self._device_array)
+
     def to_device(self, particles):
-        """The particles with every array on the GPU but the stable ``id`` (device particles are returned as they
-        are)."""
-        if is_device(particles.x):
-            return particles
-        arrays = {}
-        for name, array in particles.arrays().items():
-            if name == "id":
-                arrays[name] = array
-            else:
-                array = array.astype(np.int32) if name == "material" else array
-                arrays[name] = self.cuda.to_device(np.ascontiguousarray(array))
-        return Particles(**arrays)
+        """The host particles with every array on the GPU but the stable ``id``."""
+        arrays = {name: a.astype(np.int32) if name == "material" else a for name, a in particles.arrays().items()}
+        return Particles(**{name: a if name == "id" else self.cuda.to_device(np.ascontiguousarray(a))
+                            for name, a in arrays.items()})
 
     def to_host(self, particles):
-        """The particles as NumPy arrays (host particles are returned as they are)."""
-        if not is_device(particles.x):
-            return particles
-        return Particles(**{name: on_host(array) for name, array in particles.arrays().items()})
+        """The device particles as NumPy arrays (the ``id`` is on the host already)."""
+        return Particles(**{name: a if name == "id" else a.copy_to_host() for name, a in particles.arrays().items()})
+
+    def host_array(self, array):
+        """``array`` on the host: a copy of a device array, any other as it is."""
+        return array.copy_to_host() if self.holds(array) else array
+
+    def _on_device(self, value):
+        """Host particles, a host grid state or a NumPy array in the GPU's memory; anything else as it is."""
+        if isinstance(value, Particles):
+            return self.to_device(value)
+        if isinstance(value, GridState):
+            return GridState(**{name: self._on_device(a) for name, a in value.node_arrays().items()})
+        return self.cuda.to_device(np.ascontiguousarray(value)) if isinstance(value, np.ndarray) else value
+
+    def _on_host(self, value):
+        """A stage's outputs (particles, a grid state, arrays, a tuple of them) on the host."""
+        if isinstance(value, Particles):
+            return self.to_host(value)
+        if isinstance(value, GridState):
+            return value.dense()
+        if isinstance(value, tuple):
+            return tuple(self._on_host(v) for v in value)
+        return self.host_array(value)
 
     @cached_property
     def _summary_start(self):
@@ -165,14 +189,13 @@ class CudaBackend:
         return np.full(summary_size(self.dim), -np.inf)
 
     def summarize(self, particles, previous=None):
-        """The :class:`~mpmref.backends.residency.Summary` of the particles, reduced on the GPU (five numbers and a
-        flag per field come back): non-finite fields, extent, largest velocity change since ``previous``, largest
+        """The :class:`~mpmref.backends.residency.Summary` of the device particles, reduced on the GPU (five numbers and
+        a flag per field come back): non-finite fields, extent, largest velocity change since ``previous``, largest
         signal speed."""
-        p = self.to_device(particles)
-        d = self.dim
+        p, d = particles, self.dim
         out = self._work("summary", (summary_size(d),), np.float64)
         out.copy_to_device(self._summary_start)  # every maximum starts at -inf; the device array is the backend's own
-        old = self.to_device(previous).v if previous is not None else p.v
+        old = previous.v if previous is not None else p.v
         self.kernels.particles.summarize(p.n, p.x, p.v, old, self._or_none(p.C, 0, d, d), self._or_none(p.F, 0, d, d),
                                          self._or_none(p.J, 0), self._or_none(p.Jp, 0),
                                          self._or_none(p.modes, 0, 0, d), p.material, self.rules, self.params, out)
@@ -183,10 +206,11 @@ class CudaBackend:
                        velocity_change=max(float(got[-2]), 0.0), signal_speed=max(float(got[-1]), 0.0))
 
     # ------------------------------------------------------------------ stages
+    @either_memory(outputs=False)
     def prepare(self, particles):
         """The particles on the device and, for the gathering P2G, sorted by cell (:mod:`.sort`): a
         :class:`Prepared`."""
-        p = self.to_device(particles)
+        p = particles
         n, N = p.n, self.n_nodes
         sort = self.kernels.sort
         keys, rank = self._work("keys", (n,)), self._work("rank", (n,))
@@ -201,14 +225,16 @@ class CudaBackend:
         sort.order_cells(N, start, order)
         return Prepared(p, keys, box, start, order)
 
+    @either_memory
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle by its material's law."""
-        p, d = self.to_device(particles), self.dim
+        p, d = particles, self.dim
         tau = self._take("tau", (p.n, d, d))
         self.kernels.particles.stress(p.n, self._or_none(p.F, 0, d, d), self._or_none(p.J, 0),
                                       self._or_none(p.Jp, 0), p.material, self.rules, self.params, tau)
-        return tau if is_device(particles.x) else tau.copy_to_host()
+        return tau
 
+    @either_memory
     def p2g(self, particles, prepared=None, contact=None, classes=None):
         """Node mass, momentum and internal force (:mod:`~mpmref.backends.cuda.p2g`): a :class:`~mpmref.state.GridState`
         on the device for device particles, on the host for host particles. CPIC contact and particle classes are not
@@ -217,6 +243,7 @@ class CudaBackend:
             raise NotImplementedError("the cuda backend has no CPIC contact or particle classes")
         return self._p2g(particles, prepared, self.kernels.p2g, 0.0)
 
+    @either_memory
     def p2g_fused(self, particles, dt, prepared=None):
         """P2G with the step's internal force folded into the momentum (:mod:`~mpmref.backends.cuda.p2g`; ``force`` is
         ``None``)."""
@@ -239,12 +266,8 @@ class CudaBackend:
             kernels.scatter(n, prep.keys, rows, self.node_shape, self.dx, mass, momentum, force)
         else:
             kernels.gather(N, prep.start, prep.box, rows, self.node_shape, self.dx, mass, momentum, force)
-        state = GridState(mass=mass, momentum=momentum, force=None if fused else force,
-                          layout=DeviceNodes(self.scene.grid))
-        if is_device(particles.x):
-            return state
-        return GridState(mass=mass.copy_to_host(), momentum=momentum.copy_to_host(),
-                         force=None if fused else force.copy_to_host())
+        return GridState(mass=mass, momentum=momentum, force=None if fused else force,
+                         layout=DeviceNodes(self.scene.grid))
 
     def _identity(self, n):
         """The particles in their own order (the atomic P2G's rows)."""
@@ -253,38 +276,32 @@ class CudaBackend:
             self._scratch[key] = self.cuda.to_device(np.arange(n, dtype=INDEX))
         return self._scratch[key]
 
+    @either_memory
     def grid_update(self, grid_state, dt, time=0.0):
         """Node velocities after forces, gravity, walls and colliders, ``(v, v_tilde)``
         (:mod:`~mpmref.backends.cuda.grid_update`), on the device for a device grid state, on the host for a host one;
         ``v_tilde`` is ``None`` after a fused P2G."""
-        on_device = is_device(grid_state.mass)
-        to = (lambda a: a) if on_device else (lambda a: self.cuda.to_device(np.ascontiguousarray(a)))
         d, N = self.dim, grid_state.mass.shape[0]
         folded = grid_state.force is None
-        mass, momentum = to(grid_state.mass), to(grid_state.momentum)
-        force = self._none(0, d) if folded else to(grid_state.force)
+        mass, momentum = grid_state.mass, grid_state.momentum
+        force = self._none(0, d) if folded else grid_state.force
         v = self._take("grid_v", (N, d))
         v_tilde = self._none(0, d) if folded else self._take("grid_v_tilde", (N, d))
         self.kernels.grid_update(N, mass, momentum, force, self.node_shape, float(dt), float(time), self.gravity,
                                  self.wall_type, self.wall_friction, int(self.scene.boundary.width), self.colliders,
                                  len(self.scene.colliders), self.origin64, self.dx, v, v_tilde)
-        if folded:
-            v_tilde = None
-        if on_device:
-            return v, v_tilde
-        return v.copy_to_host(), None if v_tilde is None else v_tilde.copy_to_host()
+        return v, None if folded else v_tilde
 
+    @either_memory
     def g2p(self, particles, v_grid, v_tilde, dt, prepared=None, kicks=None):
         """New particles from the node velocities (:mod:`~mpmref.backends.cuda.g2p`): on the device for device
         particles, on the host for host particles. Kicks of conservative level interfaces are not implemented
         (asynchronous stepping is refused)."""
         if kicks is not None:
             raise NotImplementedError("the cuda backend has no asynchronous stepping")
-        p = prepared.particles if prepared is not None else self.to_device(particles)
+        p = prepared.particles if prepared is not None else particles
         n, d = p.n, self.dim
-        to = (lambda a: a if is_device(a) else self.cuda.to_device(np.ascontiguousarray(a)))
-        v_grid = to(v_grid)
-        v_tilde = v_grid if v_tilde is None else to(v_tilde)
+        v_tilde = v_grid if v_tilde is None else v_tilde
 
         def output(name, *shape):
             return self._take(f"particles_{name}", shape) if getattr(p, name) is not None else self._none(0, *shape[1:])
@@ -295,25 +312,19 @@ class CudaBackend:
         self.kernels.g2p(n, p.x, p.v, self._or_none(p.F, 0, d, d), self._or_none(p.J, 0), self.origin, self.dx,
                          self.inertia, float(dt), self.flip_alpha, self.mode_index, self.node_shape, v_grid, v_tilde,
                          out["x"], out["v"], out["C"], out["F"], out["J"], out["modes"])
-        changes = {name: a for name, a in out.items() if name in ("x", "v") or getattr(p, name) is not None}
-        return self._result(particles, changes)
+        return particles.with_(**{name: a for name, a in out.items()
+                                  if name in ("x", "v") or getattr(p, name) is not None})
 
+    @either_memory
     def return_map(self, particles):
         """Plastic projection of the plastic materials' particles (:mod:`~mpmref.backends.cuda.materials`; a new state,
         the others' ``F`` and ``Jp`` copied)."""
         if not self.plastic or particles.Jp is None:
             return particles
-        p = self.to_device(particles)
+        p = particles
         F, Jp = self._take("particles_F_plastic", p.F.shape), self._take("particles_Jp_plastic", p.Jp.shape)
         self.kernels.particles.return_map(p.n, p.F, p.Jp, p.material, self.rules, self.params, F, Jp)
-        return self._result(particles, {"F": F, "Jp": Jp})
-
-    @staticmethod
-    def _result(particles, changes):
-        """``particles`` with the device arrays ``changes``, copied to the host if ``particles`` are on the host."""
-        if not is_device(particles.x):
-            changes = {name: a.copy_to_host() for name, a in changes.items()}
-        return particles.with_(**changes)
+        return particles.with_(F=F, Jp=Jp)
 
     # ------------------------------------------------------------------ reports and warm-up
     def describe_execution(self):
@@ -323,11 +334,10 @@ class CudaBackend:
     def warm_up(self, particles, step, per_material=2):
         """Compile every kernel a step of this scene launches, before a timed run: ``step(backend, particles, dt,
         time)`` (:func:`mpmref.steppers.pipeline.substep`, passed in by the caller) on the device, on the first
-        ``per_material`` particles of each material, with Δt = 0, and the run's summary; ``particles`` is not
-        modified."""
-        host = self.to_host(particles)
-        keep = np.zeros(host.n, dtype=bool)
-        for _, idx in material_groups(self.scene.material_list, host):
+        ``per_material`` particles of each material, with Δt = 0, and the run's summary; ``particles`` (host ones) are
+        not modified."""
+        keep = np.zeros(particles.n, dtype=bool)
+        for _, idx in material_groups(self.scene.material_list, particles):
             keep[idx[:per_material]] = True
-        subset = self.to_device(host.select(keep))
+        subset = self.to_device(particles.select(keep))
         self.summarize(step(self, subset, 0.0, 0.0), subset)

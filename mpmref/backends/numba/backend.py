@@ -12,9 +12,9 @@ from ...state import GridState
 from ..base import MaterialTable, wall_table
 from ..pointwise.grid import collider_table
 from ..pointwise.laws import parameter_table
+from ..residency import ArrayPool
 from . import cpic, materials, transfers
 from .blocks import block_keys, colour_classes, counting_sort, slab_colours
-from .buffers import BufferPool
 from .grid_update import block_grid_velocity, collider_velocity, grid_velocity
 from .kernel_args import Groups, SparseLayout
 from .kicks import class_first_rows, class_totals, node_kicks
@@ -111,7 +111,7 @@ class NumbaBackend(RowStages):
         self.gravity = np.asarray(scene.gravity, dtype=self.dtype)
         self.materials = MaterialTable(scene.material_list, materials.material_kernels(scene.material_list))
         self.params = parameter_table(scene.material_list)
-        self.buffers = BufferPool(self.dtype)
+        self.buffers = ArrayPool(np.empty, self.dtype)
         self.n_blocks = int(np.prod(grid.blocks_per_axis))
         #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
         self._last_sort = (None, None)
@@ -179,7 +179,7 @@ class NumbaBackend(RowStages):
         The stress comes from the stress stage (:meth:`stress`), run here first, except in a scene of fluids
         only: a fluid's stress is a function of :math:`J` alone, and P2G computes it per particle instead of
         storing it (:func:`mpmref.backends.numba.transfers2d.p2g_kernel`). The node rows of the active
-        blocks live in one (rows, 1 + 2d) array from the backend's :class:`~.buffers.BufferPool` (mass,
+        blocks live in one (rows, 1 + 2d) array from the backend's :class:`~mpmref.backends.residency.ArrayPool` (mass,
         momentum and force of a node share a cache line); the returned
         :class:`~mpmref.state.GridState` holds views of it and the layout, or, without ``prepared``, dense
         copies (see the class doc). With ``classes`` (:mod:`mpmref.physics.interface`), each class is summed
@@ -301,9 +301,9 @@ class NumbaBackend(RowStages):
 
         A gather needs no sort: it runs over the particles in their storage order; it reads ``v_grid`` and
         ``v_tilde`` as rows of ``prepared.layout`` or, without ``prepared``, as dense node arrays (gathered
-        into the rows of the particles' layout first; see the class doc). The new arrays come from the
-        backend's :class:`~.buffers.BufferPool`: a run that keeps only the current and the previous state
-        swaps two sets of them instead of allocating a state per step. With ``kicks`` = ``(classes, kick)``
+        into the rows of the particles' layout first; see the class doc). The new arrays come from the backend's
+        :class:`~mpmref.backends.residency.ArrayPool`: a run that keeps only the current and the previous state swaps
+        two sets of them instead of allocating a state per step. With ``kicks`` = ``(classes, kick)``
         (conservative interfaces; see :func:`mpmref.backends.numpy.transfers.g2p`) a second gather collects
         each particle's impulse and its moment about the origin (:func:`.transfers2d.kick_gather_kernel`: its
         own pass, so that no other run's G2P compiles it), and the result is ``(particles, (dP, dL))``.
