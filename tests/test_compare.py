@@ -214,3 +214,25 @@ def test_command_line_refuses_a_bad_frame_and_too_small_an_ensemble(drop, tmp_pa
     assert "f_0.npz: cannot be read" in capsys.readouterr().err
     assert main(["compare", str(path), str(tmp_path), "--members", "3"]) == 2
     assert "argument --members: 3 is out of range; allowed: an integer >= 7" in capsys.readouterr().err
+
+
+def test_members_run_on_a_dask_cluster_as_in_this_process(drop):
+    from dask.distributed import LocalCluster
+
+    path, folder = drop
+    scene = Scene.from_toml(path)
+    here = compare(scene, folder / "numpy", members=7, executor=Executor(workers=1))
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        there = compare(scene, folder / "numpy", members=7, executor=Executor(scheduler=cluster.scheduler_address))
+    assert there.passed and "dask.distributed" in there.where
+    assert np.array_equal(np.sort(there.measures.samples, axis=1), np.sort(here.measures.samples, axis=1))
+
+
+def test_a_code_that_did_not_read_the_start_exactly_fails_at_step_0(drop, tmp_path):
+    path, _ = drop
+    scene = Scene.from_toml(path)
+    sim = Simulation(scene)
+    text = np.vectorize(lambda v: float(f"{v:.5g}"))  # a start read from text written with 5 significant digits
+    np.savez(tmp_path / "f_0.npz", x=text(sim.x), id=sim.id)
+    failure = compare(scene, tmp_path, members=7, executor=Executor(workers=1)).first_failure
+    assert failure.step == 0 and "the code did not start from the exported start" in failure.reason()

@@ -8,7 +8,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mpmref import Scene
-from mpmref.errors import ArgumentError, MpmrefError
+from mpmref.errors import ArgumentError
 from mpmref.exchange import FrameError, initial_particles, read_frames
 
 from ..framework.executor import Executor
@@ -123,9 +123,6 @@ class _Reduction:
         self.bar = bar
 
     def __call__(self, index, run):
-        if run.x.shape != self.control.x.shape:
-            raise MpmrefError(f"ensemble member {run.index} has {run.x.shape[1]} particles at some frame, the control "
-                              f"{self.control.x.shape[1]}: compare needs every particle in every frame")
         distance = np.abs(run.x - self.control.x).max(axis=2)
         np.maximum(self.particle_spread, distance, out=self.particle_spread)
         self.stats.append(run.stats)

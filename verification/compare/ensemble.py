@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpmref import Scene, Simulation
+from mpmref.errors import MpmrefError
 
 from .statistics import frame_statistics
 
@@ -84,10 +85,14 @@ def run_member(member):
     scene = Scene.from_dict(member.scene, base_dir=member.base_dir)
     sim = Simulation(scene, backend=member.backend)
     sim.x = perturbed(sim.x, member.index, member.seed)
-    xs, stats, speeds = [], [], []
+    xs, stats, speeds, count = [], [], [], sim.n_particles
     for stop in member.stops:
         advance(sim, stop)
         p = sim.particles
+        if p.n != count:
+            raise MpmrefError(f"ensemble member {member.index} has {p.n} particles at step {sim.step_count}, the start "
+                              f"{count} (boundary.domain_exit = {scene.boundary.domain_exit!r}): compare follows every "
+                              "particle of the start through every frame")
         order = np.argsort(p.id, kind="stable")
         fields = {k: v[order] for k, v in frame_fields(p).items()}
         x = p.x[order].astype(np.float64)

@@ -96,8 +96,9 @@ class FrameVerdict:
         if self.passed:
             return ""
         if self.phase == "round-off":
+            start = " (at step 0: the code did not start from the exported start)" if self.step == 0 else ""
             return (f"particles {self.deviation:.3g} from the control, more than {PARTICLE_FACTOR:g} x the ensemble's "
-                    f"round-off spread {self.spread:.3g}")
+                    f"round-off spread {self.spread:.3g}{start}")
         parts = []
         if self.t2 > self.t2_limit:
             parts.append(f"T^2 = {self.t2:.3g} > {self.t2_limit:.3g} on {self.components} principal components")
