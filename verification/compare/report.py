@@ -30,6 +30,8 @@ from .verdict import ALPHA, PARTICLE_FACTOR
 
 #: particles listed where the departure starts
 TOP_PARTICLES = 10
+#: statistics named in the one-line verdict (results.json and index.html list all)
+SUMMARY_STATISTICS = 5
 #: statistics panels per row of a material's figure
 COLUMNS = 6
 
@@ -62,7 +64,9 @@ def summary(comparison):
     if failure is None:
         return (f"PASSED: every one of {len(comparison.frames)} frames lies in the ensemble "
                 f"({comparison.members} members)")
-    stats = ", ".join(f"{name} (z = {z:.3g})" for name, z in failure.left)
+    stats = ", ".join(f"{name} (z = {z:.3g})" for name, z in failure.left[:SUMMARY_STATISTICS])
+    if len(failure.left) > SUMMARY_STATISTICS:
+        stats += f" and {len(failure.left) - SUMMARY_STATISTICS} more (results.json)"
     return (f"FAILED: the code leaves the ensemble at {failure.label} (frame {failure.index}, {failure.phase} "
             f"phase): {failure.reason()}; statistics: {stats}; materials: {', '.join(failure.materials())}")
 
