@@ -13,6 +13,7 @@ from ..physics.kernels import KERNELS
 from ..scene import SCHEMES
 from .candidates import candidate_implements
 from .cases import DEFAULT_RTOL, MATERIALS, make_cases
+from .coverage import coverage_lines
 from .report import check, relative_tolerance
 from .scenes import scene_cases, scene_record
 from .stages import ALL_CONFORMANCE_STAGES
@@ -71,7 +72,8 @@ def cmd_export(args):
 
 def cmd_check(args):
     """Check a backend against the reference (progress bar on standard error unless ``--no-progress``); print
-    the table on standard output; exit status 0 if every case that applies passed, else 1."""
+    the table and what it compared (:func:`.coverage.coverage_lines`) on standard output; exit status 0 if every
+    case that applies passed, else 1."""
     apply_threads(args.threads)
     found = resolve(args.backend)
     probes = make_cases(stages=("stress",)) if args.scene is None else scene_cases(args.scene, stages=("stress",))
@@ -79,6 +81,8 @@ def cmd_check(args):
     report = check(args.backend, _selected_cases(args, implements), rtol=args.rtol, progress=not args.no_progress,
                    implements=implements)
     print(report.table(verbose=args.verbose))
+    for line in coverage_lines(report):
+        print(line)
     return 0 if report.passed else 1
 
 
