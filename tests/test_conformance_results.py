@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -161,3 +162,38 @@ def test_declarations_are_read_and_bad_ones_name_the_field(tmp_path):
     (tmp_path / "implements.json").write_text(json.dumps({"stages": ["p3g"]}))
     with pytest.raises(ResultsError, match="field 'stages': unknown"):
         read_declaration(tmp_path)
+
+
+def test_the_command_line_round_trip_export_implements_then_check_results(om, tmp_path, capsys):
+    """``conformance export --implements FILE`` fits the catalogue to the code's declaration as ``check --backend``
+    fits it; ``check --results DIR`` on the outside program's outputs prints the table ``check_results`` gives; a
+    results file that is missing is refused in one line naming the case, exit 2."""
+    from mpmref.cli import main
+
+    def mpmref_cli(*words):
+        capsys.readouterr()
+        status = main(list(words))
+        out, err = capsys.readouterr()
+        return SimpleNamespace(returncode=status, stdout=out, stderr=err)
+
+    declaration = tmp_path / "implements.json"
+    declaration.write_text(json.dumps({"implements": om.IMPLEMENTS, "stages": list(STAGES)}))
+    selection = ["--dim", "2", "--stage", "stress", "grid_update", "g2p"]
+    exported = mpmref_cli("conformance", "export", str(tmp_path / "vectors"), "--implements", str(declaration),
+                          *selection)
+    assert exported.returncode == 0, exported.stderr
+    cases = make_cases(dims=(2,), stages=("stress", "grid_update", "g2p"), implements=Implements(**om.IMPLEMENTS))
+    manifest = json.loads((tmp_path / "vectors" / "manifest.json").read_text())
+    assert sorted(c["name"] for c in manifest["cases"]) == sorted(c.name for c in cases)
+    subprocess.run([sys.executable, str(PROGRAM), "stages", str(tmp_path / "vectors"), str(tmp_path / "results")],
+                   check=True, capture_output=True)
+    checked = mpmref_cli("conformance", "check", "--results", str(tmp_path / "results"), "--no-progress", *selection)
+    report = check_results(tmp_path / "results", cases)
+    assert checked.returncode == 0 and report.passed, checked.stdout[-2000:] + checked.stderr[-2000:]
+    assert checked.stdout.startswith(report.table()) and "compared: stress (" in checked.stdout
+    (tmp_path / "results" / f"{cases[0].name}.npz").unlink()
+    refused = mpmref_cli("conformance", "check", "--results", str(tmp_path / "results"), "--no-progress", *selection)
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert f"case {cases[0].name} ({cases[0].name}.npz): no results file" in refused.stderr
+    both = mpmref_cli("conformance", "check", "--results", str(tmp_path), "--backend", "numpy", "--no-progress")
+    assert both.returncode == 2 and "not allowed with argument" in both.stderr

@@ -1,5 +1,6 @@
 """``mpmref conformance export DIR`` and ``mpmref conformance check --backend NAME|MODULE:ATTRIBUTE``, on the
-built-in catalogue or on cases drawn from a scene (``--scene SCENE.toml``).
+built-in catalogue or on cases drawn from a scene (``--scene SCENE.toml``); ``check --results DIR`` judges the
+outputs that code in another language computed from the exported vectors (:mod:`.results`).
 
 Exit status of ``check``: 0 every case that applies passed (at least one), 1 a case failed or none applied, 2 a bad
 option, scene or backend reference.
@@ -15,6 +16,7 @@ from .candidates import candidate_implements
 from .cases import DEFAULT_RTOL, MATERIALS, make_cases
 from .coverage import coverage_lines
 from .report import check, relative_tolerance
+from .results import ResultsError, check_results, read_declaration
 from .scenes import scene_cases, scene_record
 from .stages import ALL_CONFORMANCE_STAGES
 from .vectors import export
@@ -62,9 +64,21 @@ def _selected_cases(args, implements=None):
                       schemes=args.scheme, kernels=args.kernel)
 
 
+def _declared(path):
+    """The :class:`~mpmref.backends.capabilities.Implements` of a declaration file or results folder (``None`` for
+    ``None``); a wrong file is an :class:`~mpmref.cli.OptionError` naming it."""
+    if path is None:
+        return None
+    try:
+        return read_declaration(path).implements
+    except ResultsError as exc:
+        raise OptionError(str(exc)) from None
+
+
 def cmd_export(args):
-    """Write the selected cases as ``.npz`` files and ``manifest.json`` into ``args.dir``."""
-    cases = _selected_cases(args)
+    """Write the selected cases as ``.npz`` files and ``manifest.json`` into ``args.dir`` (the catalogue fitted to
+    ``--implements``, as ``check`` fits it to a backend)."""
+    cases = _selected_cases(args, _declared(args.implements))
     manifest = export(args.dir, cases, scene=None if args.scene is None else scene_record(args.scene))
     print(f"wrote {len(cases)} cases to {args.dir} (index: {manifest.name})")
     return 0
@@ -74,12 +88,28 @@ def cmd_check(args):
     """Check a backend against the reference (progress bar on standard error unless ``--no-progress``); print
     the table and what it compared (:func:`.coverage.coverage_lines`) on standard output; exit status 0 if every
     case that applies passed, else 1."""
+    if args.results is not None:
+        return _check_results(args)
     apply_threads(args.threads)
     found = resolve(args.backend)
     probes = make_cases(stages=("stress",)) if args.scene is None else scene_cases(args.scene, stages=("stress",))
     implements = candidate_implements(found, (c.scene() for c in probes))
     report = check(args.backend, _selected_cases(args, implements), rtol=args.rtol, progress=not args.no_progress,
                    implements=implements)
+    print(report.table(verbose=args.verbose))
+    for line in coverage_lines(report):
+        print(line)
+    return 0 if report.passed else 1
+
+
+def _check_results(args):
+    """``check --results DIR``: the outputs in ``DIR`` judged on the selected cases (the catalogue fitted to the
+    folder's ``implements.json``), with the table a backend gets."""
+    try:
+        report = check_results(args.results, _selected_cases(args, _declared(args.results)), rtol=args.rtol,
+                               progress=not args.no_progress)
+    except ResultsError as exc:
+        raise OptionError(str(exc)) from None
     print(report.table(verbose=args.verbose))
     for line in coverage_lines(report):
         print(line)
@@ -93,13 +123,21 @@ def add_parser(subparsers):
     actions = parser.add_subparsers(dest="conformance_command", required=True)
     export_parser = actions.add_parser("export", help="write one .npz per case and stage plus manifest.json")
     export_parser.add_argument("dir", type=Path, help="output folder (created if missing)")
+    export_parser.add_argument("--implements", type=Path, metavar="FILE",
+                               help="the catalogue's cases fitted to what your code declares in this file "
+                               "(implements.json, as check --results reads it; docs/comparing_runs.md)")
     _add_selection(export_parser)
     export_parser.set_defaults(func=cmd_export)
     check_parser = actions.add_parser("check", help="run a backend on every case that it implements and print the "
                                       "error table (the others are listed as not applicable, with the reason)")
-    check_parser.add_argument("--backend", required=True, type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
-                              help="the backend to check: " + OPTION_HELP + "; a factory may return an object "
-                              "with only some stages, or a dict {stage: callable}, and the others are not applicable")
+    checked = check_parser.add_mutually_exclusive_group(required=True)
+    checked.add_argument("--backend", type=reference_argument, metavar="NAME|MODULE:ATTRIBUTE",
+                         help="the backend to check: " + OPTION_HELP + "; a factory may return an object with only "
+                         "some stages, or a dict {stage: callable}, and the others are not applicable")
+    checked.add_argument("--results", type=Path, metavar="DIR",
+                         help="instead of a backend, the outputs another language computed from conformance "
+                         "export's vectors: DIR/<case>.npz and DIR/implements.json (docs/comparing_runs.md); give "
+                         "the export's selection")
     check_parser.add_argument("--rtol", type=option_value(float, relative_tolerance, "a number"), default=None,
                               help="pass threshold on the relative error, a finite number > 0 (default: "
                               + ", ".join(f"{r:g} in {t}" for t, r in DEFAULT_RTOL.items()) + ")")
