@@ -155,8 +155,15 @@ def _execute(plan, executor, overwrite, progress, announce):
     try:
         executor.map(run, [plan.runs[i]["spec"] for i in todo], on_result=arrived)
     except KeyboardInterrupt:
-        raise Interrupted(plan.out, sum(r is not None and not r.get("error") for r in results), len(results)) from None
+        raise Interrupted(plan.out, len(_kept(plan, results)), len(results)) from None
     return results
+
+
+def _kept(plan, results):
+    """The runs an interrupted study keeps: those whose results arrived, and those a worker finished writing before
+    their results could arrive (what the same command will reuse, :func:`~.runs.finished`)."""
+    found = [result if result is not None else finished(planned["spec"]) for planned, result in zip(plan.runs, results)]
+    return [result for result in found if result is not None and not result.get("error")]
 
 
 def _record(planned, result, exact_fn):
