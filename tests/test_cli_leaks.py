@@ -1,4 +1,4 @@
-"""The command line's small leaks (issue 48): the GPU backend without a GPU is refused by every command that takes a
+"""The command line's small leaks: the GPU backend without a GPU is refused by every command that takes a
 backend in the same one line with exit status 2, and a pass threshold out of its range is refused by name."""
 
 from types import SimpleNamespace

@@ -44,14 +44,17 @@ def _numba_cuda_missing():
 
 
 def _compiler_missing():
-    """Why numba-cuda cannot compile for a device here (no NVVM), or ``None``."""
+    """Why numba-cuda cannot compile for a device here (no NVVM, or no NVRTC, which it asks for the compute
+    capabilities it can target), or ``None``."""
     try:
+        from numba.cuda.cudadrv.nvrtc import get_supported_ccs
         from numba.cuda.cudadrv.nvvm import NVVM
 
         NVVM()
-    except Exception as exc:  # NvvmSupportError and the like: reported as the skip's reason
-        return (f"CUDA's compiler library NVVM is not installed ({type(exc).__name__}); pip install -e '.[gpu]' "
-                "brings it")
+        get_supported_ccs()
+    except Exception as exc:  # NvvmSupportError, DynamicLibNotFoundError and the like: reported as the skip's reason
+        return (f"CUDA's compiler libraries NVVM and NVRTC are not both installed ({type(exc).__name__}); "
+                "pip install -e '.[gpu]' brings them")
     return None
 
 

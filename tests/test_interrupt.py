@@ -1,4 +1,4 @@
-"""Ctrl-C stops ``mpmref study`` and ``mpmref verify`` at once (issue 48): SIGINT sent to the whole process group (what
+"""Ctrl-C stops ``mpmref study`` and ``mpmref verify`` at once: SIGINT sent to the whole process group (what
 a terminal does) or to the main process alone ends the command with exit status 130 within seconds, its worker
 processes (and ``verify``'s background compilation) gone, no leaked semaphore, and one line saying what is kept and
 what running it again does; a study run again runs only the runs that had not finished.

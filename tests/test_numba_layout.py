@@ -1,5 +1,6 @@
-"""The Numba backend's file layout: files of at most 400 lines, compiled kernels of at most 20 parameters, one
-declared interface for the transfer kernels of both dimensions, and the CPIC fits read by name."""
+"""The Numba backend's file layout (its own folder and the pointwise physics it compiles): files of at most 400
+lines, compiled kernels of at most 20 parameters, one declared interface for the transfer kernels of both
+dimensions, and the CPIC fits read by name."""
 
 import ast
 import inspect
@@ -9,8 +10,8 @@ import pytest
 
 from mpmref.backends.numba.transfers import TRANSFER_KERNELS, DimensionTransfers
 
-BACKEND = Path(__file__).resolve().parent.parent / "mpmref" / "backends" / "numba"
-SOURCES = sorted(BACKEND.rglob("*.py"))
+BACKENDS = Path(__file__).resolve().parent.parent / "mpmref" / "backends"
+SOURCES = sorted(path for folder in ("numba", "pointwise") for path in (BACKENDS / folder).rglob("*.py"))
 MAX_LINES = 400
 MAX_PARAMETERS = 20
 
@@ -22,9 +23,10 @@ def decorator_name(node):
 
 
 def compiled_functions(path):
-    """Every function of ``path`` (nested ones too) decorated with Numba's ``jit`` or ``njit``."""
+    """Every function of ``path`` (nested ones too) decorated with Numba's ``jit`` or ``njit``, or ``pointwise``
+    (compiled with ``njit`` for the CPU)."""
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.FunctionDef) and any(decorator_name(d) in ("jit", "njit")
+        if isinstance(node, ast.FunctionDef) and any(decorator_name(d) in ("jit", "njit", "pointwise")
                                                      for d in node.decorator_list):
             yield node
 
@@ -42,12 +44,12 @@ def test_the_walk_finds_the_compiled_kernels():
 
 
 def test_no_file_of_the_backend_is_longer_than_400_lines():
-    lengths = {str(path.relative_to(BACKEND)): len(path.read_text().splitlines()) for path in SOURCES}
+    lengths = {str(path.relative_to(BACKENDS)): len(path.read_text().splitlines()) for path in SOURCES}
     assert {name: n for name, n in lengths.items() if n > MAX_LINES} == {}
 
 
 def test_no_compiled_kernel_takes_more_than_20_parameters():
-    too_many = {f"{path.relative_to(BACKEND)}:{f.lineno} {f.name}": parameter_count(f)
+    too_many = {f"{path.relative_to(BACKENDS)}:{f.lineno} {f.name}": parameter_count(f)
                 for path in SOURCES for f in compiled_functions(path) if parameter_count(f) > MAX_PARAMETERS}
     assert too_many == {}
 

@@ -1,4 +1,4 @@
-"""The length of a run, said before it starts (issue 48): ``mpmref run --t-end T`` and ``mpmref study`` print one line
+"""The length of a run, said before it starts: ``mpmref run --t-end T`` and ``mpmref study`` print one line
 with the steps, the particles and the rate measured on a few steps here; past an hour, a warning that says how
 Ctrl-C stops it. The estimate is checked against a fixed-Δt scene, whose step count is known."""
 

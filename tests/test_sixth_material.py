@@ -62,7 +62,7 @@ def cases(dtype="float64"):
         base = found[name + ("-f32" if dtype == "float32" else "")]
         scene = json.loads(json.dumps(base.scene_dict))
         scene["materials"] = {m: {"type": KIND, **SPEC} for m in scene["materials"]}
-        out.append(ConformanceCase(base.stage, base.dim, KIND, scene, dtype, seed_label=base.label))
+        out.append(ConformanceCase(base.stage, base.dim, KIND, scene, dtype))
     return out
 
 

@@ -1,4 +1,4 @@
-"""What a study says of its orders (issue 48): a fitted order from two errors says it is the line through two points
+"""What a study says of its orders: a fitted order from two errors says it is the line through two points
 (in its row of results.json, the summary line and index.html), and a row whose fitted order and Richardson's estimate
 differ by 0.5 or more says so in its note, with the reason."""
 

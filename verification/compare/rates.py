@@ -1,4 +1,4 @@
-"""The false-alarm and detection rates of ``mpmref compare``, measured over seeds of a chaotic scene (issue 50 item 6).
+"""The false-alarm and detection rates of ``mpmref compare``, measured over seeds of a chaotic scene.
 
 ``python -m verification.compare.rates [--seeds 20] [--members 20] [--out DIR]`` runs, for each seed, the scene
 ``examples/outside_mpm/dam_break.toml`` with its randomly sampled water drawn from that seed, and judges against

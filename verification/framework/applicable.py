@@ -96,8 +96,12 @@ def fit(scene, backend, allow=Allow()):
     backend : str, callable or backend object
         A backend reference (:mod:`mpmref.backends`).
     allow : Allow
+        What the case's claim lets change.
 
-    Returns and raises as :func:`mpmref.backends.fitting.fit`.
+    Returns
+    -------
+    Fitted
+        As :func:`mpmref.backends.fitting.fit` returns and raises.
     """
     scene = scene if isinstance(scene, Scene) else Scene.from_dict(scene)
     return fit_declaration(scene, declaration_of(backend), allow, accept=lambda s: _refuse_if_declined(backend, s))

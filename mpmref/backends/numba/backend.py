@@ -70,8 +70,8 @@ class NumbaBackend(RowStages):
 
     Only what the scene declares is compiled: the transfer kernels for its dimension, kernel, scheme and
     force (:func:`~.transfers.make_p2g`, :func:`~.transfers.make_g2p`), and the stress and return-map
-    kernels of its materials' declared laws (:mod:`.materials`). Walls and level-set colliders are the pointwise
-    ones of :mod:`mpmref.backends.pointwise.grid`, compiled.
+    kernels of its materials' declared laws (:mod:`mpmref.backends.numba.materials`). Walls and level-set
+    colliders are the pointwise ones of :mod:`mpmref.backends.pointwise.grid`, compiled.
 
     The grid is sparse (:mod:`.sparse`): P2G, the grid update and G2P store and visit only the blocks that
     the particles' stencils reach. Node arrays come in two forms. A stage given the ``prepared`` sort of

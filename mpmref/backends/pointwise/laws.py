@@ -39,7 +39,7 @@ J_FLOOR = 1e-6
 @pointwise(inline=True)
 def corotated_into(F, mu, lam, scale, tau, work):
     r"""``tau`` = ``scale`` :math:`(2\mu(F - R)F^T + \lambda(J - 1)J\,I)` (fixed-corotated, Stomakhin et al. 2012 §4),
-    :math:`R` the polar rotation (:func:`.svd.polar_rotation`), :math:`J = \det F`."""
+    :math:`R` the polar rotation (:func:`mpmref.backends.pointwise.svd.polar_rotation`), :math:`J = \det F`."""
     real = tau.dtype.type
     polar_rotation(F, work[0], work[1], work[3, 0], work[2])
     R = work[0]
