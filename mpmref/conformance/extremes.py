@@ -8,8 +8,8 @@ a base node that changes where a particle sits exactly on a face, a return map t
 a tolerance. Each :class:`Extreme` is one family of such states; a case that holds it (:attr:`ConformanceCase.extreme
 <mpmref.conformance.case.ConformanceCase.extreme>`) draws its state as every case does, then puts every other particle
 (:func:`extreme_rows`) at one rung of the family's ladder, so that the drawn half sets the case's scale and each
-particle at an extreme is judged on its own (:func:`mpmref.conformance.report.row_relative_error`). Each such particle
-has a note, "|S₀₁| = 1e-07", that a failure names.
+particle at an extreme is judged on its own (:func:`mpmref.conformance.measures.row_relative_error`). Each such particle
+has a note, ``"|S₀₁| = 1e-07"``, that a failure names.
 
 The families (``name``: what it holds, the stages it concerns):
 
