@@ -92,7 +92,7 @@ def test_mpm88_on_the_catalogue_fails_nothing_and_says_why_each_other_case_does_
 
 def test_a_wrong_trace_planted_in_a_copy_of_mpm88_is_caught_on_its_scene(tmp_path, monkeypatch, capsys):
     """J updated with C_xx + C_xy: the G2P cases fail on J (and nothing else), so do the steps and their ledgers
-    (the multi-step ones from rest most on C: the wrong J has driven the stress for 80 steps); the stages before G2P
+    (the multi-step ones from rest most on C: the wrong J has driven the stress for 40 steps); the stages before G2P
     pass. The failure lines name the case, the stage's output and the setting (γ = 1)."""
     source = (EXAMPLES / "mpm88_backend.py").read_text()
     assert source.count(RIGHT_TRACE) == 1

@@ -119,11 +119,25 @@ class ConformanceCase:
         return PARTS if self.source else STAGE_PARTS[self.stage]
 
     def scene(self):
+        """A new :class:`~mpmref.scene.Scene` of the case (what a candidate's factory is given)."""
         return Scene.from_dict(self.scene_dict)
+
+    def __getstate__(self):
+        """The fields without the caches of :meth:`parsed_scene` and :meth:`inputs` (a pickled case draws again)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_parsed_scene", "_drawn_state")}
+
+    def parsed_scene(self):
+        """The case's :class:`~mpmref.scene.Scene`, parsed once: the harness's own, read-only (the draw, the
+        reference, what a case needs); a candidate gets its own, :meth:`scene`."""
+        parsed = self.__dict__.get("_parsed_scene")
+        if parsed is None:
+            parsed = self.scene()
+            object.__setattr__(self, "_parsed_scene", parsed)
+        return parsed
 
     def step_dt(self, scene=None):
         """The case's Δt: :attr:`dt`, else the scene's ``time.dt``."""
-        return self.dt if self.dt is not None else (scene or self.scene()).time.dt
+        return self.dt if self.dt is not None else (scene or self.parsed_scene()).time.dt
 
     @property
     def steps(self):
@@ -131,17 +145,26 @@ class ConformanceCase:
         return FROM_REST_STEPS[self.dim] if self.extreme is not None and self.extreme.multi_step else 1
 
     def inputs(self):
-        """The stage's inputs as a flat dict of arrays (same result on every call)."""
-        return self._draw()[0]
+        """The stage's inputs as a flat dict of arrays (same result on every call: a copy of the one draw)."""
+        return {k: np.array(a, copy=True) for k, a in self._drawn()[0].items()}
 
     def notes(self):
         """What each row of the state holds at the case's :attr:`extreme` (``"|S₀₁| = 1e-07"``), ``None`` for a drawn
         row; ``None`` for a case without one or one whose rows are nodes."""
-        return self._draw()[1]
+        notes = self._drawn()[1]
+        return None if notes is None else list(notes)
+
+    def _drawn(self):
+        """:meth:`_draw`, once per case (the draw is deterministic; a case's inputs and notes come from one draw)."""
+        drawn = self.__dict__.get("_drawn_state")
+        if drawn is None:
+            drawn = self._draw()
+            object.__setattr__(self, "_drawn_state", drawn)
+        return drawn
 
     def _draw(self):
         """``(inputs, notes)``: the drawn state, put at the case's :attr:`extreme` if it has one."""
-        scene, rng = self.scene(), np.random.default_rng(self.seed)
+        scene, rng = self.parsed_scene(), np.random.default_rng(self.seed)
         scales = self.scales or catalogue_scales(scene)
         dt, time = self.step_dt(scene), draw_time(self.seed, scales.time)
         if self.stage in CPIC_CONFORMANCE_STAGES:
@@ -158,7 +181,7 @@ class ConformanceCase:
 
     def reference(self, inputs=None):
         """The NumPy reference's outputs of the stage on ``inputs`` (default: :meth:`inputs`), a flat dict."""
-        backend = make_backend("numpy", self.scene())
+        backend = make_backend("numpy", self.parsed_scene())
         fn = backend_stage(backend, self.stage)
         return run_stage(self.stage, fn, self.inputs() if inputs is None else inputs)
 

@@ -288,7 +288,7 @@ class Candidate:
 
     def run(self, case, rtol):
         """The :class:`CaseResult` or :class:`NotApplicable` of ``case``."""
-        scene = case.scene()
+        scene = case.parsed_scene()
         reasons = self.implements.missing(scene, case.parts)
         if reasons:
             return NotApplicable(case, tuple(reasons), "declared")
