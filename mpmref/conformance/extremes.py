@@ -70,8 +70,8 @@ COLLAPSE_VOLUMES = (1e-1, 1e-2, 1e-3, 1e-4)
 #: how far past (or inside) a yield surface the yield-surface states lie, relative
 YIELD_OFFSETS = (1e-10, 1e-9, 1e-7)
 #: steps of a ``from-rest`` case, per dimension: at :data:`REST_CFL` a wave crosses the block's height
-#: (:data:`BLOCK_CELLS`) in 10 steps in 2D and 5 in 3D, so these let the waves the block starts cross it four times in 2D
-#: and twice in 3D
+#: (:data:`BLOCK_CELLS`) in 10 steps in 2D and 5 in 3D, so that the waves the block starts cross it four times in 2D and
+#: twice in 3D
 FROM_REST_STEPS = {2: 40, 3: 10}
 #: the cells per axis of a ``from-rest`` block (two particles per cell and axis: 64 in 2D, 128 in 3D); gravity is along
 #: axis 1, its height
