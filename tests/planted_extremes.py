@@ -69,7 +69,7 @@ class QuirkySvd(NumpyBackend):
 
     def return_map(self, particles):
         new = super().return_map(particles)
-        if self.scene.dim != 2:
+        if self.scene.dim != 2 or new.Jp is None:  # no plastic material: nothing to project
             return new
         F, Jp = new.F.copy(), new.Jp.copy()
         for index, m in enumerate(self.scene.material_list):

@@ -192,7 +192,7 @@ def particle_state(draw, scene, stage, dtype, scales):
         vol0 = grid.dx**dim / 2**dim
         flat["vol0"].append(vol0)
         flat["mass"].append(material.rho * vol0)
-        notes.append("; ".join([region] + [r for _, r in placed]))
+        notes.append("; ".join(dict.fromkeys([region] + [r for _, r in placed])))  # each region once
     out = _allocated(scene, {k: np.array(v) for k, v in flat.items() if v}, n, scales)
     assume(well_posed_positions(scene, out["x"], stage))
     return out, notes
