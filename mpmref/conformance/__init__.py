@@ -102,7 +102,8 @@ that factor (:mod:`.diagnosis`).
 
 from .cases import ConformanceCase, make_cases, valid_methods
 from .cli import add_parser
-from .report import CaseResult, NotApplicable, Report, check, relative_error, stage_functions
+from .measures import relative_error
+from .report import CaseResult, NotApplicable, Report, check, stage_functions
 from .scenes import scene_cases
 from .stages import ALL_CONFORMANCE_STAGES, ASYNC_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES
 from .vectors import export, load_vectors

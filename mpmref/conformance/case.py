@@ -16,6 +16,7 @@ from ..physics.interface import momentum_share
 from ..scene import Scene
 from ..state import GridState
 from .cpic import RUNNERS, random_cpic_state, reference_grid_velocity
+from .extremes import FROM_REST_STEPS, Extreme
 from .stages import (
     ASYNC_CONFORMANCE_STAGES,
     CPIC_CONFORMANCE_STAGES,
@@ -67,6 +68,11 @@ class ConformanceCase:
     source : str       the name of the user's scene the case was drawn from (:mod:`~mpmref.conformance.scenes`),
                        ``None`` for a built-in case; such a case is applicable only to a backend that implements that
                        whole scene
+    extreme : Extreme  the family of extreme states the case holds (:mod:`~mpmref.conformance.extremes`), ``None`` for a
+                       drawn state
+    seed_label : str   what the case's draws are seeded by (:attr:`label`); ``None``: ``stage-<dim>d-variant``. A case
+                       drawn from a scene is seeded by its stage and number, never by the scene's name
+                       (:func:`seeded_label`)
     """
 
     stage: str
@@ -77,6 +83,8 @@ class ConformanceCase:
     scales: object = None
     dt: float | None = None
     source: str | None = None
+    extreme: Extreme | None = None
+    seed_label: str | None = None
 
     @property
     def name(self):
@@ -85,9 +93,15 @@ class ConformanceCase:
         return f"{self.stage}-{self.dim}d-{self.variant}{suffix}"
 
     @property
+    def label(self):
+        """What the case's draws (grid, Δt, time, state) are seeded by: :attr:`seed_label`, else the name without the
+        dtype (a float32 case rounds the float64 state)."""
+        return self.seed_label or f"{self.stage}-{self.dim}d-{self.variant}"
+
+    @property
     def seed(self):
-        """Seed of the state: CRC-32 of the name without the dtype (a float32 case rounds the float64 state)."""
-        return zlib.crc32(f"{self.stage}-{self.dim}d-{self.variant}".encode())
+        """Seed of the state: CRC-32 of :attr:`label`."""
+        return zlib.crc32(self.label.encode())
 
     @property
     def rtol(self):
@@ -105,38 +119,114 @@ class ConformanceCase:
         return PARTS if self.source else STAGE_PARTS[self.stage]
 
     def scene(self):
+        """A new :class:`~mpmref.scene.Scene` of the case (what a candidate's factory is given)."""
         return Scene.from_dict(self.scene_dict)
+
+    def __getstate__(self):
+        """The fields without the caches of :meth:`parsed_scene` and :meth:`inputs` (a pickled case draws again)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_parsed_scene", "_drawn_state")}
+
+    def parsed_scene(self):
+        """The case's :class:`~mpmref.scene.Scene`, parsed once: the harness's own, read-only (the draw, the
+        reference, what a case needs); a candidate gets its own, :meth:`scene`."""
+        parsed = self.__dict__.get("_parsed_scene")
+        if parsed is None:
+            parsed = self.scene()
+            object.__setattr__(self, "_parsed_scene", parsed)
+        return parsed
 
     def step_dt(self, scene=None):
         """The case's Δt: :attr:`dt`, else the scene's ``time.dt``."""
-        return self.dt if self.dt is not None else (scene or self.scene()).time.dt
+        return self.dt if self.dt is not None else (scene or self.parsed_scene()).time.dt
+
+    @property
+    def steps(self):
+        """The steps a ``step`` case runs: :data:`~.extremes.FROM_REST_STEPS` for a multi-step extreme, else 1."""
+        return FROM_REST_STEPS[self.dim] if self.extreme is not None and self.extreme.multi_step else 1
 
     def inputs(self):
-        """The stage's inputs as a flat dict of arrays (same result on every call)."""
-        scene, rng = self.scene(), np.random.default_rng(self.seed)
+        """The stage's inputs as a flat dict of arrays (same result on every call: a copy of the one draw)."""
+        return {k: np.array(a, copy=True) for k, a in self._drawn()[0].items()}
+
+    def notes(self):
+        """What each row of the state holds at the case's :attr:`extreme` (``"|S₀₁| = 1e-07"``), ``None`` for a drawn
+        row; ``None`` for a case without one or one whose rows are nodes."""
+        notes = self._drawn()[1]
+        return None if notes is None else list(notes)
+
+    def _drawn(self):
+        """:meth:`_draw`, once per case (the draw is deterministic; a case's inputs and notes come from one draw)."""
+        drawn = self.__dict__.get("_drawn_state")
+        if drawn is None:
+            drawn = self._draw()
+            object.__setattr__(self, "_drawn_state", drawn)
+        return drawn
+
+    def _draw(self):
+        """``(inputs, notes)``: the drawn state, put at the case's :attr:`extreme` if it has one."""
+        scene, rng = self.parsed_scene(), np.random.default_rng(self.seed)
         scales = self.scales or catalogue_scales(scene)
         dt, time = self.step_dt(scene), draw_time(self.seed, scales.time)
         if self.stage in CPIC_CONFORMANCE_STAGES:
-            return _as_dtype(cpic_inputs(self.stage, scene, rng, scales, dt, time), self.dtype)
+            return _as_dtype(cpic_inputs(self.stage, scene, rng, scales, dt, time), self.dtype), None
         if self.stage in ASYNC_CONFORMANCE_STAGES:
-            return async_inputs(self.stage, scene, rng, scales, dt, time, self.dtype)
+            return async_inputs(self.stage, scene, rng, scales, dt, time, self.dtype), None
         flat = random_grid(scene, rng, scales) if self.stage == "grid_update" else random_particles(scene, rng, scales)
-        if self.stage == "g2p":
-            flat.update(reference_grid_velocities(scene, flat, dt, time)[0])
-        if self.stage in STAGES_WITH_DT:
-            flat["dt"] = np.array(dt)
-        if self.stage in STAGES_WITH_TIME:
-            flat["time"] = np.array(time)
-        flat = _as_dtype(flat, self.dtype)
-        if self.stage in ("p2g", "p2g_fused"):  # the input of a P2G that takes the stress (docs/conformance.md)
-            flat["tau"] = make_backend("numpy", scene).stress(particles_from(flat))
-        return flat
+        notes = None
+        if self.extreme is not None and self.extreme.state is not None:
+            flat, notes = self.extreme.state(scene, flat, rng, self.dtype)
+        if self.steps > 1:
+            flat["steps"] = np.array(self.steps)
+        return completed(self.stage, scene, flat, dt, time, self.dtype), notes
 
     def reference(self, inputs=None):
         """The NumPy reference's outputs of the stage on ``inputs`` (default: :meth:`inputs`), a flat dict."""
-        backend = make_backend("numpy", self.scene())
+        backend = make_backend("numpy", self.parsed_scene())
         fn = backend_stage(backend, self.stage)
         return run_stage(self.stage, fn, self.inputs() if inputs is None else inputs)
+
+
+def completed(stage, scene, flat, dt, time, dtype):
+    """The inputs of ``stage`` from a particle or grid state ``flat`` (float64): for G2P the reference's grid velocities
+    of that state, Δt and the time where the stage takes them, the floating arrays in ``dtype``, and for P2G the
+    reference's stress of the state (the input of a P2G that takes the stress, docs/conformance.md)."""
+    flat = dict(flat)
+    if stage == "g2p":
+        flat.update(reference_grid_velocities(scene, flat, dt, time)[0])
+    if stage in STAGES_WITH_DT:
+        flat["dt"] = np.array(dt)
+    if stage in STAGES_WITH_TIME:
+        flat["time"] = np.array(time)
+    flat = _as_dtype(flat, dtype)
+    if stage in ("p2g", "p2g_fused"):
+        flat["tau"] = make_backend("numpy", scene).stress(particles_from(flat))
+    return flat
+
+
+@dataclass(frozen=True, eq=False)
+class GivenCase(ConformanceCase):
+    """A case whose state is given rather than drawn: one a search found (:mod:`.search`), or one read from a case file
+    (:func:`.casefile.load_case`).
+
+    Attributes
+    ----------
+    given : dict        its inputs, complete (Δt, time and the reference's derived inputs included)
+    given_notes : tuple what each particle holds (``None`` for one without a note), or ``None``
+    """
+
+    given: dict = field(default_factory=dict, repr=False)
+    given_notes: tuple | None = None
+
+    def _draw(self):
+        notes = None if self.given_notes is None else list(self.given_notes)
+        return {k: np.array(v) for k, v in self.given.items()}, notes
+
+
+def seeded_label(label, base_seed=0):
+    """The label a case's draws are seeded by, for the base seed ``base_seed`` (``--seed``): ``label`` itself for the
+    default 0, so that the default cases are the same on every machine and in every version; ``label@<seed>``
+    otherwise, a new draw of every case (grid, Δt, time and state)."""
+    return label if base_seed == 0 else f"{label}@{base_seed}"
 
 
 def backend_stage(backend, stage):

@@ -24,15 +24,17 @@ import numpy as np
 
 from ..backends.capabilities import EVERYTHING, SCHEMES, Implements
 from ..backends.fitting import closest_method, implemented_methods, implements_material
-from ..errors import SceneError
+from ..errors import ArgumentError, SceneError
 from ..physics.catalogue import MATERIALS as MATERIAL_CLASSES
 from ..physics.kernels import KERNELS
 from ..physics.parameters import declared as declared_parameters
 from ..physics.scheme import TRANSFER_OF
+from ..run.stability import stable_cfl
 from ..scene import CPIC_SCHEMES, FORCES, Scene
 from ..scene import SCHEMES as SCENE_SCHEMES
-from .case import DEFAULT_RTOL, STAGE_PARTS, ConformanceCase, backend_stage
+from .case import DEFAULT_RTOL, STAGE_PARTS, ConformanceCase, backend_stage, seeded_label
 from .cpic import cpic_scene_dict
+from .extremes import BLOCK_CELLS, EXTREMES, REST_CFL, STIFFNESS_FACTOR, holds_for
 from .stages import ALL_CONFORMANCE_STAGES, ASYNC_CONFORMANCE_STAGES, CONFORMANCE_STAGES, CPIC_CONFORMANCE_STAGES
 from .states import (
     CFL_RANGE,
@@ -41,11 +43,14 @@ from .states import (
     N_PARTICLES,
     REFERENCE_DX,
     TIME_RANGE,
+    catalogue_scales,
     cfl_number,
     draw_step,
     draw_time,
+    drawn_wave_speed,
     random_grid,
     random_particles,
+    step_at,
 )
 
 __all__ = ["CELL_RANGE", "CFL_RANGE", "DEFAULT_RTOL", "DX_RANGE", "EDGE_CELLS", "MATERIALS", "MIN_WEIGHT",
@@ -235,13 +240,15 @@ class Fit:
 
     ``target`` is what the cases are fitted to (a backend's declaration, narrowed by the filters); ``filters`` is the
     selection (``--material``, ``--scheme``, ``--kernel``): a case whose materials, scheme or kernel it excludes is
-    left out of the catalogue (a case the backend lacks stays in, and is reported as not applicable).
+    left out of the catalogue (a case the backend lacks stays in, and is reported as not applicable). ``seed`` is the
+    base seed of every case's draws (:func:`~.case.seeded_label`).
     """
 
     target: Implements = EVERYTHING
     materials: tuple | None = None
     schemes: tuple | None = None
     kernels: tuple | None = None
+    seed: int = 0
 
     def _check(self, dim, parts, **declared):
         """Whether the target implements ``parts`` of a unit-box scene with ``declared`` (keyword arguments of
@@ -319,8 +326,9 @@ def _parameters(spec):
     return {k: v for k, v in spec.items() if k != "type"}
 
 
-def fit_for(implements=None, materials=None, schemes=None, kernels=None):
-    """The :class:`Fit` of a backend's declaration ``implements`` (default: everything) narrowed by the filters."""
+def fit_for(implements=None, materials=None, schemes=None, kernels=None, seed=0):
+    """The :class:`Fit` of a backend's declaration ``implements`` (default: everything) narrowed by the filters, with
+    the base seed ``seed``."""
     target = implements or EVERYTHING
     narrowed = {"parameters": {k: dict(v) for k, v in target.parameters.items()}}
     if materials is not None:
@@ -333,26 +341,34 @@ def fit_for(implements=None, materials=None, schemes=None, kernels=None):
         narrowed["kernels"] = tuple(k for k in target.kernels if k in kernels)
     if len(narrowed) > 1:
         target = replace(target, **narrowed)
-    return Fit(target, materials, schemes, kernels)
+    return Fit(target, materials, schemes, kernels, seed)
 
 
 # -------------------------------------------------------------------------------------------- cases
 def drawn_case(stage, dim, variant, dtype, materials, method=None, boundary=None, colliders=False, fit=None,
-               stepping=None):
+               stepping=None, extreme=None):
     """A case whose grid (:func:`case_grid`) and Δt (:func:`~.states.draw_step`, the scene's ``time.dt``, or the
     case's own Δt for asynchronous stepping) are drawn from its name; ``colliders``: one of each shape in its box
-    (:func:`collider_dicts`); the materials with the parameters ``fit`` fixes."""
-    label = f"{stage}-{dim}d-{variant}"
+    (:func:`collider_dicts`); the materials with the parameters ``fit`` fixes. A case that holds an ``extreme``
+    (:class:`~.extremes.Extreme`) is named after it and may have its own grid, scene and Δt
+    (:func:`extreme_scene`)."""
+    fit = fit or Fit()
+    if extreme is not None:
+        variant = f"{variant}-{extreme.name}"
+    label = seeded_label(f"{stage}-{dim}d-{variant}", fit.seed)
     grid = case_grid(label, dim)
-    parameters = (fit or Fit()).target.parameters
+    parameters = fit.target.parameters
     declared = scene_dict(dim, materials, method, boundary, collider_dicts(dim, grid) if colliders else (), dtype,
                           grid, parameters)
-    dt = draw_step(label, Scene.from_dict(declared))
+    if extreme is not None:
+        declared, dt = extreme_scene(declared, extreme, label)
+    else:
+        dt = draw_step(label, Scene.from_dict(declared))
     if stepping == "async":
         declared["time"] = dict(ASYNC_TIME)
-        return ConformanceCase(stage, dim, variant, declared, dtype, dt=dt)
+        return ConformanceCase(stage, dim, variant, declared, dtype, dt=dt, seed_label=label)
     declared["time"] = {"dt": dt}
-    return ConformanceCase(stage, dim, variant, declared, dtype)
+    return ConformanceCase(stage, dim, variant, declared, dtype, extreme=extreme, seed_label=label)
 
 
 def _material_cases(stage, dim, dtype, set_names, fit, stepping=None):
@@ -439,8 +455,9 @@ def _cpic_case(stage, label, method, dim, fit):
     declared = cpic_scene_dict(scene_dict(dim, names, parameters=fit.target.parameters), method)
     scene = Scene.from_dict(declared)
     penalty = scene.cpic.penalty
-    declared["time"] = {"dt": draw_step(f"{stage}-{dim}d-{label}", scene, limit=1.0 / penalty if penalty else None)}
-    return ConformanceCase(stage, dim, label, declared)
+    seed_label = seeded_label(f"{stage}-{dim}d-{label}", fit.seed)
+    declared["time"] = {"dt": draw_step(seed_label, scene, limit=1.0 / penalty if penalty else None)}
+    return ConformanceCase(stage, dim, label, declared, seed_label=seed_label)
 
 
 def _cpic_cases(stage, dim, dtype, fit):
@@ -487,14 +504,134 @@ _STAGE_CASES = {
 }
 
 
+# -------------------------------------------------------------------------------------- extreme cases
+#: the methods of the position and Δt extremes: each kernel once, both forces, an affine scheme and FLIP
+EXTREME_METHODS = ("mls-mls-quadratic", "pic-classic-linear", "flip-classic-cubic")
+#: the strain a ``from-rest`` block settles to on the floor under the gravity of :func:`extreme_scene`
+REST_STRAIN = 1e-3
+
+
+def exact_grid(grid):
+    """The box ``grid`` (:func:`case_grid`) with its cell size rounded to a power of two and its origin to a whole
+    number of cells: every node and face position, and every grid coordinate computed from one, is exact in any
+    arithmetic, so that a particle placed on a line is on it for every code."""
+    dx = 2.0 ** round(float(np.log2(grid["dx"])))
+    cells = np.round(np.asarray(grid["size"]) / grid["dx"])
+    origin = np.round(np.asarray(grid["origin"]) / grid["dx"]) * dx
+    return {"origin": origin.tolist(), "size": (cells * dx).tolist(), "dx": dx}
+
+
+def extreme_scene(declared, extreme, label):
+    r"""``(declared, dt)``: the scene of a catalogue case that holds ``extreme``, and its Δt.
+
+    * an exact grid (:func:`exact_grid`) for the position extremes;
+    * the materials :data:`~.extremes.STIFFNESS_FACTOR` times stiffer (``E``, ``K``) for ``large-stiffness``;
+    * for ``from-rest``, gravity along the catalogue's of :math:`g = \epsilon c^2 / H`, the strain
+      :math:`\epsilon` = :data:`REST_STRAIN` of the block of :func:`~.extremes.at_rest_block` on the floor (its height
+      :math:`H`, :data:`~.extremes.BLOCK_CELLS`) at the rest wave speed :math:`c`; none for ``pushed-from-rest``;
+    * Δt at the scheme's measured stability limit (``cfl-limit``, :func:`mpmref.run.stability.stable_cfl`), at
+      :data:`~.extremes.REST_CFL` at rest, else drawn (:func:`~.states.draw_step`).
+    """
+    declared = dict(declared)
+    if extreme.exact_grid:
+        declared["grid"] = exact_grid(declared["grid"])
+    if extreme.name == "large-stiffness":
+        declared["materials"] = {name: {k: v * STIFFNESS_FACTOR if k in ("E", "K") else v for k, v in m.items()}
+                                 for name, m in declared["materials"].items()}
+    if extreme.multi_step:
+        scene = Scene.from_dict(declared)
+        g = np.asarray(GRAVITY[:scene.dim])
+        strength = REST_STRAIN * drawn_wave_speed(scene) ** 2 / (BLOCK_CELLS[scene.dim][1] * scene.grid.dx)
+        declared["gravity"] = (0.0 * g if extreme.name == "pushed-from-rest" else strength * g / np.linalg.norm(g))
+        declared["gravity"] = declared["gravity"].tolist()
+    scene = Scene.from_dict(declared)
+    if extreme.cfl == "limit":
+        return declared, step_at(scene, stable_cfl(scene.method.scheme), catalogue_scales(scene).speed)
+    if extreme.cfl == "rest":
+        return declared, step_at(scene, REST_CFL, 0.0)
+    return declared, draw_step(label, scene)
+
+
+def _extreme_material_cases(stage, dim, dtype, fit, families):
+    """Each material alone (:data:`MATERIALS`, the plastic ones for the return map), holding each family of
+    ``families(material type)`` that applies to it."""
+    walls, _ = fit.walls(dim)
+    names = PLASTIC_SETS[:-1] if stage == "return_map" else tuple(MATERIALS)
+    return [drawn_case(stage, dim, name, dtype, (name,), fit.method, walls, fit=fit, extreme=EXTREMES[family])
+            for name in names for family in families(MATERIALS[name]["type"])]
+
+
+def _stress_families(kind):
+    """The deformation families of a stress case of material ``kind``: the near-symmetric one for solids only."""
+    solid = MATERIAL_CLASSES[kind].tracks == "F"
+    return ("rest", "near-symmetric-F", "collapse") if solid else ("rest", "collapse")
+
+
+def _extreme_method_cases(stage, dim, dtype, fit, families):
+    """The methods of :data:`EXTREME_METHODS` (no FLIP for the fused P2G) on the solid and the fluid, each holding each
+    of ``families`` that holds for its kernel (:func:`~.extremes.holds_for`)."""
+    names, material_suffix = fit.material_set(TRANSFER_MATERIALS)
+    walls, wall_suffix = fit.walls(dim)
+    wall_suffix = wall_suffix if "boundary" in STAGE_PARTS[stage] else ""
+    methods = [method_of(m) for m in EXTREME_METHODS if not (stage == "p2g_fused" and m.startswith("flip"))]
+    return [drawn_case(stage, dim, method_label(m) + material_suffix + wall_suffix, dtype, names, method=m,
+                       boundary=walls, fit=fit, extreme=EXTREMES[family]) for m in methods for family in families
+            if holds_for(EXTREMES[family], KERNELS[m["kernel"]])]
+
+
+def _extreme_mixed_cases(stage, dim, dtype, fit, families):
+    """Every material together (:meth:`Fit.mixed_set`) on the method and walls ``fit`` gives, holding each of
+    ``families``."""
+    names, variant = fit.mixed_set()
+    walls, wall_suffix = fit.walls(dim)
+    return [drawn_case(stage, dim, variant + fit.method_suffix() + wall_suffix, dtype, names, fit.method, walls,
+                       fit=fit, extreme=EXTREMES[family]) for family in families]
+
+
+POSITION_FAMILIES = ("on-nodes-and-faces", "domain-edge")
+
+
+def extreme_cases(stage, dim, dtype, fit):
+    """The catalogue's cases at the extremes (:mod:`.extremes`) of ``stage``: the stress of each material at rest, near
+    symmetric and collapsing, and all of them a million times stiffer; the return maps at their yield surfaces and
+    collapsing; P2G, G2P and steps with particles on nodes and faces and at the domain's edge; the grid update with
+    empty and nearly empty nodes beside full ones; steps and ledgers at the stability limit; steps from rest, on the
+    floor and pushed, and stiff. None for the stages of asynchronous stepping and CPIC."""
+    walls, _ = fit.walls(dim)
+    cases = {
+        "stress": lambda: _extreme_material_cases(stage, dim, dtype, fit, _stress_families)
+        + _extreme_mixed_cases(stage, dim, dtype, fit, ("large-stiffness",)),
+        "return_map": lambda: _extreme_material_cases(stage, dim, dtype, fit, lambda kind: ("yield-surface",
+                                                                                           "collapse")),
+        "grid_update": lambda: [drawn_case(stage, dim, "mixed", dtype, fit.kinds[:1] or ("fixed_corotated",),
+                                           fit.method, walls, fit=fit, extreme=EXTREMES["massless-neighbours"])],
+        "step": lambda: _extreme_method_cases(stage, dim, dtype, fit, (*POSITION_FAMILIES, "cfl-limit"))
+        + _extreme_mixed_cases(stage, dim, dtype, fit, ("from-rest", "pushed-from-rest", "large-stiffness")),
+        "ledger": lambda: _extreme_method_cases(stage, dim, dtype, fit, ("cfl-limit",)),
+    }
+    if stage in ("p2g", "p2g_fused", "g2p"):
+        made = _extreme_method_cases(stage, dim, dtype, fit, POSITION_FAMILIES)
+    else:
+        made = cases[stage]() if stage in cases else []
+    return [c for c in made if dtype == "float64" or c.extreme.float32]
+
+
 def _validated(name, values, allowed):
     unknown = sorted(set(values or ()) - set(allowed))
     if unknown:
         raise ValueError(f"unknown {name} {unknown}: the {name} are {list(allowed)}")
 
 
+def base_seed(value):
+    """``value`` if it is a base seed (an integer >= 0), else :class:`~mpmref.errors.ArgumentError` (a
+    ``ValueError``) naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ArgumentError("seed", value, "an integer >= 0 (the base seed of the draws)")
+    return int(value)
+
+
 def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", materials=None, implements=None,
-               schemes=None, kernels=None):
+               schemes=None, kernels=None, seed=0, extremes=True):
     """The conformance cases of ``stages`` in the dimensions ``dims``, in ``dtype`` (a list of
     :class:`~.case.ConformanceCase`).
 
@@ -507,7 +644,10 @@ def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", material
     (module docstring); the cases it does not implement stay, for the check to list as not applicable. ``materials``
     (material types, e.g. ``("fluid",)``), ``schemes`` and ``kernels`` select: the catalogue is fitted to those
     materials (the per-method cases run on the fluid alone for ``("fluid",)``), and a case whose stage depends on
-    the materials or the method and whose materials, scheme or kernel are not among them is left out.
+    the materials or the method and whose materials, scheme or kernel are not among them is left out. ``seed`` (an
+    integer >= 0, ``--seed``) is the base seed of the draws: 0, the default, gives the same cases on every machine;
+    another gives every case a new grid, Δt, time and state (:func:`~.case.seeded_label`). ``extremes`` adds the cases
+    at the extremes (:func:`extreme_cases`, :mod:`.extremes`) after each stage's drawn ones.
     """
     _validated("stages", stages, ALL_CONFORMANCE_STAGES)
     if dtype not in DEFAULT_RTOL:
@@ -515,7 +655,10 @@ def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", material
     _validated("material types", materials, MATERIALS)
     _validated("schemes", schemes, SCENE_SCHEMES)
     _validated("kernels", kernels, KERNELS)
-    fit = fit_for(implements, materials, schemes, kernels)
-    cases = [case for stage in stages for dim in dims for case in _STAGE_CASES[stage](dim, dtype, fit)]
+    base_seed(seed)
+    fit = fit_for(implements, materials, schemes, kernels, seed)
+    cases = [case for stage in stages for dim in dims
+             for case in _STAGE_CASES[stage](dim, dtype, fit) + (extreme_cases(stage, dim, dtype, fit) if extremes
+                                                                 else [])]
     return [c for c in cases if fit.selects(c)]
 

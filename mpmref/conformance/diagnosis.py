@@ -10,8 +10,9 @@ and whether it is one uniform ratio.
   without mass has :math:`m_i = \sum_p w_{ip} m_p = 0`, so :math:`w_{ip} = 0` for every particle (each has
   :math:`m_p > 0`) and no particle reads it; a code may leave anything there (the 88-line program leaves
   :math:`\Delta t\,g`).
-* **Where.** The row of the worst output with the largest absolute difference: a particle (its index and
-  position ``x``) or a grid node (its index, its multi-index and its position ``origin + i dx``).
+* **Where.** The row of the worst output with the largest error on its own scale (:func:`worst_row`, the row that
+  decides the per-row error of :mod:`.measures`): a particle (its index and position ``x``) or a grid node (its index,
+  its multi-index and its position ``origin + i dx``).
 * **Uniform ratio.** If the candidate's output is the reference's times one factor :math:`k` everywhere
   (least squares :math:`k = \sum a r / \sum r^2`, and :math:`\max|a - k r|` below a thousandth of the error),
   the case says so: a wrong constant (a factor of :math:`D_p`, a missing :math:`\Delta t`) shows as "× k
@@ -22,6 +23,7 @@ import numpy as np
 
 from ..physics.materials import evolved_fields
 from ..state import DEFORMATION_FIELDS
+from .measures import row_floor, row_scores
 
 #: output names whose rows are grid nodes
 NODE_PREFIXES = ("grid_", "cdf_")
@@ -58,25 +60,36 @@ def _row_numbers(name, rows, length):
     return np.flatnonzero(mask) if mask is not None and mask.shape[0] == length else np.arange(length)
 
 
-def worst_place(name, got, expected, rows, scene, inputs):
-    """Where output ``name`` differs most from the reference: ``"particle 17 at x = [...]"``, ``"node 40 (i = (4,
-    4)) at x = [...]"``, or ``"row 3"``; ``""`` if nothing can be compared."""
+def worst_row(name, got, expected, rows):
+    """The row (particle or node, by its index in the inputs) of output ``name`` furthest from the reference on its own
+    scale (:func:`.measures.row_scores`: the row that decides the per-row error), or by absolute difference where the
+    reference is all zero; ``None`` if nothing can be compared."""
     a = np.asarray(got, dtype=np.float64)
     r = np.asarray(expected, dtype=np.float64)
     if a.shape != r.shape or a.ndim == 0 or a.size == 0:
-        return ""
+        return None
     numbers = _row_numbers(name, rows, r.shape[0])
-    diff = np.abs(restrict(name, a, rows) - restrict(name, r, rows)).reshape(len(numbers), -1)
-    if not diff.size:
+    a, r = restrict(name, a, rows), restrict(name, r, rows)
+    if not a.size:
+        return None
+    scores = row_scores(a, r, row_floor(got, expected), 1)
+    if scores is None:
+        scores = np.nan_to_num(np.abs(a - r), nan=np.inf).reshape(len(numbers), -1).max(axis=1)
+    return int(numbers[np.argmax(scores)])
+
+
+def worst_place(name, got, expected, rows, scene, inputs):
+    """Where output ``name`` differs most from the reference: ``"particle 17 at x = [...]"``, ``"node 40 (i = (4,
+    4)) at x = [...]"``, or ``"row 3"`` (:func:`worst_row`); ``""`` if nothing can be compared."""
+    row = worst_row(name, got, expected, rows)
+    if row is None:
         return ""
-    worst = np.nan_to_num(diff, nan=np.inf).max(axis=1)
-    row = int(numbers[np.argmax(worst)])
-    grid = scene.grid
-    if name.startswith(NODE_PREFIXES) and r.shape[0] == grid.n_nodes:
+    length, grid = np.shape(expected)[0], scene.grid
+    if name.startswith(NODE_PREFIXES) and length == grid.n_nodes:
         index = np.unravel_index(row, grid.node_shape)
         position = grid.origin + np.array(index) * grid.dx
         return f"node {row} (i = {tuple(int(i) for i in index)}) at x = {_vector(position)}"
-    if "x" in inputs and r.shape[0] == len(inputs["x"]):
+    if "x" in inputs and length == len(inputs["x"]):
         return f"particle {row} at x = {_vector(inputs['x'][row])}"
     return f"row {row}"
 
@@ -84,7 +97,7 @@ def worst_place(name, got, expected, rows, scene, inputs):
 def uniform_ratio(name, got, expected, rows):
     """The factor :math:`k` with ``got`` = k × ``expected`` on every compared entry of output ``name`` (to a
     thousandth of the error), or ``None`` when the error is not one ratio (or the output is one number, which any
-    ratio fits)."""
+    ratio fits, or the ratio is 1 to within 1e-6, which says nothing)."""
     a = restrict(name, np.asarray(got, dtype=np.float64), rows).ravel()
     r = restrict(name, np.asarray(expected, dtype=np.float64), rows).ravel()
     if a.shape != r.shape or a.size < 2 or not np.all(np.isfinite(a)):
@@ -96,7 +109,7 @@ def uniform_ratio(name, got, expected, rows):
     scale = np.max(np.abs(r))
     error = np.max(np.abs(a - r)) / scale
     residual = np.max(np.abs(a - k * r)) / scale
-    return k if error > 0.0 and residual <= 1e-3 * error else None
+    return k if error > 0.0 and residual <= 1e-3 * error and abs(k - 1.0) > 1e-6 else None
 
 
 def _vector(x):

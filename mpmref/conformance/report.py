@@ -22,43 +22,22 @@ from ..backends.capabilities import EVOLVED, declined
 from ..errors import ArgumentError
 from .candidates import candidate_implements, stage_set, validated
 from .cases import make_cases
-from .diagnosis import compared_rows, restrict, uniform_ratio, worst_place
+from .diagnosis import NODE_PREFIXES, compared_rows, restrict, uniform_ratio, worst_place, worst_row
+from .measures import judged_error, natural_scales
 from .stages import ALL_CONFORMANCE_STAGES, run_stage
+from .states import drawn_wave_speed
 
 
-def relative_error(candidate, reference, scale=None):
-    r"""Relative error of one output array: :math:`\max|a - r| / \max|r|`, or :math:`\max|a - r| / S` with a given
-    ``scale`` :math:`S`.
-
-    The maxima run over every entry of the array. Where the reference is all zero (and no scale is given) the
-    denominator is 1, so the error is :math:`\max|a|`. A shape mismatch or a non-finite difference counts as
-    ``inf``.
-    """
-    a, r = np.asarray(candidate), np.asarray(reference)
-    if a.shape != r.shape:
-        return math.inf
-    diff = float(np.max(np.abs(a.astype(np.float64) - r.astype(np.float64)), initial=0.0))
-    if scale is None:
-        scale = float(np.max(np.abs(r.astype(np.float64)), initial=0.0))
-    error = diff / scale if scale > 0.0 else diff
-    return error if math.isfinite(error) else math.inf
-
-
-def output_scale(name, expected):
-    """The denominator of output ``name``'s error other than its own largest entry, or ``None``: the reference's
-    ``energy_scale`` for a ledger term (``ledger_*``). A term is a difference of energies of that size, so its
-    round-off is relative to it, not to the term (which theory may put at zero:
-    :func:`mpmref.observe.ledger.energy_scale`)."""
-    return float(expected["energy_scale"]) if name.startswith("ledger_") and "energy_scale" in expected else None
-
-
-def compare_outputs(got, expected, rows=None):
-    """Per-output relative errors of ``got`` against ``expected`` and a note on missing or misshapen outputs.
+def compare_outputs(got, expected, rows=None, natural=None, settled=False):
+    """Per-output errors of ``got`` against ``expected`` (each an :class:`OutputError`: per row and case-wide,
+    :func:`judged_error`) and a note on missing or misshapen outputs.
 
     ``rows`` (:func:`.diagnosis.compared_rows`) restricts ``F``, ``J`` and ``Jp`` to the particles whose material
     evolves them; a misshapen output is compared whole (and fails); a ledger term is compared relative to the
-    reference's energy scale (:func:`output_scale`)."""
-    rows = rows or {}
+    reference's energy scale (:func:`.measures.output_scale`); ``natural`` (:func:`.measures.natural_scales`) gives
+    the outputs summed from larger terms the scale of their per-row floor, and with ``settled`` (a case of many steps
+    from rest, :func:`.measures.judged_error`) of their case-wide error too."""
+    rows, natural = rows or {}, natural or {}
     errors, problems = {}, []
     for name, ref in expected.items():
         value = got.get(name)
@@ -70,8 +49,8 @@ def compare_outputs(got, expected, rows=None):
             errors[name] = math.inf
             problems.append(f"{name} has shape {np.shape(value)}, expected {np.shape(ref)}")
             continue
-        errors[name] = relative_error(restrict(name, value, rows), restrict(name, ref, rows),
-                                      output_scale(name, expected))
+        errors[name] = judged_error(name, restrict(name, value, rows), restrict(name, ref, rows), expected,
+                                    natural.get(name, 0.0), settled)
     return errors, "; ".join(problems)
 
 
@@ -91,6 +70,7 @@ class CaseResult:
     where: str = ""  # the worst output's worst particle or node (:func:`.diagnosis.worst_place`)
     ratio: float | None = None  # the worst output is this factor times the reference everywhere, if it is
     setting: str = ""
+    holds: str = ""  # for a case at an extreme, what its worst particle holds (:func:`held_extreme`)
 
     @property
     def error(self):
@@ -217,11 +197,31 @@ def _case_lines(result, width):
     note = f"  {'; '.join(details)}" if details else ""
     lines = [f"  {status} {result.case.name:<{width}} {result.worst_output:<14} {result.error:.3e}{note}"]
     if not result.passed:
+        if result.holds:
+            lines[0] = f"  {status} {result.case.name} ({result.holds}): {result.worst_output} {result.error:.3e}{note}"
         if result.errors:
-            lines.append("       outputs: " + ", ".join(f"{k} {e:.3e}" for k, e in result.errors.items()))
+            lines.append("       outputs: " + ", ".join(_output_error(k, e) for k, e in result.errors.items()))
         if result.setting:
             lines.append(f"       setting: {result.setting}")
     return lines
+
+
+def _output_error(name, error):
+    """``"tau 1.600e-09"``, with the case-wide error after it where the per-row one is larger
+    (:class:`.measures.OutputError`)."""
+    case_wide = getattr(error, "case_wide", error)
+    return f"{name} {error:.3e}" + (f" (case-wide {case_wide:.3e})" if case_wide < error else "")
+
+
+def held_extreme(case, row):
+    """What ``case``'s particle ``row`` holds at its extreme (``"|S₀₁| = 1e-07 at particle 16"``), or what the case
+    holds (:attr:`~.extremes.Extreme.holds`) where that row has no note; ``""`` for a case without an extreme."""
+    if case.extreme is None:
+        return ""
+    notes = case.notes()
+    if notes is not None and row is not None and row < len(notes) and notes[row]:
+        return f"{notes[row]} at particle {row}"
+    return case.extreme.holds
 
 
 def describe_setting(case, scene, inputs):
@@ -266,7 +266,7 @@ def stage_functions(candidate, scene):
     return stage_set(resolve(candidate), scene).functions
 
 
-class _Candidate:
+class Candidate:
     """A resolved candidate, with what it made for each distinct scene (a factory is called once per scene)."""
 
     def __init__(self, found, implements):
@@ -288,7 +288,7 @@ class _Candidate:
 
     def run(self, case, rtol):
         """The :class:`CaseResult` or :class:`NotApplicable` of ``case``."""
-        scene = case.scene()
+        scene = case.parsed_scene()
         reasons = self.implements.missing(scene, case.parts)
         if reasons:
             return NotApplicable(case, tuple(reasons), "declared")
@@ -324,14 +324,23 @@ def _run_case(fn, case, scene, rtol, evolves):
         return CaseResult(case, {}, rtol, note=note, setting=setting)
     expected = {k: v for k, v in expected.items() if k not in EVOLVED or k in evolves}  # fields it does not evolve
     rows = compared_rows(scene, inputs)
-    errors, note = compare_outputs(got, expected, rows)
+    errors, note = compare_outputs(got, expected, rows, case_natural_scales(scene, inputs, expected), case.steps > 1)
     result = CaseResult(case, errors, rtol, note, setting=setting)
     worst = result.worst_output
     if result.passed or worst not in got:
         return result
     where = worst_place(worst, got[worst], expected[worst], rows, scene, inputs)
     ratio = uniform_ratio(worst, got[worst], expected[worst], rows)
-    return CaseResult(case, errors, rtol, note, where=where, ratio=ratio, setting=setting)
+    particle = "x" in inputs and not worst.startswith(NODE_PREFIXES)  # notes are the particles'
+    holds = held_extreme(case, worst_row(worst, got[worst], expected[worst], rows) if particle else None)
+    return CaseResult(case, errors, rtol, note, where=where, ratio=ratio, setting=setting, holds=holds)
+
+
+def case_natural_scales(scene, inputs, expected):
+    """The natural scales of a case's outputs (:func:`.measures.natural_scales`): its cell size, the rest wave speed of
+    its materials (:func:`~.states.drawn_wave_speed`) and its Δt, where its stage takes one."""
+    dt = float(inputs["dt"]) if "dt" in inputs else 0.0
+    return natural_scales(expected, scene.grid.dx, drawn_wave_speed(scene), dt)
 
 
 def _probe_scenes(cases):
@@ -386,7 +395,7 @@ def check(candidate, cases=None, rtol=None, progress=False, implements=None):
         implements = candidate_implements(found, _probe_scenes(cases))
     if cases is None:
         cases = make_cases(implements=implements)
-    runner, results, not_applicable = _Candidate(found, implements), [], []
+    runner, results, not_applicable = Candidate(found, implements), [], []
     bar = tqdm(cases, desc="conformance", unit="case", file=sys.stderr, disable=not progress)
     for case in bar:
         bar.set_postfix_str(case.name, refresh=True)

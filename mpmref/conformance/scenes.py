@@ -4,7 +4,8 @@ r"""Conformance cases drawn from a user's own scene: every stage its steps call,
 catalogue's. Each case keeps what the scene declares that a stage computes with: its dimension and dtype, its method
 (scheme, force, kernel, FLIP's α, CPIC coupling), its materials with their parameters, its gravity, its boundary
 (the wall on each face, friction, band width), its colliders and rigid bodies, and its time stepping. What the case
-draws (from a generator seeded by its name, as the built-in cases do) is
+draws (from a generator seeded by its stage and number, and the base seed, never by the scene's name: a scene checks
+the same under any name) is
 
 * **a small box** of :data:`SCENE_CELLS` cells per axis (at least two axes differ) at the scene's own cell size, placed
   at a random place in the scene's domain (the origin moves off the scene's by a non-whole number of cells);
@@ -29,11 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..run.stability import stable_cfl
 from ..scene import Scene
 from ..scene.builder import read_scene_file
-from .case import ConformanceCase
-from .cases import distinct_cells
-from .states import Scales, draw_step
+from .case import ConformanceCase, seeded_label
+from .cases import base_seed, distinct_cells
+from .extremes import EXTREMES, REST_CFL, holds_for
+from .states import Scales, draw_step, step_at
 
 #: cases per stage: each its own box, origin, Δt, time and state
 CASES_PER_STAGE = 5
@@ -193,16 +196,87 @@ def scene_case_dict(declared, scene, box, dtype):
     return out
 
 
-def _scene_case(stage, k, declared, scene, scales, dtype):
+def _scene_case(stage, k, declared, scene, scales, dtype, seed=0):
+    """Case ``k`` of ``stage``, named after the scene (``stress-2d-jelly-3``) and seeded by the stage and ``k`` alone
+    (and the base ``seed``): a scene checks the same under any name."""
     variant = f"{re.sub(r'[^A-Za-z0-9_.-]', '_', scene.name)}-{k}"  # file-name safe
-    label = f"{stage}-{scene.dim}d-{variant}"
+    label = seeded_label(f"{stage}-{scene.dim}d-scene-{k}", seed)
     case_dict = scene_case_dict(declared, scene, scene_box(label, scene), dtype)
     penalty = scene.cpic.penalty if scene.cpic is not None else 0.0
     case_dict["time"] = {"dt": 1.0}  # a placeholder while Δt is drawn from the case's own box
     dt = draw_step(label, Scene.from_dict(case_dict), scales.speed, 1.0 / penalty if penalty else None)
     case_dict["time"] = _time_section(declared.get("time", {}), scene, dt)
     own_dt = dt if scene.time.stepping != "sync" else None
-    return ConformanceCase(stage, scene.dim, variant, case_dict, dtype, scales, own_dt, scene.name)
+    return ConformanceCase(stage, scene.dim, variant, case_dict, dtype, scales, own_dt, scene.name, seed_label=label)
+
+
+#: the extreme families of each stage a scene's cases hold (:mod:`.extremes`), where they apply (:func:`scene_families`)
+SCENE_FAMILIES = {
+    "stress": ("rest", "near-symmetric-F", "collapse"),
+    "return_map": ("yield-surface", "collapse"),
+    "p2g": ("on-nodes-and-faces", "domain-edge"),
+    "p2g_fused": ("on-nodes-and-faces", "domain-edge"),
+    "g2p": ("on-nodes-and-faces", "domain-edge"),
+    "grid_update": ("massless-neighbours",),
+    "step": ("on-nodes-and-faces", "domain-edge", "cfl-limit", "from-rest", "pushed-from-rest"),
+    "ledger": ("cfl-limit",),
+}
+
+
+def scene_families(stage, scene, dtype="float64"):
+    """The extreme families of :data:`SCENE_FAMILIES` that ``stage`` of ``scene`` holds: the near-symmetric one with a
+    solid; the particle positions not with PolyPIC (its G2P divides by mode norms that vanish where a weight does, and
+    no code could be checked there); ``from-rest`` (on the floor) with gravity; in float32, the families that hold in it
+    (:attr:`~.extremes.Extreme.float32`); those that hold for its kernel (:func:`~.extremes.holds_for`)."""
+    families = SCENE_FAMILIES.get(stage, ())
+    skip = set()
+    if not scene.tracks("F"):
+        skip.add("near-symmetric-F")
+    if scene.transfer.polypic:
+        skip |= {"on-nodes-and-faces", "domain-edge"}
+    if not np.any(scene.gravity):
+        skip.add("from-rest")
+    return tuple(f for f in families if f not in skip and (dtype == "float64" or EXTREMES[f].float32)
+                 and holds_for(EXTREMES[f], scene.kernel))
+
+
+def extreme_box(label, scene, extreme):
+    """The box of a case at ``extreme``: for the particle positions, on the scene's node lattice (a whole number of
+    cells from its origin, so that a node of the box is a node of the scene), at the scene's lower corner for the
+    domain's edge; else :func:`scene_box`."""
+    box = scene_box(label, scene)
+    if not extreme.exact_grid:
+        return box
+    dx, origin = scene.grid.dx, scene.grid.origin
+    cells = np.round((np.asarray(box["origin"]) - origin) / dx)
+    box["origin"] = (origin + (0.0 if extreme.name == "domain-edge" else cells) * dx).tolist()
+    return box
+
+
+def _extreme_step(extreme, label, case_scene, scales, penalty):
+    """The Δt of a scene's case at ``extreme``: at the scheme's stability limit, at :data:`~.extremes.REST_CFL` at rest,
+    else drawn (:func:`~.states.draw_step`)."""
+    if extreme.cfl == "limit":
+        return step_at(case_scene, stable_cfl(case_scene.method.scheme), scales.speed)
+    if extreme.cfl == "rest":
+        return step_at(case_scene, REST_CFL, 0.0)
+    return draw_step(label, case_scene, scales.speed, 1.0 / penalty if penalty else None)
+
+
+def _scene_extreme_case(stage, family, declared, scene, scales, dtype, seed=0):
+    """The case of ``stage`` of the scene at the extreme ``family`` (``stress-2d-jelly-near-symmetric-F``), seeded by
+    the stage and the family alone (and the base ``seed``)."""
+    extreme = EXTREMES[family]
+    variant = f"{re.sub(r'[^A-Za-z0-9_.-]', '_', scene.name)}-{family}"
+    label = seeded_label(f"{stage}-{scene.dim}d-scene-{family}", seed)
+    case_dict = scene_case_dict(declared, scene, extreme_box(label, scene, extreme), dtype)
+    case_dict["time"] = {"dt": 1.0}  # a placeholder while Δt is found for the case's own box
+    penalty = scene.cpic.penalty if scene.cpic is not None else 0.0
+    dt = _extreme_step(extreme, label, Scene.from_dict(case_dict), scales, penalty)
+    case_dict["time"] = _time_section(declared.get("time", {}), scene, dt)
+    own_dt = dt if scene.time.stepping != "sync" else None
+    return ConformanceCase(stage, scene.dim, variant, case_dict, dtype, scales, own_dt, scene.name, extreme=extreme,
+                           seed_label=label)
 
 
 def load_scene(scene):
@@ -218,13 +292,15 @@ def load_scene(scene):
     return declared, Scene.from_dict(declared, base_dir=Path(scene).parent)
 
 
-def scene_cases(scene, stages=None, dtype=None, count=CASES_PER_STAGE):
+def scene_cases(scene, stages=None, dtype=None, count=CASES_PER_STAGE, seed=0, extremes=True):
     """The conformance cases of the user's ``scene`` (a TOML file's path, a dict of declarations or a
     :class:`~mpmref.scene.Scene`): :data:`CASES_PER_STAGE` cases of every stage its steps call
     (:func:`scene_stages`), or of ``stages`` (each one of those), in the scene's dtype or ``dtype``.
 
     Each case's :attr:`~.case.ConformanceCase.source` is the scene's name: a case applies to a backend that implements
-    the whole scene (:meth:`~mpmref.backends.capabilities.Implements.missing`).
+    the whole scene (:meth:`~mpmref.backends.capabilities.Implements.missing`). The draws are seeded by each case's
+    stage and number and the base ``seed`` (:func:`~.case.seeded_label`), never by the scene's name. ``extremes`` adds,
+    after each stage's drawn cases, one case at each extreme family the stage holds (:func:`scene_families`).
     """
     declared, parsed = load_scene(scene)
     called = scene_stages(parsed)
@@ -235,9 +311,14 @@ def scene_cases(scene, stages=None, dtype=None, count=CASES_PER_STAGE):
                              f"{', '.join(called)}")
     scales = scene_scales(parsed)
     dtype = dtype or parsed.dtype.name
-    return [_scene_case(stage, k, declared, parsed, scales, dtype)
-            for stage in (called if stages is None else [s for s in called if s in stages])
-            for k in range(1, count + 1)]
+    seed = base_seed(seed)
+    cases = []
+    for stage in called if stages is None else [s for s in called if s in stages]:
+        cases += [_scene_case(stage, k, declared, parsed, scales, dtype, seed) for k in range(1, count + 1)]
+        if extremes:
+            cases += [_scene_extreme_case(stage, family, declared, parsed, scales, dtype, seed)
+                      for family in scene_families(stage, parsed, dtype)]
+    return cases
 
 
 def scene_record(scene):

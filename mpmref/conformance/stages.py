@@ -131,7 +131,12 @@ def _g2p(fn, flat):
 
 
 def _step(fn, flat):
-    return particle_outputs(fn(particles_from(flat), float(flat["dt"]), float(flat["time"])))
+    """One step, or ``steps`` steps (a multi-step case, :data:`mpmref.conformance.extremes.FROM_REST_STEPS`), each at
+    its own time."""
+    particles, dt, time = particles_from(flat), float(flat["dt"]), float(flat["time"])
+    for k in range(int(flat.get("steps", 1))):
+        particles = fn(particles, dt, time + k * dt)
+    return particle_outputs(particles)
 
 
 def _ledger(fn, flat):

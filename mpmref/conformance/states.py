@@ -170,10 +170,16 @@ def draw_step(label, scene, speed=None, limit=None):
     speed = catalogue_scales(scene).speed if speed is None else speed
     cfl = np.exp(np.random.default_rng(zlib.crc32(f"dt-{label}".encode())).uniform(*np.log(CFL_RANGE)))
     signal = drawn_wave_speed(scene) + 4.0 * speed
-    dt = float(cfl * scene.grid.dx / signal)
+    dt = step_at(scene, cfl, speed)
     if limit is not None:
         dt *= min(1.0, limit / (CFL_RANGE[1] * scene.grid.dx / signal))
     return dt
+
+
+def step_at(scene, cfl, speed):
+    r"""Δt at the CFL number ``cfl``: :math:`\mathrm{CFL}\,\Delta x / (c + 4 s)` (the rule of :func:`draw_step`, at one
+    CFL number; :math:`c` of :func:`drawn_wave_speed`, :math:`s` = ``speed``)."""
+    return float(cfl * scene.grid.dx / (drawn_wave_speed(scene) + 4.0 * speed))
 
 
 def cfl_number(scene, dt=None, speed=None):

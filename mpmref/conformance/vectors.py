@@ -21,8 +21,9 @@ from .cases import make_cases
 FORMAT = "mpmref-conformance"
 #: 2: per-axis cells, dt and time per case, in_tau, materials' "evolves"; 3: the ledger stage; 4: the stages of
 #: asynchronous stepping, Δt and time of the CPIC cases per case, in_tau of p2g_fused, grid velocities compared on nodes
-#: with mass only, cases drawn from a scene (``scene``, each case's ``source`` and ``scales``)
-FORMAT_VERSION = 4
+#: with mass only, cases drawn from a scene (``scene``, each case's ``source`` and ``scales``); 5: the cases at the
+#: extremes (each case's ``extreme``, the multi-step cases' ``in_steps``), the error judged per particle too
+FORMAT_VERSION = 5
 MANIFEST = "manifest.json"
 CONVENTIONS = {
     "nodes": "grid arrays have one row per node in C order: node (i_0, ..., i_{d-1}), 0 <= i_a <= cells_a, "
@@ -49,7 +50,14 @@ CONVENTIONS = {
              "scenes step asynchronously and have no time.dt: the case's dt is in_dt and the manifest's dt",
     "modes": "axis 1 of in_modes / out_modes follows resolved.polypic_modes (per-axis polynomial degrees)",
     "error": "max|candidate - reference| / max|reference| over every entry of an output array (denominator 1 "
-             "where the reference is all zero); a case passes when its largest output error is <= rtol",
+             "where the reference is all zero), and per row (a particle, a node): max over rows of "
+             "max|a_row - r_row| / max(max|r_row|, floor * S), S the output's largest entry or, for v and C, the "
+             "larger natural scale of docs/conformance.md ('The error'), floor 0.227 in float64 and 1 in float32; an "
+             "output's error is the larger of the two, and a case passes when its largest output error is <= rtol",
+    "steps": "a step case with in_steps (a multi-step case at an extreme) runs that many steps from its inputs, step "
+             "k at time in_time + k in_dt, and its outputs are the particles after the last",
+    "extremes": "a case with an extreme holds states at an extreme by design (docs/conformance.md, 'Extremes'): its "
+                "entry's extreme names the family and what it holds",
     "ledger": "a ledger case has the inputs of a step case; its outputs are 0-d float64: out_ledger_<column> the "
               "energy ledger of that step (docs/energy_ledger.md: the terms p2g_transfer, boundary, g2p_transfer, "
               "advection, plastic, rigid_bodies, integration, the flows internal_work and gravity_work, energy_change "
@@ -65,12 +73,12 @@ CONVENTIONS = {
 }
 
 
-def _jsonable(value):
+def jsonable(value):
     """``value`` with NumPy arrays and scalars turned into lists and Python numbers (recursively)."""
     if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
+        return {k: jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, (np.ndarray, np.generic)):
         return value.tolist()
     return value
@@ -84,7 +92,7 @@ def _material_entry(name, declared, material):
 
 def _collider_entry(collider):
     """A collider as a flat table: its shape's class name and parameters, type, friction and velocity."""
-    return {"shape": type(collider.shape).__name__.lower(), **_jsonable(asdict(collider.shape)),
+    return {"shape": type(collider.shape).__name__.lower(), **jsonable(asdict(collider.shape)),
             "type": collider.type, "friction": collider.friction, "velocity": collider.velocity.tolist()}
 
 
@@ -135,7 +143,8 @@ def _jsonable_number(value):
     return "inf" if np.isinf(value) else float(value)
 
 
-def _write_npz(path, arrays):
+def write_npz(path, arrays):
+    """Write ``arrays`` as an uncompressed ``.npz`` at ``path``, atomically (a temporary name, then a rename)."""
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
@@ -148,11 +157,12 @@ def write_case(out_dir, case):
     arrays = {**{f"in_{k}": np.asarray(a) for k, a in inputs.items()},
               **{f"out_{k}": np.asarray(a) for k, a in outputs.items()}}
     file = f"{case.name}.npz"
-    _write_npz(Path(out_dir) / file, arrays)
+    write_npz(Path(out_dir) / file, arrays)
     steps = {k: float(inputs[k]) for k in ("dt", "time") if k in inputs}
     drawn = {"source": case.source, "scales": asdict(case.scales)} if case.source else {}
+    extreme = {"extreme": {"name": case.extreme.name, "holds": case.extreme.holds}} if case.extreme else {}
     return {"name": case.name, "file": file, "stage": case.stage, "dim": case.dim, "dtype": case.dtype,
-            "rtol": case.rtol, "seed": case.seed, **steps, **drawn,
+            "rtol": case.rtol, "seed": case.seed, **steps, **drawn, **extreme,
             "arrays": {k: {"shape": list(a.shape), "dtype": a.dtype.name} for k, a in arrays.items()},
             "scene": case.scene_dict, "resolved": resolved_scene(case)}
 
@@ -168,7 +178,7 @@ def export(out_dir, cases=None, scene=None):
     out_dir.mkdir(parents=True, exist_ok=True)
     cases = make_cases() if cases is None else list(cases)
     manifest = {"format": FORMAT, "version": FORMAT_VERSION, "conventions": CONVENTIONS,
-                **({"scene": _jsonable(scene)} if scene is not None else {}),
+                **({"scene": jsonable(scene)} if scene is not None else {}),
                 "cases": [write_case(out_dir, case) for case in cases]}
     write_text_atomic(out_dir / MANIFEST, json.dumps(manifest, indent=1))
     return out_dir / MANIFEST

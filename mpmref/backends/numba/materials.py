@@ -18,7 +18,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
-from ..pointwise.laws import WORK, functions, law_digest
+from ..pointwise.laws import WORK, functions, law_digest, parameter_table
 from .source_digest import SOURCE_DIGEST
 
 #: particles per chunk of a material kernel's parallel loop (one set of work arrays per chunk)
@@ -99,7 +99,7 @@ def law_kernels(law):
 @lru_cache(maxsize=None)
 def parameter_row(material):
     """The material's parameter row: the values of the parameters its law declares, in order (float64)."""
-    return np.array([getattr(material, name) for name in type(material).compiled.parameters], dtype=np.float64)
+    return parameter_table([material])[0]
 
 
 def _or_empty(array, dtype, *shape):
@@ -136,10 +136,6 @@ def wave_speeds(table, particles, idx):
     :class:`~mpmref.backends.base.MaterialTable` ``table``'s groups."""
     out = np.empty(idx.size)
     arrays = particle_arrays(particles)
-    if len(table.materials) == 1:
-        law_kernels(type(table.materials[0]).compiled).wave_speeds(*arrays, idx, parameter_row(table.materials[0]),
-                                                                    out)
-        return out
     of_idx = particles.material[idx]
     for i, material in enumerate(table.materials):
         where = np.flatnonzero(of_idx == i)
