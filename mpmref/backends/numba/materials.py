@@ -20,7 +20,6 @@ from numba import njit, prange
 
 from ..pointwise.laws import WORK, functions, law_digest
 from .source_digest import SOURCE_DIGEST
-from .threads import PRANGE_ONLY
 
 #: particles per chunk of a material kernel's parallel loop (one set of work arrays per chunk)
 CHUNK = 64
@@ -90,9 +89,8 @@ def law_kernels(law):
                 out[k] = law_wave_speed(prm, Fp, Jv, Jpv)
 
     def compiled(kernel):
-        return njit(parallel=PRANGE_ONLY, cache=True)(bound(kernel, law_stress=found.stress,
-                                                            law_wave_speed=found.wave_speed,
-                                                            law_return_map=found.return_map))
+        return njit(parallel=True, cache=True)(bound(kernel, law_stress=found.stress, law_wave_speed=found.wave_speed,
+                                                     law_return_map=found.return_map))
 
     return types.SimpleNamespace(stress=compiled(stress), wave_speeds=compiled(wave_speeds),
                                  return_map=compiled(return_map) if found.return_map is not None else None)

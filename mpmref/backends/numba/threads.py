@@ -23,12 +23,6 @@ THREADS_VARIABLE = "MPMREF_NUMBA_THREADS"
 #: 0.96x at 256 particles, 1.06x at 512, 1.11x at 1024, 1.30x at 4096 (docs/performance.md, "Threads on a shared
 #: machine"). The answer is the same bits either way (see :mod:`.blocks`).
 SERIAL_BELOW = 512
-#: the ``parallel`` option of every parallel kernel: Numba's parallel passes for the ``prange`` loops only. The others
-#: (array expressions, reductions, NumPy calls and slice assignments turned into parallel loops, and loop fusion) find
-#: nothing to parallelise in these kernels, whose work is all inside their ``prange`` loops, but each runs over the
-#: whole kernel, stencil inlined, when it compiles (docs/performance.md, "Compile time against run time").
-PRANGE_ONLY = {"prange": True, "comprehension": False, "reduction": False, "inplace_binop": False, "setitem": False,
-               "numpy": False, "stencil": False, "fusion": False}
 
 
 def thread_limit():
