@@ -39,6 +39,10 @@ Sections of the JSON document (each ``null`` when not run):
   caches, here and at ``--against REV`` (a git worktree) in the same run: ``against``, ``this``, ``repeats``, the
   load averages and ``rows`` (command, ``this`` and ``against`` runs with ``wall_s``, ``cpu_s``, ``status``, and
   the median wall-time ``ratio``; :mod:`mpmref.bench.startup`).
+* ``compile`` (``--only compile``): the compile census of a first run of each example from an empty cache: ``root``,
+  ``steps``, the load averages and ``scenes`` (scene, ``status``, ``configurations``, ``signatures``,
+  ``compile_cpu_s``, ``process_cpu_s`` and ``kernels``: kernel, signatures, ``cpu_s``;
+  :mod:`mpmref.bench.compile_census`).
 * ``cuda`` (``--only cuda``): the GPU backend beside the GPU yardstick and Numba on every core, ``available``,
   ``device``, ``results`` and its own ``goals`` (:mod:`mpmref.bench.gpu`).
 * ``yardstick``: the records given with ``--yardstick`` (a hand-written program's runs), as given.

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from .asynchronous import plot_async, render_async, run_async
 from .busy import render_busy, run_busy
+from .compile_census import render_census, run_census
 from .cpic import render_cpic, run_cpic
 from .domain import render_domain, run_domain
 from .gpu import render_cuda, run_cuda
@@ -99,6 +100,10 @@ def _ledger(o, log):
     return run_ledger(o.quick, o.backends, o.threads, o.repeats, o.steps, log)
 
 
+def _compile(o, log):
+    return run_census(log)
+
+
 def _startup(o, log):
     return run_startup(o.against, o.repeats, log)
 
@@ -118,6 +123,7 @@ SECTIONS = (
     Section("ledger", _ledger, render_ledger),
     Section("cuda", run_cuda, render_cuda, default=False),
     Section("startup", _startup, render_startup, default=False),
+    Section("compile", _compile, render_census, default=False),
 )
 
 #: the sections by name
