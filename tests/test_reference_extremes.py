@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from mpmref.conformance.extremes import exactly_at
+from mpmref.conformance.strategies import rotation
 from mpmref.physics.catalogue import MATERIALS
 from mpmref.physics.kernels import KERNELS, compute_stencil
 from mpmref.physics.materials import polar_rotation, signed_svd
@@ -20,20 +21,6 @@ mpmath.mp.dps = 40
 EPS = np.finfo(np.float64).eps
 #: a backward-stable factorisation is exact for F + δF with |δF| <= c eps |F|; c = 8 bounds LAPACK's and the fast one's
 BACKWARD = 8.0
-
-
-def rotation(dim, angles):
-    """A rotation from angles (2D: one; 3D: about z, y, x)."""
-    def about(axis, t):
-        R = np.eye(3)
-        i, j = [a for a in range(3) if a != axis]
-        R[i, i] = R[j, j] = math.cos(t)
-        R[i, j], R[j, i] = -math.sin(t), math.sin(t)
-        return R
-
-    if dim == 2:
-        return about(2, angles[0])[:2, :2]
-    return about(0, angles[2]) @ about(1, angles[1]) @ about(2, angles[0])
 
 
 def spectra(dim):

@@ -50,7 +50,7 @@ def _unit():
     return st.floats(-1.0, 1.0, allow_nan=False)
 
 
-def _rotation(dim, angles):
+def rotation(dim, angles):
     """A rotation: by ``angles[0]`` in 2D; in 3D about z, then y, then x by the three angles."""
     def about(axis, t):
         R = np.eye(3)
@@ -74,7 +74,7 @@ def gradients(draw, material, dim, return_map):
     if kind == "near-symmetric":
         b = draw(st.sampled_from(NEAR_SYMMETRIC))
         angles = draw(st.lists(st.floats(-math.pi, math.pi), min_size=3, max_size=3))
-        return (_rotation(dim, angles) @ (np.eye(dim) + b * NEAR_SYMMETRIC_M[:dim, :dim]),
+        return (rotation(dim, angles) @ (np.eye(dim) + b * NEAR_SYMMETRIC_M[:dim, :dim]),
                 f"F near-symmetric (|S₀₁| = {b:.0e})")
     if kind == "drawn":
         s = draw(st.sampled_from((1e-3, 1e-2, 0.1)))
