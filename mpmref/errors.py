@@ -50,7 +50,7 @@ class InstabilityError(MpmrefError):
     step, particle : int
     quantity : str        the particle array found bad, e.g. ``"v"``
     cfl : float
-    checkpoint : path or None
+    checkpoint : str or pathlib.Path or None
     what : str            what went wrong with the quantity (default: ``"unbounded <quantity>"``)
     cfl_note : str        how the CFL number compares with the measured stable limit (or ``""``)
     """

@@ -18,7 +18,7 @@ import tempfile
 from collections import defaultdict
 from pathlib import Path
 
-#: steps of each first run: the first step compiles the step's kernels, the next ones what a later step adds
+#: steps of each first run (the first step compiles the step's kernels, the next ones what a later step adds)
 STEPS = 3
 #: rows of each scene's table; the others are summed into one
 TOP = 8

@@ -94,8 +94,8 @@ class ConformanceCase:
 
     @property
     def label(self):
-        """What the case's draws (grid, Δt, time, state) are seeded by: :attr:`seed_label`, else the name without the
-        dtype (a float32 case rounds the float64 state)."""
+        """The label that seeds the case's draws of grid, Δt, time and state, which is :attr:`seed_label`, else the
+        name without the dtype (a float32 case rounds the float64 state)."""
         return self.seed_label or f"{self.stage}-{self.dim}d-{self.variant}"
 
     @property

@@ -592,11 +592,12 @@ POSITION_FAMILIES = ("on-nodes-and-faces", "domain-edge")
 
 
 def extreme_cases(stage, dim, dtype, fit):
-    """The catalogue's cases at the extremes (:mod:`.extremes`) of ``stage``: the stress of each material at rest, near
-    symmetric and collapsing, and all of them a million times stiffer; the return maps at their yield surfaces and
-    collapsing; P2G, G2P and steps with particles on nodes and faces and at the domain's edge; the grid update with
-    empty and nearly empty nodes beside full ones; steps and ledgers at the stability limit; steps from rest, on the
-    floor and pushed, and stiff. None for the stages of asynchronous stepping and CPIC."""
+    """The catalogue's cases at the extremes (:mod:`~mpmref.conformance.extremes`) of ``stage``: the stress of each
+    material at rest, near symmetric and collapsing, and all of them a million times stiffer; the return maps at
+    their yield surfaces and collapsing; P2G, G2P and steps with particles on nodes and faces and at the domain's
+    edge; the grid update with empty and nearly empty nodes beside full ones; steps and ledgers at the stability
+    limit; steps from rest, on the floor and pushed, and stiff. None for the stages of asynchronous stepping and
+    CPIC."""
     walls, _ = fit.walls(dim)
     cases = {
         "stress": lambda: _extreme_material_cases(stage, dim, dtype, fit, _stress_families)
@@ -647,7 +648,7 @@ def make_cases(dims=(2, 3), stages=CONFORMANCE_STAGES, dtype="float64", material
     the materials or the method and whose materials, scheme or kernel are not among them is left out. ``seed`` (an
     integer >= 0, ``--seed``) is the base seed of the draws: 0, the default, gives the same cases on every machine;
     another gives every case a new grid, Δt, time and state (:func:`~.case.seeded_label`). ``extremes`` adds the cases
-    at the extremes (:func:`extreme_cases`, :mod:`.extremes`) after each stage's drawn ones.
+    at the extremes (:func:`extreme_cases`, :mod:`~mpmref.conformance.extremes`) after each stage's drawn ones.
     """
     _validated("stages", stages, ALL_CONFORMANCE_STAGES)
     if dtype not in DEFAULT_RTOL:

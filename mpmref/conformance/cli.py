@@ -1,7 +1,7 @@
 """``mpmref conformance export DIR``, ``mpmref conformance check --backend NAME|MODULE:ATTRIBUTE`` and ``mpmref
 conformance search --backend ...``, on the built-in catalogue, on cases drawn from a scene (``--scene SCENE.toml``),
 or (``check``, ``export``) on saved case files (``--case FILE``); ``check --results DIR`` judges the outputs that code
-in another language computed from the exported vectors (:mod:`.results`).
+in another language computed from the exported vectors (:mod:`~mpmref.conformance.results`).
 
 Exit status of ``check``: 0 every case that applies passed (at least one), 1 a case failed or none applied, 2 a bad
 option, scene or backend reference. Of ``search``: 0 nothing found, 1 a disagreement found (and saved), 2 the same.

@@ -11,8 +11,8 @@ and whether it is one uniform ratio.
   :math:`m_p > 0`) and no particle reads it; a code may leave anything there (the 88-line program leaves
   :math:`\Delta t\,g`).
 * **Where.** The row of the worst output with the largest error on its own scale (:func:`worst_row`, the row that
-  decides the per-row error of :mod:`.measures`): a particle (its index and position ``x``) or a grid node (its index,
-  its multi-index and its position ``origin + i dx``).
+  decides the per-row error of :mod:`~mpmref.conformance.measures`): a particle (its index and position ``x``) or a
+  grid node (its index, its multi-index and its position ``origin + i dx``).
 * **Uniform ratio.** If the candidate's output is the reference's times one factor :math:`k` everywhere
   (least squares :math:`k = \sum a r / \sum r^2`, and :math:`\max|a - k r|` below a thousandth of the error),
   the case says so: a wrong constant (a factor of :math:`D_p`, a missing :math:`\Delta t`) shows as "× k

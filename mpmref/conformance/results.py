@@ -143,7 +143,7 @@ def check_results(folder, cases, rtol=None, progress=False):
 
     Parameters
     ----------
-    folder : path
+    folder : str or pathlib.Path
         The code's results: ``<case name>.npz`` files and, optionally, ``implements.json``.
     cases : iterable of :class:`~mpmref.conformance.case.ConformanceCase`
         The cases it was given (``conformance export``'s selection, fitted to its declaration as ``check`` fits the

@@ -210,7 +210,8 @@ def _scene_case(stage, k, declared, scene, scales, dtype, seed=0):
     return ConformanceCase(stage, scene.dim, variant, case_dict, dtype, scales, own_dt, scene.name, seed_label=label)
 
 
-#: the extreme families of each stage a scene's cases hold (:mod:`.extremes`), where they apply (:func:`scene_families`)
+#: the extreme families (:mod:`~mpmref.conformance.extremes`) of each stage a scene's cases hold, where they apply
+#: (:func:`scene_families`)
 SCENE_FAMILIES = {
     "stress": ("rest", "near-symmetric-F", "collapse"),
     "return_map": ("yield-surface", "collapse"),

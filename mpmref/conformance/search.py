@@ -1,8 +1,9 @@
 """``mpmref conformance search``: a property-based search for states where a backend and the reference disagree.
 
 The cases of ``conformance check`` are drawn once and fixed; the search draws states until one shows a disagreement
-beyond the tolerance, with hypothesis, from strategies biased toward the extremes (:mod:`.strategies`): the rungs of
-:mod:`.extremes`, particles on node lines and at the domain's edge, nodes without mass, Δt at the stability limit.
+beyond the tolerance, with hypothesis, from strategies biased toward the extremes (:mod:`.strategies`): the rungs
+of :mod:`~mpmref.conformance.extremes`, particles on node lines and at the domain's edge, nodes without mass, Δt at
+the stability limit.
 Hypothesis then *shrinks* what it found to the smallest, simplest state that still shows it (fewest particles, fewest
 cells, the first rung of a ladder, round numbers), which is printed and saved as a case file (:mod:`.casefile`) that
 ``conformance check --case FILE`` reruns and a user's regression tests can keep.
@@ -207,7 +208,7 @@ def search(candidate, scene=None, stages=None, budget=DEFAULT_BUDGET, seconds=No
     ----------
     candidate : str, mapping or callable
         As for :func:`~.report.check`.
-    scene : path, dict or Scene, optional
+    scene : str, pathlib.Path, dict or Scene, optional
         Draw the states in this scene (its method, materials, walls, ...); default: in the catalogue's scenes.
     stages : sequence of str, optional
         The stages to search (default: every stage of :data:`SEARCH_STAGES` the scene's steps call).
@@ -217,7 +218,7 @@ def search(candidate, scene=None, stages=None, budget=DEFAULT_BUDGET, seconds=No
         Stop drawing after this many seconds (a disagreement found by then is still shrunk).
     seed : int
         The base seed (of the templates' scenes and of hypothesis's draws).
-    out_dir : path, optional
+    out_dir : str or pathlib.Path, optional
         Where each shrunk disagreement is saved as ``<case name>.npz`` (:func:`.casefile.save_case`); ``None``: not
         saved.
     rtol : float, optional

@@ -1,6 +1,6 @@
 r"""The states ``mpmref conformance search`` draws (hypothesis strategies), biased toward the extremes of
-:mod:`.extremes`, and shrinking toward the simplest: fewer particles, fewer cells, the first rung of a ladder, round
-numbers.
+:mod:`~mpmref.conformance.extremes`, and shrinking toward the simplest: fewer particles, fewer cells, the first rung
+of a ladder, round numbers.
 
 A state is drawn for one *template*, a case of the catalogue or of the user's scene, whose scene (method, materials,
 walls, colliders, gravity) it keeps; it draws its own box (fewer cells than the template's, the same cell size and
@@ -86,7 +86,7 @@ def gradients(draw, material, dim, return_map):
 
 def ladders(material, dim, return_map):
     """``{kind: [(F, note)]}``: the rungs of the yield-surface (for a return map, where the material has one), rest and
-    collapse ladders of :mod:`.extremes` at which ``material``'s stress is well-conditioned
+    collapse ladders of :mod:`~mpmref.conformance.extremes` at which ``material``'s stress is well-conditioned
     (:func:`.extremes.well_conditioned`); a ladder with no such rung is left out."""
     rng = np.random.default_rng(dim)
     out = {"rest": rest_gradients(rng, dim), "collapse": collapse_gradients(rng, dim)}

@@ -39,7 +39,7 @@ class Simulation:
         plugin's name, ``"MODULE:ATTRIBUTE"``, a factory ``f(scene) -> backend`` or a backend object made for
         ``scene``. It is checked against the scene before any work (:class:`~mpmref.errors.BackendError` names a
         missing stage and its signature).
-    out_dir : path or None
+    out_dir : str or pathlib.Path or None
         Where VTK series, ``diagnostics.csv`` and checkpoints go; None writes nothing.
     particles : Particles
         Initial state (default: sampled from the scene's bodies).

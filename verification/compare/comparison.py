@@ -166,7 +166,7 @@ def compare(scene, source, backend="numba", members=DEFAULT_MEMBERS, seed=0, dty
     ----------
     scene : Scene
         The scene the code ran (its start exported by ``mpmref export``).
-    source : path
+    source : str or pathlib.Path
         The code's frames: a ``.pvd``, a folder or a file (:func:`mpmref.exchange.read_frames`).
     backend : str
         The backend that runs the ensemble (default the Numba backend).

@@ -132,7 +132,8 @@ def cmd_verify_scene(args):
 
 def say_coverage(record):
     """Beside ``--scene``'s verdict, what the states its comparison along the scene's run exercised
-    (:mod:`.coverage`), one line; and a warning naming what they did not, whose errors these checks could not see."""
+    (:mod:`~verification.framework.coverage`), one line; and a warning naming what they did not, whose errors these
+    checks could not see."""
     result = None if record is None else record.outcome.result
     items = (result or {}).get("exercised", ())
     if not items:

@@ -65,7 +65,7 @@ def run_study(scene, vary=(), t_end=None, *, backend="numpy", out=None, measures
         Every run's end time (default: the scene's ``time.t_end``).
     backend : str
         A backend reference (:mod:`mpmref.backends`), resolved again in each worker.
-    out : path, optional
+    out : str or pathlib.Path, optional
         The report folder (default: ``reports/study/<scene name>``).
     measures : sequence
         ``MODULE:FUNCTION`` references (or, in a study run in this process, functions) ``f(sim) -> {name: value}``,
