@@ -15,7 +15,9 @@ from planted_extremes import PLANTED, GradientSignOnFace, QuirkySvd
 from mpmref.conformance import check, make_cases, scene_cases
 from mpmref.conformance.extremes import EXTREMES, FROM_REST_STEPS, NEAR_SYMMETRIC, edge_gap
 from mpmref.conformance.measures import ROW_FLOOR, relative_error, row_relative_error
+from mpmref.conformance.report import case_natural_scales, compare_outputs
 from mpmref.conformance.states import cfl_number
+from mpmref.conformance.strategies import rotation
 from mpmref.physics.svd import polar_2d
 from mpmref.run.stability import stable_cfl
 
@@ -164,6 +166,28 @@ def test_a_particles_error_is_judged_on_its_own_scale_with_a_floor():
     wrong[2, 1] = 1e-13
     assert row_relative_error(wrong, reference, 1.0) == pytest.approx(5e-11)  # a floor of 1 is the case-wide rule
     assert row_relative_error(wrong, reference, 1e-7) == pytest.approx(1e-4)   # each row on its own scale
+
+
+def test_an_output_theory_puts_at_zero_is_judged_on_its_natural_scale():
+    """One fixed-corotated particle whose F is a rotation: its stress is zero in theory and round-off in every code.
+    Round-off of its stiffness (100 ulps of k = λ + 2μ) passes, which it could not on the output's own scale; an error
+    of 1e-9 k fails (docs/conformance.md, "The error")."""
+    case = next(c for c in make_cases(dims=(3,), stages=("stress",), extremes=False)
+                if c.materials == {"fixed_corotated"})
+    inputs = case.inputs()
+    n = len(inputs["x"])
+    one = {k: a[:1].copy() if a.ndim and len(a) == n else a for k, a in inputs.items()}
+    one["F"][0] = rotation(3, (0.3, -1.1, 0.7))
+    expected = case.reference(one)
+    material = case.scene().material_list[0]
+    k = material.lam + 2.0 * material.mu
+    natural = case_natural_scales(case.scene(), one, expected)
+    assert np.max(np.abs(expected["tau"])) < 1e-12 * k     # zero in theory
+    round_off = {"tau": expected["tau"] + 100 * np.finfo(float).eps * k}
+    assert compare_outputs(round_off, expected, natural=natural)[0]["tau"] < 1e-12
+    assert compare_outputs(round_off, expected)[0]["tau"] > 1.0  # on its own scale, round-off is all of it
+    wrong = {"tau": expected["tau"] + 1e-9 * k}
+    assert compare_outputs(wrong, expected, natural=natural)[0]["tau"] > 1e-12
 
 
 def test_a_failure_names_the_extreme_its_worst_particle_holds():

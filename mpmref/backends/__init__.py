@@ -201,11 +201,21 @@ def checked(backend, name, scene=None):
 
 
 def _accepts(method, positional, keywords):
-    """Whether ``method`` can be called with ``positional`` arguments and the keyword arguments ``keywords``."""
+    """Whether ``method`` can be called with ``positional`` arguments and the keyword arguments ``keywords``. A bound
+    method is judged by its function, which takes the instance first, once per function (:data:`_function_binds`):
+    every case of a conformance check makes a backend and checks its stages."""
+    function = getattr(method, "__func__", None)
+    if function is not None and getattr(method, "__self__", None) is not None:
+        return _function_binds(function, positional + 1, tuple(keywords))
+    return _binds(method, positional, keywords)
+
+
+def _binds(function, positional, keywords):
+    """Whether ``function`` can be called with ``positional`` arguments and the keyword arguments ``keywords``."""
     import inspect
 
     try:
-        signature = inspect.signature(method)
+        signature = inspect.signature(function)
     except (TypeError, ValueError):  # a builtin without a signature: nothing to check
         return True
     try:
@@ -213,6 +223,10 @@ def _accepts(method, positional, keywords):
     except TypeError:
         return False
     return True
+
+
+#: :func:`_binds` once per function of a bound method
+_function_binds = lru_cache(maxsize=1024)(_binds)
 
 
 def describe(reference, backend):

@@ -56,11 +56,11 @@ def row_relative_error(candidate, reference, floor, leading=1, natural=0.0):
     of a row (a particle's :math:`\tau_p`, a node's momentum) and :math:`\phi` = ``floor``. A particle whose own
     stress is small is judged on it, so that its error cannot hide behind a large one elsewhere; the floor
     :math:`\phi S` is where theory puts the row at zero (a particle at rest, an empty node) and a correct code's
-    round-off of the case's scale is all there is. An output whose entries are sums of larger terms has its round-off
-    on the scale of those terms: ``natural``, where given and larger, stands for :math:`S` in the floor
-    (:func:`natural_scales`). Since the denominator is at most :math:`S` otherwise, :math:`e_{row}` is at least the
-    case-wide :func:`relative_error`. Where the reference is all zero, the case-wide rule (the absolute
-    error); a shape mismatch or a non-finite value: ``inf``.
+    round-off of the case's scale is all there is. An output whose entries are sums of larger terms, or made of a
+    stiffness, has its round-off on the scale of those: ``natural`` (one number, or one per row), where larger,
+    stands for :math:`S` in the floor (:func:`natural_scales`). Since the denominator is at most :math:`S` otherwise,
+    :math:`e_{row}` is at least the case-wide :func:`relative_error`. Where the reference is all zero and there is no
+    natural scale, the case-wide rule (the absolute error); a shape mismatch or a non-finite value: ``inf``.
     """
     a, r = np.asarray(candidate, dtype=np.float64), np.asarray(reference, dtype=np.float64)
     if a.shape != r.shape:
@@ -74,15 +74,15 @@ def row_relative_error(candidate, reference, floor, leading=1, natural=0.0):
 
 def row_scores(candidate, reference, floor, leading=1, natural=0.0):
     """Each row's error on its own scale (the terms of :func:`row_relative_error`; NaN counts as ``inf``), or ``None``
-    where there are no rows or the reference is all zero."""
+    where there are no rows, or the reference is all zero and there is no natural scale."""
     a, r = np.asarray(candidate, dtype=np.float64), np.asarray(reference, dtype=np.float64)
-    scale = float(np.max(np.abs(r), initial=0.0))
-    if a.ndim < leading or a.size == 0 or scale == 0.0:
+    base = np.maximum(float(np.max(np.abs(r), initial=0.0)), natural)
+    if a.ndim < leading or a.size == 0 or not np.any(base > 0.0):
         return None
     rows = int(np.prod(a.shape[:leading]))
     diff = np.nan_to_num(np.abs(a - r), nan=np.inf).reshape(rows, -1).max(axis=1, initial=0.0)
     own = np.abs(r).reshape(rows, -1).max(axis=1, initial=0.0)
-    return diff / np.maximum(own, floor * max(scale, natural))
+    return diff / np.maximum(own, floor * base)
 
 
 def row_floor(*arrays):
@@ -108,39 +108,106 @@ class OutputError(float):
         return OutputError, (float(self), self.case_wide)
 
 
-def natural_scales(expected, dx, wave_speed=0.0, dt=0.0):
+def natural_scales(expected, inputs, dx, stiffness=None, wave_speed=0.0, dt=0.0, mode_degree=0):
     r"""``{output: scale}``: the scale of an output's round-off where it can exceed the output's own largest entry, the
-    base of its per-row floor (:func:`row_relative_error`).
+    base of its floor (:func:`row_relative_error`, :func:`judged_error`). Where theory puts a whole output at zero (a
+    particle at rest, a velocity that cancels), both codes leave round-off of these scales, and only they tell a wrong
+    value from round-off.
 
-    * ``v``: a step kicks each velocity by :math:`\Delta t\, f_i/m_i`, made of the stress, whose round-off is of the
-      stiffness; in velocity that is :math:`c\,(c\,\Delta t/\Delta x)`, the rest wave speed :math:`c` times the
-      step's elastic CFL number, whatever the particle's own speed (a block at rest under gravity moves by little
-      more than that);
+    * ``tau`` (per particle): :math:`\tau_p = P_p F_p^T` is made of the stress at the particle's stiffness
+      :math:`k_p = \rho_p c_p^2` (``stiffness``) and of its SVD, whose round-off is
+      :math:`\epsilon\,k_p \max(1, \|F_p\|_F^2/d)`, whatever :math:`\tau_p` is (zero for :math:`F_p` a rotation);
+    * ``grid_force``: :math:`f_i = -\sum_p V_p^0 \tau_p \nabla w_{ip}` carries each term's round-off,
+      :math:`\max_p V_p^0 k_p \max(1, \|F_p\|_F^2/d) / \Delta x`; the fused P2G's ``grid_momentum_after_force`` that
+      times :math:`\Delta t`;
+    * ``grid_momentum``: :math:`\sum_p w_{ip} m_p (v_p + C_p (x_i - x_p))`, whose terms are of
+      :math:`\max_p m_p (|v_p| + 2\Delta x |C_p|)`;
+    * ``v``: G2P sums grid velocities, FLIP adds the particle's own, and a step kicks each velocity by
+      :math:`\Delta t\, f_i/m_i`, made of the stress, whose round-off in velocity is :math:`c\,(c\,\Delta t/\Delta x)`,
+      the wave speed :math:`c` times the step's elastic CFL number: the largest of the input speeds and that kick;
+    * ``x``: :math:`x_p + \Delta t\, v_p`, with the round-off of ``v`` times :math:`\Delta t`;
+    * ``F`` and ``J``: :math:`(I + \Delta t\, \nabla v_p) F_p`, whose velocity gradient sums the grid velocities over a
+      cell: :math:`\max(1, \Delta t\, v/\Delta x)` times the largest input entry, with :math:`v` the scale of ``v``;
     * ``C``: :math:`C_p = D_p^{-1}\sum_i w_{ip} v_i (x_i - x_p)^T` sums terms of a speed over a cell; in a block moving
-      as one they cancel to near zero, and their round-off is of :math:`\max(|v|, c^2\Delta t/\Delta x)/\Delta x`.
+      as one they cancel to near zero, and their round-off is of :math:`\max(|v|, c^2\Delta t/\Delta x)/\Delta x`;
+    * ``modes`` (PolyPIC): :math:`c_{pr} = \sum_i w_{ip} v_i N_r(x_i - x_p) / \sum_i w_{ip} N_r^2` carries the
+      round-off of its speeds over the scale of its basis function, :math:`\Delta x^{k}` for a mode of degree
+      :math:`k`: the scale of ``v`` over :math:`\Delta x` to the highest degree (``mode_degree``), which decides a
+      particle's row.
+
+    Parameters
+    ----------
+    expected : dict
+        The reference's outputs (which outputs there are; the output speeds).
+    inputs : dict
+        The case's inputs (particle ``v``, ``C``, ``F``, ``mass``, ``vol0``; ``grid_v``, ``grid_v_tilde``).
+    dx : float
+        Cell size :math:`\Delta x`.
+    stiffness : ndarray or None
+        :math:`k_p = \rho_p c_p^2` of each input particle, :math:`c_p` the larger of its material's wave speed at rest
+        and in its state.
+    wave_speed : float
+        The largest wave speed :math:`c` of the materials, at rest or in the particles' states.
+    dt : float
+        The stage's :math:`\Delta t` (0 for a stage without one).
+    mode_degree : int
+        The highest degree of a PolyPIC mode, :math:`d\,(K - 1)` for a kernel of support :math:`K` (0 without modes).
     """
+    speed_in = max(_largest(inputs.get(k)) for k in ("v", "grid_v", "grid_v_tilde"))
     kick = wave_speed * wave_speed * dt / dx
-    out = {"v": kick} if "v" in expected and kick > 0 else {}
-    if "C" in expected and "v" in expected:
-        speed = float(np.max(np.abs(np.asarray(expected["v"], dtype=np.float64)), initial=0.0))
-        out["C"] = max(speed, kick) / dx
-    return out
+    out = {"v": max(kick, speed_in)}
+    out["x"] = dt * out["v"]
+    gradient = dt * out["v"] / dx
+    out.update({k: max(1.0, gradient) * _largest(inputs[k]) for k in ("F", "J") if k in inputs})
+    if "v" in expected:
+        out["C"] = max(_largest(expected["v"]), speed_in, kick) / dx
+    out["modes"] = out["v"] / dx**mode_degree
+    if "mass" in inputs and "v" in inputs:
+        affine = 2.0 * dx * _row_largest(inputs["C"]) if "C" in inputs else 0.0
+        out["grid_momentum"] = _largest(inputs["mass"] * (_row_largest(inputs["v"]) + affine))
+    if stiffness is not None:
+        tau = stress_scales(inputs, stiffness)
+        force = _largest(np.asarray(inputs["vol0"], dtype=np.float64) * tau) / dx
+        out.update({"tau": tau, "grid_force": force, "grid_momentum_after_force": dt * force})
+    return {k: v for k, v in out.items() if k in expected and np.any(np.asarray(v) > 0.0)}
 
 
-def judged_error(name, value, ref, expected, natural=0.0, settled=False):
-    r"""The :class:`OutputError` of output ``name``: the case-wide error (relative to the reference's energy scale for a
-    ledger term, :func:`output_scale`) and, for an output with rows, the per-row error with the floor of its dtype
-    (:data:`ROW_FLOOR`, of the coarser dtype of the two) on the larger of its largest entry and ``natural``
-    (:func:`natural_scales`).
+def stress_scales(inputs, stiffness):
+    r""":math:`k_p \max(1, \|F_p\|_F^2 / d)` of each particle (float64 (n,)): the round-off scale of its Kirchhoff
+    stress, with :math:`k_p` its ``stiffness`` and :math:`\|F_p\|_F^2/d` the mean square of its deformation gradient's
+    singular values (1 for a particle without one)."""
+    k = np.asarray(stiffness, dtype=np.float64)
+    if "F" not in inputs:
+        return k
+    F = np.asarray(inputs["F"], dtype=np.float64)
+    return k * np.maximum(1.0, np.einsum("pij,pij->p", F, F) / F.shape[-1])
 
-    ``settled``: the output of many steps from rest (``from-rest``), whose velocities and their gradients may stay below
-    the round-off its stress leaves in them every step (a jelly block settling under gravity: :math:`C` of order
-    :math:`g/c`, the stress's round-off :math:`\epsilon c^2\Delta t/\Delta x^2`); its case-wide error is then taken
-    over the larger of its largest entry and the floor of ``natural``, as its rows' are."""
+
+def _largest(array):
+    """max |entry| of ``array`` as a float (0 for None or empty)."""
+    return 0.0 if array is None else float(np.max(np.abs(np.asarray(array, dtype=np.float64)), initial=0.0))
+
+
+def _row_largest(array):
+    """max |entry| of each row (first axis) of ``array``, float64."""
+    a = np.abs(np.asarray(array, dtype=np.float64))
+    return a.reshape(len(a), -1).max(axis=1, initial=0.0)
+
+
+def judged_error(name, value, ref, expected, natural=0.0):
+    r"""The :class:`OutputError` of output ``name``: the case-wide error and, for an output with rows, the per-row error
+    with the floor of its dtype (:data:`ROW_FLOOR`, of the coarser dtype of the two) on the larger of its largest entry
+    and ``natural`` (:func:`natural_scales`, a number or one per row).
+
+    The case-wide error is relative to the reference's energy scale for a ledger term (:func:`output_scale`), else to
+    the larger of the output's largest entry and the floor of ``natural``: where theory puts the whole output at zero
+    (one particle at rest, a jelly block settling under gravity, whose :math:`C` of order :math:`g/c` stays below the
+    round-off :math:`\epsilon c^2\Delta t/\Delta x^2` its stress leaves in it every step), the round-off of the
+    natural scale is all either code computes."""
     scale = output_scale(name, expected)
-    if settled and natural > 0.0 and scale is None:
-        floor = row_floor(value, ref) * natural
-        scale = max(float(np.max(np.abs(np.asarray(ref, dtype=np.float64)), initial=0.0)), floor)
+    largest = float(np.max(natural, initial=0.0))
+    if scale is None and largest > 0.0:
+        scale = max(_largest(ref), row_floor(value, ref) * largest)
     case_wide = relative_error(value, ref, scale)
     if output_scale(name, expected) is not None or np.ndim(ref) == 0:
         return OutputError(case_wide, case_wide)
@@ -148,8 +215,13 @@ def judged_error(name, value, ref, expected, natural=0.0, settled=False):
 
 
 def output_scale(name, expected):
-    """The denominator of output ``name``'s error other than its own largest entry, or ``None``: the reference's
-    ``energy_scale`` for a ledger term (``ledger_*``). A term is a difference of energies of that size, so its
-    round-off is relative to it, not to the term (which theory may put at zero:
-    :func:`mpmref.observe.ledger.energy_scale`)."""
-    return float(expected["energy_scale"]) if name.startswith("ledger_") and "energy_scale" in expected else None
+    """The denominator of output ``name``'s error other than its own largest entry, or ``None``: for a ledger term
+    (``ledger_*``), the larger of the reference's ``energy_scale`` and its largest term. A term is a difference of
+    energies of that size, so its round-off is relative to them, not to the term (which theory may put at zero:
+    :func:`mpmref.observe.ledger.energy_scale`); and energies that differ by a term are at least half its size, so
+    the largest term bounds them from below where the step leaves the energies of its input far behind (a fluid
+    collapsed far beyond the Δt its rest wave speed allows, whose energy grows a millionfold in the step)."""
+    if not name.startswith("ledger_") or "energy_scale" not in expected:
+        return None
+    terms = [abs(float(v)) for k, v in expected.items() if k.startswith("ledger_")]
+    return max(float(expected["energy_scale"]), *terms)

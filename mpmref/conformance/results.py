@@ -28,7 +28,15 @@ from tqdm import tqdm
 from ..backends.capabilities import EVERYTHING, EVOLVED, Implements
 from ..errors import MpmrefError
 from .diagnosis import compared_rows, uniform_ratio, worst_place
-from .report import CaseResult, NotApplicable, Report, compare_outputs, describe_setting, relative_tolerance
+from .report import (
+    CaseResult,
+    NotApplicable,
+    Report,
+    case_natural_scales,
+    compare_outputs,
+    describe_setting,
+    relative_tolerance,
+)
 from .stages import ALL_CONFORMANCE_STAGES, OPTIONAL_STAGES
 
 DECLARATION = "implements.json"
@@ -127,7 +135,7 @@ def compared(case, scene, inputs, expected, got, rtol):
     """The :class:`~.report.CaseResult` of ``got`` against ``expected``, with the diagnosis a Python backend's failed
     case gets (worst place, uniform ratio, setting)."""
     rows = compared_rows(scene, inputs)
-    errors, note = compare_outputs(got, expected, rows)
+    errors, note = compare_outputs(got, expected, rows, case_natural_scales(scene, inputs, expected))
     setting = describe_setting(case, scene, inputs)
     result = CaseResult(case, errors, rtol, note, setting=setting)
     worst = result.worst_output

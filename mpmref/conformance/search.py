@@ -11,7 +11,11 @@ cells, the first rung of a ladder, round numbers), which is printed and saved as
 The budget is a number of states (:data:`DEFAULT_BUDGET`) or a time; it is shared out among the stages in rounds of
 :data:`ROUND` states each, stage after stage, so that a search cut short has looked at every stage. A search that
 finds nothing says how many states it tried, per stage and per region (``F near-symmetric``, ``x on a line``,
-``Δt at the stability limit``, ...). Needs hypothesis (the ``test`` extra: ``pip install -e '.[test]'``), which it
+``Δt at the stability limit``, ...). A state on which the reference itself is ill-conditioned, whose outputs move
+by more than a quarter of the tolerance when its inputs change by a few ulps (:func:`steady`: a sand particle
+collapsed to :math:`J = 10^{-8}`, whose stored energy reads its smallest singular value through a logarithm), cannot
+be judged at the tolerance: it is counted apart, as the states the reference refuses are, and never reported as a
+disagreement. Needs hypothesis (the ``test`` extra: ``pip install -e '.[test]'``), which it
 imports when it searches: :func:`search` raises :class:`ImportError` without it.
 """
 
@@ -30,7 +34,8 @@ from ..backends import refuse_missing_device, resolve
 from .candidates import candidate_implements, validated
 from .casefile import save_case
 from .cases import make_cases
-from .report import Candidate, CaseResult, Report
+from .diagnosis import compared_rows
+from .report import Candidate, CaseResult, Report, case_natural_scales, compare_outputs
 from .scenes import load_scene, scene_cases, scene_stages
 from .stages import CONFORMANCE_STAGES
 
@@ -40,6 +45,13 @@ DEFAULT_BUDGET = 800
 ROUND = 25
 #: the stages a search draws states for
 SEARCH_STAGES = CONFORMANCE_STAGES
+#: the change of a state's inputs, in ulps of their dtype, that probes the reference's own conditioning (:func:`steady`)
+PROBE_ULPS = 4
+#: how far, as a fraction of the tolerance, that change may move the reference's outputs for the state to be judged
+STEADY_FRACTION = 0.25
+#: inputs every code reads exactly as given, left unchanged by the probe: the positions (a particle on a node line
+#: stays there, where the linear hat's gradient jumps)
+EXACT_INPUTS = ("x",)
 
 
 @dataclass
@@ -56,13 +68,16 @@ class Found:
 @dataclass
 class SearchReport:
     """What a search did: the states it tried per stage (``tried``) and per stage and region (``regions``), what it
-    found, and the stages it could not search with the reason (``skipped``)."""
+    found, the stages it could not search with the reason (``skipped``), and per stage the states the reference
+    refused (``refused``) or is ill-conditioned on (``unsteady``, :func:`steady`), which are not judged."""
 
     tried: Counter = field(default_factory=Counter)
     regions: dict = field(default_factory=dict)
     found: list = field(default_factory=list)
     skipped: dict = field(default_factory=dict)
     seconds: float = 0.0
+    refused: Counter = field(default_factory=Counter)
+    unsteady: Counter = field(default_factory=Counter)
 
     @property
     def total(self):
@@ -80,6 +95,10 @@ class SearchReport:
         for stage, count in self.tried.items():
             regions = ", ".join(f"{name} {n}" for name, n in self.regions.get(stage, Counter()).most_common())
             lines.append(f"  {stage} {count}: {regions}")
+        for stage in self.tried:
+            if self.refused[stage] or self.unsteady[stage]:
+                lines.append(f"  not judged in {stage}: {self.refused[stage]} states the reference refuses, "
+                             f"{self.unsteady[stage]} on which it is ill-conditioned")
         verdict = (f"FOUND {len(self.found)} disagreement{'s' if len(self.found) > 1 else ''}" if self.found else
                    f"nothing found: every one of {self.total} states within tolerance")
         lines.append(verdict)
@@ -162,11 +181,11 @@ class _Stage:
             by_kernel.setdefault(case.scene().kernel.name, []).append(case)
         groups = list(by_kernel.values())
         self.strategy = st.sampled_from(groups).flatmap(st.sampled_from).flatmap(searched_case)
-        self.tried, self.refused, self.regions, self.found, self.first = 0, 0, Counter(), None, None
+        self.tried, self.refused, self.unsteady, self.regions, self.found, self.first = 0, 0, 0, Counter(), None, None
 
     def disagrees(self, example):
         """Whether the candidate's outputs on ``example`` lie beyond the tolerance (a state the reference cannot
-        compute is refused and counted apart; after the deadline, drawing stops counting)."""
+        compute, or computes ill-conditioned, is counted apart; after the deadline, drawing stops counting)."""
         case, regions = example
         if self.first is None and time.monotonic() > self.deadline:
             return False
@@ -178,6 +197,9 @@ class _Stage:
         self.tried += 1
         self.regions.update(regions)
         failed = isinstance(outcome, CaseResult) and not outcome.passed
+        if failed and not steady(case, self.tolerance(case)):
+            self.unsteady += 1
+            return False
         if failed and self.first is None:
             self.first = self.tried
         return failed
@@ -198,6 +220,30 @@ class _Stage:
     def tolerance(self, case):
         """The search's tolerance, else the case's own."""
         return case.rtol if self.rtol is None else self.rtol
+
+
+def steady(case, tolerance, probes=4):
+    """Whether the reference's outputs on ``case`` move by at most :data:`STEADY_FRACTION` of ``tolerance`` (judged as
+    a candidate's are) when every floating input but :data:`EXACT_INPUTS` changes by :data:`PROBE_ULPS` ulps of its
+    dtype (Gaussian, ``probes`` times): a correct code rounds differently by a few ulps, so a state that fails this
+    cannot tell a wrong code from a correct one at ``tolerance``."""
+    inputs, scene = case.inputs(), case.parsed_scene()
+    expected = case.reference(inputs)
+    natural, rows = case_natural_scales(scene, inputs, expected), compared_rows(scene, inputs)
+    rng = np.random.default_rng(case.seed)
+    for _ in range(probes):
+        moved, _ = compare_outputs(case.reference(_nudged(inputs, rng)), expected, rows, natural)
+        if max(moved.values(), default=0.0) > STEADY_FRACTION * tolerance:
+            return False
+    return True
+
+
+def _nudged(inputs, rng):
+    """``inputs`` with every floating array but :data:`EXACT_INPUTS` changed by :data:`PROBE_ULPS` ulps (relative)."""
+    def nudge(a):
+        eps = np.finfo(a.dtype).eps
+        return (a * (1.0 + PROBE_ULPS * eps * rng.standard_normal(a.shape))).astype(a.dtype)
+    return {k: nudge(a) if k not in EXACT_INPUTS and a.ndim and a.dtype.kind == "f" else a for k, a in inputs.items()}
 
 
 def search(candidate, scene=None, stages=None, budget=DEFAULT_BUDGET, seconds=None, seed=0, out_dir=None, rtol=None,
@@ -254,6 +300,7 @@ def search(candidate, scene=None, stages=None, budget=DEFAULT_BUDGET, seconds=No
     for s in searches:
         report.tried[s.stage] = s.tried
         report.regions[s.stage] = s.regions
+        report.refused[s.stage], report.unsteady[s.stage] = s.refused, s.unsteady
         if s.found is not None:
             if out_dir is not None:
                 Path(out_dir).mkdir(parents=True, exist_ok=True)

@@ -191,12 +191,17 @@ def cfl_number(scene, dt=None, speed=None):
 
 
 def drawn_wave_speed(scene):
-    r"""The largest wave speed of a particle of ``scene`` at rest (:math:`F = I`, :math:`J = 1`) with the plastic
-    volume ratio a drawn state goes down to (``JP_RANGE[0]``): each material's own rule (``wave_speeds``), so that
-    snow is as stiff as its hardening makes the drawn states, and not as stiff as its clamp ``Jp_min`` would allow
-    (a code that never clamps declares ``Jp_min = 1e-300``); the rest speed of every other material."""
+    r"""The largest wave speed of a particle of ``scene`` at rest (:func:`rest_wave_speeds`)."""
+    return float(np.max(rest_wave_speeds(scene)))
+
+
+def rest_wave_speeds(scene):
+    r"""The wave speed of each material of ``scene`` (in the order of its ``material_list``) for a particle at rest
+    (:math:`F = I`, :math:`J = 1`) with the plastic volume ratio a drawn state goes down to (``JP_RANGE[0]``): each
+    material's own rule (``wave_speeds``), so that snow is as stiff as its hardening makes the drawn states, and not as
+    stiff as its clamp ``Jp_min`` would allow (a code that never clamps declares ``Jp_min = 1e-300``)."""
     state = {"F": np.eye(scene.dim)[None], "J": np.ones(1), "Jp": np.full(1, JP_RANGE[0])}
-    return max(float(m.wave_speeds(*(state[f] for f in evolved_fields(m)))[0]) for m in scene.material_list)
+    return np.array([float(m.wave_speeds(*(state[f] for f in evolved_fields(m)))[0]) for m in scene.material_list])
 
 
 def draw_time(seed, scale=1.0):
