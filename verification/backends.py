@@ -44,14 +44,14 @@ import numpy as np
 from mpmref import SceneBuilder, Simulation
 from mpmref.conformance import relative_error
 from mpmref.conformance.cases import MATERIALS
-from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.diagnostics import polypic_mode_norms
 from mpmref.state import EVOLVING_FIELDS
 
 from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
-from .framework.common import Check, checks_table
+from .framework.common import Check
 from .framework.executor import Executor
+from .framework.page import Checks, Figure, Page, Table, Text, write_page
 from .framework.report import pyplot, save_figure, snapshot, write_series
 from .momentum import VARIANT, VARIANTS
 
@@ -222,10 +222,11 @@ def checks(result):
 
 
 def table(result):
+    """The page's table: per run, the largest difference per material after one step and over the trajectory."""
     materials = [m for m in MATERIALS if any(m in r["history"][0] for r in result["runs"])]  # those that ran
-    head = ["| dim | kernel | scheme | " + " | ".join(f"{m}: 1 step / trajectory" for m in materials)
-            + " | s/step numpy | s/step candidate |", "|---|---|---|" + "---|" * (len(materials) + 2)]
-    body = []
+    header = ("dim", "kernel", "scheme", *(f"{m}: 1 step / trajectory" for m in materials), "s/step numpy",
+              "s/step candidate")
+    rows = []
     for r in result["runs"]:
         cells = []
         for m in materials:
@@ -236,9 +237,9 @@ def table(result):
             traj = max(max(h[m].values()) for h in r["history"])
             cells.append(f"{one:.1e} / {traj:.1e}")
         w = r["wall_per_step"]
-        body.append(f"| {r['dim']} | {r['kernel']} | {VARIANT[r['key']].label} | " + " | ".join(cells)
-                    + f" | {w['numpy']:.2e} | {w[r['candidate']]:.2e} |")
-    return "\n".join(head + body)
+        rows.append((r["dim"], r["kernel"], VARIANT[r["key"]].label, *cells, f"{w['numpy']:.2e}",
+                     f"{w[r['candidate']]:.2e}"))
+    return Table(header, tuple(rows))
 
 
 # ------------------------------------------------------------------------------------------ figures
@@ -268,13 +269,13 @@ def report(result, out_dir):
     paths = [plot_growth(result, out / "difference_growth.png")]
     paths += [write_series(out / "vtk" / f"{r['dim']}d_{r['kernel']}_{r['key']}", r["frames"])
               for r in result["runs"]]
-    text = (f"# NumPy reference vs {result['candidate']}\n\nMax relative difference per material (over every "
-            f"particle array) after one step and over the trajectory; wall time per step after the first (so "
-            f"without compilation), measured while the runs shared the machine ({result['executor']}, Numba at "
-            f"its default thread count): a rough figure, not a benchmark (`mpmref bench` is one).\n\n"
-            f"{table(result)}\n\n{checks_table(checks(result))}\n\n![growth](difference_growth.png)\n")
-    write_text_atomic(out / "backends.md", text)
-    return paths + [out / "backends.md"]
+    page = Page(f"NumPy reference vs {result['candidate']}", [
+        Text("Max relative difference per material (over every particle array) after one step and over the "
+             "trajectory; wall time per step after the first (so without compilation), measured while the runs "
+             f"shared the machine ({result['executor']}, Numba at its default thread count): a rough figure, not a "
+             "benchmark (`mpmref bench` is one)."),
+        table(result), Checks(checks(result)), Figure("difference_growth.png", "growth")])
+    return paths + [write_page(page, out / "backends.md")]
 
 
 #: this case, for the registry

@@ -59,13 +59,13 @@ import numpy as np
 
 from mpmref import Scene, SceneBuilder, Simulation
 from mpmref.backends.fitting import SMOOTH_KERNELS
-from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import TERMS
 
 from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
-from .framework.common import Check, checks_table
+from .framework.common import Check
 from .framework.executor import Executor
+from .framework.page import Checks, Figure, Heading, Page, Table, write_page
 from .framework.report import ledger_figure, pyplot, save_figure, snapshot, write_series
 from .momentum import VARIANT, VARIANTS
 
@@ -260,14 +260,15 @@ def checks(result):
 
 
 def table(result, problem):
-    head = ["| scheme | particles | steps | E0 | E_end | lost fraction | max gain | gain bound | wall time [s] |",
-            "|---|---|---|---|---|---|---|---|---|"]
-    body = []
+    """The page's table of ``problem``: per scheme, its energy at the start and the end, what it lost and gained."""
+    header = ("scheme", "particles", "steps", "E0", "E_end", "lost fraction", "max gain", "gain bound",
+              "wall time [s]")
+    rows = []
     for key, r in result["runs"][problem].items():
         x = budget(r)
-        body.append(f"| {VARIANT[key].label} | {r['n_particles']} | {r['steps']} | {x['E0']:.6g} | {x['E_end']:.6g} | "
-                    f"{x['lost']:.4f} | {x['gain']:.2e} | {x['gain_bound']:.2e} | {r['wall_s']:.2f} |")
-    return "\n".join(head + body)
+        rows.append((VARIANT[key].label, r["n_particles"], r["steps"], f"{x['E0']:.6g}", f"{x['E_end']:.6g}",
+                     f"{x['lost']:.4f}", f"{x['gain']:.2e}", f"{x['gain_bound']:.2e}", f"{r['wall_s']:.2f}"))
+    return Table(header, tuple(rows))
 
 
 # ----------------------------------------------------------------------------------------- figures
@@ -328,17 +329,16 @@ def report(result, out_dir):
     """Write the energy plots, VTK series (``vtk/PROBLEM/KEY/particles.pvd``) and ``energy.md``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths, sections = [], []
+    paths, page = [], Page("Energy budget per scheme")
     for problem, runs in result["runs"].items():
         paths += [plot_parts(result, problem, out / f"energy_{problem}.png"),
                   plot_totals(result, problem, out / f"energy_total_{problem}.png"),
                   plot_ledger(result, problem, out / f"energy_ledger_{problem}.png")]
         paths += [write_series(out / "vtk" / problem / key, r["frames"]) for key, r in runs.items()]
-        sections.append(f"## {problem}\n\n{table(result, problem)}\n\n![parts](energy_{problem}.png)\n\n"
-                        f"![totals](energy_total_{problem}.png)\n\n![ledger](energy_ledger_{problem}.png)\n")
-    text = "# Energy budget per scheme\n\n" + "\n".join(sections) + f"\n## Checks\n\n{checks_table(checks(result))}\n"
-    write_text_atomic(out / "energy.md", text)
-    return paths + [out / "energy.md"]
+        page.add(Heading(problem), table(result, problem), Figure(f"energy_{problem}.png", "parts"),
+                 Figure(f"energy_total_{problem}.png", "totals"), Figure(f"energy_ledger_{problem}.png", "ledger"))
+    page.add(Heading("Checks"), Checks(checks(result)))
+    return paths + [write_page(page, out / "energy.md")]
 
 
 #: this case, for the registry

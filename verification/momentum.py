@@ -47,7 +47,6 @@ from time import perf_counter
 import numpy as np
 
 from mpmref import SceneBuilder, Simulation
-from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.diagnostics import angular_momentum
 from mpmref.physics.kernels import compute_stencil
 from mpmref.physics.materials import FixedCorotated
@@ -56,8 +55,9 @@ from mpmref.scene import MethodSpec
 
 from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
-from .framework.common import Check, checks_table
+from .framework.common import Check
 from .framework.executor import Executor
+from .framework.page import Checks, Figure, Page, Table, write_page
 from .framework.report import pyplot, save_figure, snapshot, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
@@ -363,16 +363,17 @@ def checks(result):
 
 
 def table(result):
-    head = ["| scheme | steps | particles | Δt | max linear drift | max angular drift | L_end/L_0 | "
-            "loss per step (measured) | loss per step (predicted) | wall time [s] |", "|---" * 10 + "|"]
-    body = []
+    """The page's table: per scheme, its run, its largest drifts and its measured and predicted spin loss."""
+    header = ("scheme", "steps", "particles", "Δt", "max linear drift", "max angular drift", "L_end/L_0",
+              "loss per step (measured)", "loss per step (predicted)", "wall time [s]")
+    rows = []
     for key, r in result["runs"].items():
         v, (dp, dl) = VARIANT[key], drifts(r)
         measured = decay_rate(spin(r) / spin(r)[0]) if not v.conserves_angular_momentum else 0.0
-        body.append(f"| {v.label} | {len(r['t']) - 1} | {r['n_particles']} | {r['dt']:.3g} | {dp.max():.2e} | "
-                    f"{dl.max():.2e} | {spin(r)[-1] / spin(r)[0]:.6f} | {measured:.3g} | "
-                    f"{v.pic_fraction * r['spin_loss_rate']:.3g} | {r['wall_s']:.2f} |")
-    return "\n".join(head + body)
+        rows.append((v.label, len(r["t"]) - 1, r["n_particles"], f"{r['dt']:.3g}", f"{dp.max():.2e}",
+                     f"{dl.max():.2e}", f"{spin(r)[-1] / spin(r)[0]:.6f}", f"{measured:.3g}",
+                     f"{v.pic_fraction * r['spin_loss_rate']:.3g}", f"{r['wall_s']:.2f}"))
+    return Table(header, tuple(rows))
 
 
 def plot_drifts(result, path):
@@ -421,10 +422,10 @@ def report(result, out_dir):
     paths = [plot_drifts(result, out / "momentum_drift.png"),
              plot_angular_momentum(result, out / "angular_momentum.png")]
     paths += [write_series(out / "vtk" / key, r["frames"]) for key, r in result["runs"].items()]
-    text = (f"# Momentum of a spinning elastic disk\n\n{table(result)}\n\n{checks_table(checks(result))}\n\n"
-            "![drift](momentum_drift.png)\n\n![angular momentum](angular_momentum.png)\n")
-    write_text_atomic(out / "momentum.md", text)
-    return paths + [out / "momentum.md"]
+    page = Page("Momentum of a spinning elastic disk", [
+        table(result), Checks(checks(result)), Figure("momentum_drift.png", "drift"),
+        Figure("angular_momentum.png", "angular momentum")])
+    return paths + [write_page(page, out / "momentum.md")]
 
 
 #: this case, for the registry

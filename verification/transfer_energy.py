@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from mpmref import SceneBuilder, Simulation
-from mpmref.io.atomic import write_text_atomic
 from mpmref.steppers import substep
 
 from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
-from .framework.common import Check, checks_table
+from .framework.common import Check
+from .framework.page import Checks, Figure, Page, Table, write_page
 from .framework.report import pyplot, save_figure
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
@@ -177,11 +177,11 @@ def checks(result):
 
 
 def table(result):
-    head = ["| scheme | λ / Δx | kept in cycle 1 | kept per cycle after | max change per cycle after 1 |",
-            "|---|---|---|---|---|"]
-    body = [f"| {r['scheme']} | {r['wavelength_cells']:g} | {r['kept_first']:.6f} | {r['kept_per_cycle']:.6f} | "
-            f"{r['max_cycle_change_after_first']:.2e} |" for r in result["rows"]]
-    return "\n".join(head + body)
+    """The page's table: per scheme and wavelength, the energy kept in the first cycle and after."""
+    header = ("scheme", "λ / Δx", "kept in cycle 1", "kept per cycle after", "max change per cycle after 1")
+    return Table(header, tuple((r["scheme"], f"{r['wavelength_cells']:g}", f"{r['kept_first']:.6f}",
+                                f"{r['kept_per_cycle']:.6f}", f"{r['max_cycle_change_after_first']:.2e}")
+                               for r in result["rows"]))
 
 
 def plot_energy(result, path):
@@ -207,10 +207,9 @@ def report(result, out_dir):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     figure = plot_energy(result, out / "transfer_energy.png")
-    text = (f"# Transfer-only energy study\n\n{table(result)}\n\n{checks_table(checks(result))}\n\n"
-            f"![energy](transfer_energy.png)\n")
-    write_text_atomic(out / "transfer_energy.md", text)
-    return [figure, out / "transfer_energy.md"]
+    page = Page("Transfer-only energy study",
+                [table(result), Checks(checks(result)), Figure("transfer_energy.png", "energy")])
+    return [figure, write_page(page, out / "transfer_energy.md")]
 
 
 #: this case, for the registry
