@@ -50,8 +50,9 @@ from mpmref.run.stability import StabilityWarning
 
 from .framework.applicable import Allow, Triage, fit
 from .framework.case import VerificationCase
-from .framework.common import Check, Finding, checks_table
+from .framework.common import Check, Finding
 from .framework.executor import Executor
+from .framework.page import Checks, Figure, Heading, Page, Table, Text, write_page
 from .framework.report import pyplot, save_figure
 
 #: scheme label -> method options (the force is the engine's default, MLS, unless stated)
@@ -371,14 +372,13 @@ def _cell(row):
 
 
 def _by_condition(result, cell):
-    """Markdown table: one row per condition, one column per scheme, ``cell(row)`` in each."""
+    """A :class:`~verification.framework.page.Table`: one row per condition, one column per scheme, ``cell(row)`` in
+    each."""
     p = result["params"]
     schemes = list(result["crossing"])  # the schemes that ran
-    head = ["| condition | " + " | ".join(schemes) + " |", "|---" * (len(schemes) + 1) + "|"]
-    body = [f"| {cond.label(p.base)} | " + " | ".join(cell(r) for s in schemes for r in result["rows"]
-                                                      if r["scheme"] == s and r["condition"] == cond) + " |"
-            for cond in p.conditions()]
-    return "\n".join(head + body)
+    return Table(("condition", *schemes), tuple(
+        (cond.label(p.base), *(cell(r) for s in schemes for r in result["rows"]
+                               if r["scheme"] == s and r["condition"] == cond)) for cond in p.conditions()))
 
 
 def table(result):
@@ -392,12 +392,11 @@ def detector_table(result):
 
 
 def crossing_table(result):
-    """Markdown table of the translating block: detector reading, prediction, stability."""
-    head = ["| scheme | detector (cells / step) | predicted C V/(c+V) | stable | energy peak / initial |",
-            "|---|---|---|---|---|"]
-    body = [f"| {s} | {c['crossing']:.6f} | {c['predicted']:.6f} | {'yes' if c['stable'] else c['kind']} | "
-            f"{c['energy_peak']:.6f} |" for s, c in result["crossing"].items()]
-    return "\n".join(head + body)
+    """The table of the translating block: detector reading, prediction, stability."""
+    header = ("scheme", "detector (cells / step)", "predicted C V/(c+V)", "stable", "energy peak / initial")
+    return Table(header, tuple((s, f"{c['crossing']:.6f}", f"{c['predicted']:.6f}",
+                                "yes" if c["stable"] else c["kind"], f"{c['energy_peak']:.6f}")
+                               for s, c in result["crossing"].items()))
 
 
 def _plot(result, path):
@@ -438,31 +437,27 @@ def _representative(result, folder):
 
 def report(result, out_dir):
     """Write ``extremes.md``, ``extremes.png`` and a VTK series of a breaking run; returns the summary path."""
-    from mpmref.io.atomic import write_text_atomic
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     p = result["params"]
     png = _plot(result, out / "extremes.png")
-    parts = ["# Stability at extremes", "",
-             f"{p.cells}x{p.cells} grid, {p.kernel} kernel, {p.steps} steps per probe, Mach {p.mach:g}, "
+    page = Page("Stability at extremes", [
+        Text(f"{p.cells}x{p.cells} grid, {p.kernel} kernel, {p.steps} steps per probe, Mach {p.mach:g}, "
              f"stable = finite, inside the domain and total energy <= {p.energy_factor:g} x initial; bisection "
-             f"resolution {resolution(p):.3g}; backend `{result['backend']}`, sweep run in {result['executor']}.", "",
-             "Largest stable CFL number (and how the first unstable probe broke):", "", table(result), "",
-             f"![limits]({png.name})", "",
-             "Cell-crossing detector, max |x_p(n+1) - x_p(n)| / dx, at the largest stable CFL number:", "",
-             detector_table(result), "",
-             f"Translating block: speed {p.crossing_speed:g} c at CFL {p.crossing_cfl:g}:", "",
-             crossing_table(result), ""]
+             f"resolution {resolution(p):.3g}; backend `{result['backend']}`, sweep run in {result['executor']}."),
+        Text("Largest stable CFL number (and how the first unstable probe broke):"), table(result),
+        Figure(png.name, "limits"),
+        Text("Cell-crossing detector, max |x_p(n+1) - x_p(n)| / dx, at the largest stable CFL number:"),
+        detector_table(result),
+        Text(f"Translating block: speed {p.crossing_speed:g} c at CFL {p.crossing_cfl:g}:"), crossing_table(result)])
     rep = _representative(result, out / "vtk_breaking")
     if rep:
         row, outcome = rep
         verdict = "stable" if outcome["stable"] else outcome["kind"]
-        parts += [f"Representative run (`vtk_breaking/particles.pvd`): {row['scheme']} at CFL "
-                  f"{row['unstable_at']:.3f}, outcome: {verdict} at step {outcome['step']}.", ""]
-    parts += ["## Checks", "", checks_table(checks(result)), ""]
-    write_text_atomic(out / "extremes.md", "\n".join(parts))
-    return out / "extremes.md"
+        page.add(Text(f"Representative run (`vtk_breaking/particles.pvd`): {row['scheme']} at CFL "
+                      f"{row['unstable_at']:.3f}, outcome: {verdict} at step {outcome['step']}."))
+    page.add(Heading("Checks"), Checks(checks(result)))
+    return write_page(page, out / "extremes.md")
 
 
 #: this case, for the registry

@@ -37,14 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from mpmref.io.atomic import write_text_atomic
-
 from .backends import trajectory_bound
 from .convergence import ALLOWS, LevelRun, Series, run_level
 from .framework.applicable import Triage
 from .framework.case import VerificationCase
-from .framework.common import Check, Finding, checks_table
+from .framework.common import Check, Finding
 from .framework.executor import Executor
+from .framework.page import Checks, Figure, Heading, Items, Page, Table, Text, write_page
 from .framework.report import pyplot, save_figure, write_series
 
 #: (scheme, force) pairs the convergence case names
@@ -232,15 +231,13 @@ def findings(result):
 
 
 def table(result, problem, front_only=False):
-    head = ["| scheme | kernel | backend | cells | particles | steps | wall time [s] | e_u | Pareto |",
-            "|---|---|---|---|---|---|---|---|---|"]
-    rows = sorted((p for p in result["points"] if p["series"].problem == problem and (p["pareto"] or not front_only)),
-                  key=lambda p: p["wall_s"])
-    body = [f"| {p['series'].label.split(' ')[0]} | {p['series'].kernel} | {p['backend']} | {p['cells']} | "
-            f"{p['particles']} | {p['steps']} | {p['wall_s']:.3g} | {p['error_u']:.3e} | "
-            f"{'yes' if p['pareto'] else ''} |"
-            for p in rows]
-    return "\n".join(head + body)
+    """The page's table of ``problem``'s runs (those on the Pareto front if ``front_only``), fastest first."""
+    header = ("scheme", "kernel", "backend", "cells", "particles", "steps", "wall time [s]", "e_u", "Pareto")
+    points = sorted((p for p in result["points"] if p["series"].problem == problem and (p["pareto"] or not front_only)),
+                    key=lambda p: p["wall_s"])
+    return Table(header, tuple((p["series"].label.split(" ")[0], p["series"].kernel, p["backend"], p["cells"],
+                                p["particles"], p["steps"], f"{p['wall_s']:.3g}", f"{p['error_u']:.3e}",
+                                "yes" if p["pareto"] else "") for p in points))
 
 
 # ------------------------------------------------------------------------------------------ figures
@@ -278,19 +275,18 @@ def report(result, out_dir):
                                 "displacement_error": f["displacement"] - f["displacement_exact"]}) for f in frames]
     paths = [write_series(out / "vtk" / "most_accurate", vtk)]
     timing = result["timing"]
-    parts = ["# Speed against accuracy", "", f"Backends {', '.join(result['backends'])}. {timing['conditions']} "
-             f"Load average {timing['load_before']:.2f} before the sweep, {timing['load_after']:.2f} after. "
-             "Representative run (the most accurate): "
-             f"{best['series'].label}, {best['backend']}, {best['cells']} cells (`vtk/most_accurate`).", ""]
+    page = Page("Speed against accuracy", [Text(
+        f"Backends {', '.join(result['backends'])}. {timing['conditions']} Load average {timing['load_before']:.2f} "
+        f"before the sweep, {timing['load_after']:.2f} after. Representative run (the most accurate): "
+        f"{best['series'].label}, {best['backend']}, {best['cells']} cells (`vtk/most_accurate`).")])
     for problem in result["params"].problems:
         paths.append(plot(result, problem, out / f"speed_accuracy_{problem}.png"))
-        parts += [f"## {problem}", "", f"![{problem}](speed_accuracy_{problem}.png)", "", "Pareto front:", "",
-                  table(result, problem, front_only=True), "", "Every run:", "", table(result, problem), ""]
-    parts += ["## Findings (measured, not judged)", ""]
-    parts += [f"- {f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result)] or ["(none: one backend)"]
-    parts += ["", "## Checks", "", checks_table(checks(result)), ""]
-    write_text_atomic(out / "speed_accuracy.md", "\n".join(parts))
-    return paths + [out / "speed_accuracy.md"]
+        page.add(Heading(problem), Figure(f"speed_accuracy_{problem}.png", problem), Text("Pareto front:"),
+                 table(result, problem, front_only=True), Text("Every run:"), table(result, problem))
+    page.add(Heading("Findings (measured, not judged)"),
+             Items(tuple(f"{f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result)), "(none: one backend)"),
+             Heading("Checks"), Checks(checks(result)))
+    return paths + [write_page(page, out / "speed_accuracy.md")]
 
 
 #: this case, for the registry; it times its runs, so ``mpmref verify`` starts it only after the background

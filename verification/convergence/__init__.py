@@ -44,8 +44,9 @@ from mpmref.steppers.limits import cfl_time_step
 
 from ..framework.applicable import Allow, Triage, fit
 from ..framework.case import VerificationCase
-from ..framework.common import Check, Finding, checks_table
+from ..framework.common import Check, Finding
 from ..framework.executor import Executor
+from ..framework.page import Checks, Figure, Heading, Items, Page, Table, Text, write_page
 from ..framework.report import pyplot, save_figure
 from .problems import PROBLEMS
 from .stepping import TREATMENTS, advance
@@ -424,42 +425,40 @@ def _write_vtk(rep, folder):
 
 
 def table(result, problem):
-    head = ["| series | cells | Δx | k Δx | steps | e_u | e_v | slope e_u | slope e_v | expected |",
-            "|---|---|---|---|---|---|---|---|---|---|"]
-    body = []
+    """The page's table of ``problem``: each series' levels, its errors, and its fitted and expected slopes on its
+    first row."""
+    header = ("series", "cells", "Δx", "k Δx", "steps", "e_u", "e_v", "slope e_u", "slope e_v", "expected")
+    rows = []
     for row in (r for r in result["rows"] if r["series"].problem == problem):
         s = row["series"]
         for i, lv in enumerate(row["levels"]):
-            fit = (f"{row['slope_u']:.3f} | {row['slope_v']:.3f} | "
-                   f"{'finding' if s.expected_rate is None else f'{s.expected_rate:g}'}") if i == 0 else " | | "
-            body.append(f"| {s.label if i == 0 else ''} | {lv['cells']} | {lv['dx']:.4g} | {lv['kdx']:.4g} | "
-                        f"{lv['steps']} | {lv['error_u']:.3e} | {lv['error_v']:.3e} | {fit} |")
-    return "\n".join(head + body)
+            fit = (f"{row['slope_u']:.3f}", f"{row['slope_v']:.3f}",
+                   "finding" if s.expected_rate is None else f"{s.expected_rate:g}") if i == 0 else ("", "", "")
+            rows.append((s.label if i == 0 else "", lv["cells"], f"{lv['dx']:.4g}", f"{lv['kdx']:.4g}", lv["steps"],
+                         f"{lv['error_u']:.3e}", f"{lv['error_v']:.3e}", *fit))
+    return Table(header, tuple(rows))
 
 
 def report(result, out_dir):
     """Write ``convergence.md``, a PNG per problem and the representative runs' VTK series; returns the summary."""
-    from mpmref.io.atomic import write_text_atomic
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     p = result["params"]
-    parts = ["# Convergence under refinement", "",
-             f"CFL {p.cfl:g}, {p.ppa}x{p.ppa} particles per cell, backend `{result['backend']}`, "
-             f"sweep run in {result['executor']}. Slopes are least-squares fits of log(error) against log(Δx).", ""]
+    page = Page("Convergence under refinement", [Text(
+        f"CFL {p.cfl:g}, {p.ppa}x{p.ppa} particles per cell, backend `{result['backend']}`, "
+        f"sweep run in {result['executor']}. Slopes are least-squares fits of log(error) against log(Δx).")])
     for problem in dict.fromkeys(r["series"].problem for r in result["rows"]):
         png = _plot(result, problem, out / f"convergence_{problem}.png")
-        parts += [f"## {problem}", "", f"![{problem}]({png.name})", "", table(result, problem), ""]
+        page.add(Heading(problem), Figure(png.name, problem), table(result, problem))
         rep = result["representative"].get(problem)
         if rep:
             pvd = _write_vtk(rep, out / f"vtk_{problem}")
-            parts += [f"Representative run: {rep['series'].label} on {rep['cells']} cells, "
-                      f"`{pvd.relative_to(out)}`.", ""]
-    found = [f"- {f.name}: {f.value:.3f}. {f.sentence}" for f in findings(result)]
-    parts += ["## Findings (reported, not judged)", ""] + (found or ["(none in this preset)"]) + [""]
-    parts += ["## Checks", "", checks_table(checks(result)), ""]
-    write_text_atomic(out / "convergence.md", "\n".join(parts))
-    return out / "convergence.md"
+            page.add(Text(f"Representative run: {rep['series'].label} on {rep['cells']} cells, "
+                          f"`{pvd.relative_to(out)}`."))
+    page.add(Heading("Findings (reported, not judged)"),
+             Items(tuple(f"{f.name}: {f.value:.3f}. {f.sentence}" for f in findings(result)), "(none in this preset)"),
+             Heading("Checks"), Checks(checks(result)))
+    return write_page(page, out / "convergence.md")
 
 
 #: this case, for the registry
