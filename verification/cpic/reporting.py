@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
-from mpmref.io.atomic import write_text_atomic
 from mpmref.io.vtk import write_polylines_vtp
 from mpmref.physics.cdf import PENALTY_WINDOW
 from mpmref.rigid.trimesh import TriMesh
 
-from ..framework.common import Check, Finding, checks_table
+from ..framework.common import Check, Finding
+from ..framework.page import Checks, Figure, Heading, Items, Page, Table, Text, write_page
 from ..framework.report import pyplot, save_figure, write_series
 from .scenes import fixed_dt
 
@@ -209,8 +209,8 @@ def _wheel_plot(result, path):
 
 
 def table(result):
-    """Markdown table of the crossings of every run but the sand wheel and the baselines."""
-    rows = ["| run | particles | steps | crossings (per step) | on the far side at the end* |", "|---|---|---|---|---|"]
+    """The table of the crossings of every run but the sand wheel and the baselines (its footnote: :data:`FAR_SIDE`)."""
+    rows = []
     for name, r in (("jelly onto a segment", result.drop), ("blade through sand", result.sand),
                     *((("blade through sand, f_push 2e4", result.sand_2e4),) if result.sand_2e4 is not None else ()),
                     ("hard impact", result.impact),
@@ -219,21 +219,24 @@ def table(result):
                     ("jelly onto a wedge blade", result.cut),
                     ("3D: jelly onto two crossed wedge blades", result.cut3d),
                     ("block sliding (friction)", result.friction)):
-        rows.append(f"| {name} | {r.n_particles} | {r.steps} | {r.crossings} | {r.far_side} |")
-    return "\n".join(rows + ["", "*side at the end against side at the start, for particles projecting onto a "
-                              "segment both times: for the moving blade it also counts sand that flowed under "
-                              "the blade's lower end, which is inside the layer."])
+        rows.append((name, r.n_particles, r.steps, r.crossings, r.far_side))
+    return Table(("run", "particles", "steps", "crossings (per step)", "on the far side at the end*"), tuple(rows))
+
+
+#: the footnote of :func:`table`'s last column
+FAR_SIDE = ("*side at the end against side at the start, for particles projecting onto a segment both times: for the "
+            "moving blade it also counts sand that flowed under the blade's lower end, which is inside the layer.")
 
 
 def baseline_table(result):
-    """Markdown table of the baselines: crossings, mass lost and connected components."""
-    rows = ["| cut by | particles crossing the line | mass lost | connected components |", "|---|---|---|---|"]
+    """The table of the baselines: crossings, mass lost and connected components."""
+    rows = []
     for r in result.baselines:
         name = {"cpic": "CPIC blade (zero thickness)", "level_set": "level-set blade (box, 0.5 dx thick)",
                 "remove": f"removing the particles within {r.width:g} dx", "soften": f"softening {r.width:g} dx "
                 "(E x 1e-4)"}[r.kind]
-        rows.append(f"| {name} | {r.crossings} | {r.mass_lost:.2%} | {r.components} |")
-    return "\n".join(rows)
+        rows.append((name, r.crossings, f"{r.mass_lost:.2%}", r.components))
+    return Table(("cut by", "particles crossing the line", "mass lost", "connected components"), tuple(rows))
 
 
 def report(result, out_dir):
@@ -252,11 +255,10 @@ def report(result, out_dir):
         paths.append(out / "vtk" / key / "rigid_bodies_end.vtp")  # the bodies where the run ends
         write_polylines_vtp(paths[-1], [(b.vertices, b.triangles if isinstance(b, TriMesh) else b.segments)
                                         for b in r.bodies])
-    baselines = (f"## Baselines: the same block over a vertical cut line\n\n{baseline_table(result)}\n\n"
-                 if result.baselines else "")
-    text = (f"# CPIC (backend {result.backend})\n\n{table(result)}\n\n{baselines}"
-            "![momentum](momentum.png)\n\n![friction](friction.png)\n\n![sand wheel](wheel.png)\n\n"
-            "## Findings\n\n" + "\n".join(f"- {f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result))
-            + f"\n\n## Checks\n\n{checks_table(checks(result))}\n")
-    write_text_atomic(out / "cpic.md", text)
-    return paths + [out / "cpic.md"]
+    page = Page(f"CPIC (backend {result.backend})", [table(result), Text(FAR_SIDE)])
+    if result.baselines:
+        page.add(Heading("Baselines: the same block over a vertical cut line"), baseline_table(result))
+    page.add(Figure("momentum.png", "momentum"), Figure("friction.png", "friction"), Figure("wheel.png", "sand wheel"),
+             Heading("Findings"), Items(tuple(f"{f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result))),
+             Heading("Checks"), Checks(checks(result)))
+    return paths + [write_page(page, out / "cpic.md")]

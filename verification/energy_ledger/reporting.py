@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mpmref.io.atomic import write_text_atomic
 from mpmref.observe.ledger import ASYNC_COLUMNS, ASYNC_TERMS
 
-from ..framework.common import Check, Finding, checks_table
+from ..framework.common import Check, Finding
+from ..framework.page import Checks, Figure, Heading, Page, Table, Text, write_page
 from ..framework.report import LEDGER_COLOURS, plot_ledger_areas, pyplot, save_figure, write_series
 from .runs import run_scale, terms_of, total_energy
 
@@ -156,17 +156,16 @@ def tables(result):
                             for dt, s in zip(i["dt"], i["size"])] if i else []}
 
 
-def split_md(result):
-    """The split table in Markdown: joules, and each term's share of the measured change."""
-    head = ("| run | method | particles | steps | t_end [s] | E0 [J] | ΔE [J] | " + " | ".join(ASYNC_TERMS)
-            + " | closure [J] |")
-    lines = [head, "|" + "---|" * (8 + len(ASYNC_TERMS))]
+def split_table(result):
+    """The split table of the page: joules, and each term's share of the measured change."""
+    header = ("run", "method", "particles", "steps", "t_end [s]", "E0 [J]", "ΔE [J]", *ASYNC_TERMS, "closure [J]")
+    rows = []
     for row in split_rows(result):
         change = row["measured_change"]
         cells = [f"{row[t]:.4g} ({_share(row[t], change)})" if row[t] else "0" for t in ASYNC_TERMS]
-        lines.append(f"| {row['run']} | {row['method']} | {row['particles']} | {row['steps']} | {row['t_end']:.4g} | "
-                     f"{row['E0']:.6g} | {change:.4g} | " + " | ".join(cells) + f" | {row['closure']:.1e} |")
-    return "\n".join(lines)
+        rows.append((row["run"], row["method"], row["particles"], row["steps"], f"{row['t_end']:.4g}",
+                     f"{row['E0']:.6g}", f"{change:.4g}", *cells, f"{row['closure']:.1e}"))
+    return Table(header, tuple(rows))
 
 
 # --------------------------------------------------------------------------------------------- figures
@@ -286,10 +285,11 @@ def plot_integration(result, path):
 
 
 # ---------------------------------------------------------------------------------------------- report
-def candidate_md(result):
-    head = ["| run | state | max abs(a - r) / S | worst term |", "|---|---|---|---|"]
-    return "\n".join(head + [f"| {row['run']} | {row['state']} | {row['error']:.2e} | {row['worst']} |"
-                             for row in tables(result)["candidate"]])
+def candidate_table(result):
+    """The table of the candidate's ledger against the reference's, per run and state."""
+    return Table(("run", "state", "max abs(a - r) / S", "worst term"),
+                 tuple((row["run"], row["state"], f"{row['error']:.2e}", row["worst"])
+                       for row in tables(result)["candidate"]))
 
 
 def report(result, out_dir):
@@ -303,17 +303,16 @@ def report(result, out_dir):
     paths += [plot_integration(result, out / "integration_order.png")] if result["integration"] else []
     paths += [write_series(out / "vtk" / r["key"], r["frames"]) for r in result["runs"]]
     f = (tables(result)["friction"] or [None])[0]
-    sliding = (f"The sliding block: d = {f['distance']:.4g} m, boundary = {f['boundary']:.4g} J, -boundary / (mu m g "
-               f"d) = {f['ratio']:.4f}.\n\n![friction](friction.png)" if f else "The sliding block: not applicable.")
-    text = (f"# Where the energy goes, run by run\n\nEach run's change of total energy split into the ledger's terms "
-            f"(joules; in brackets, the share of the measured change ΔE; `closure` is the round-off of the terms' "
-            f"sum against the ledger's own ΔE).\n\n{split_md(result)}\n\n![terms](ledger_terms.png)\n\n"
-            + "".join(f"![terms over time]({p.name})\n\n" for p in terms) +
-            f"## The candidate's ledger ({result['candidate']}) against the reference's\n\nOne step booked on both "
-            f"from the same state, half-way through the run and at its end.\n\n{candidate_md(result)}\n\n"
-            f"## Friction and the integration error\n\n{sliding}\n\n"
-            + ("![integration](integration_order.png)\n\n" if result["integration"] else
-               "The integration error's order: not applicable.\n\n")
-            + f"## Checks\n\n{checks_table(checks(result))}\n")
-    write_text_atomic(out / "energy_ledger.md", text)
-    return paths + [out / "energy_ledger.md"]
+    sliding = ([Text(f"The sliding block: d = {f['distance']:.4g} m, boundary = {f['boundary']:.4g} J, -boundary / "
+                     f"(mu m g d) = {f['ratio']:.4f}."), Figure("friction.png", "friction")] if f else
+               [Text("The sliding block: not applicable.")])
+    page = Page("Where the energy goes, run by run", [
+        Text("Each run's change of total energy split into the ledger's terms (joules; in brackets, the share of the "
+             "measured change ΔE; `closure` is the round-off of the terms' sum against the ledger's own ΔE)."),
+        split_table(result), Figure("ledger_terms.png", "terms"), *(Figure(p.name, "terms over time") for p in terms),
+        Heading(f"The candidate's ledger ({result['candidate']}) against the reference's"),
+        Text("One step booked on both from the same state, half-way through the run and at its end."),
+        candidate_table(result), Heading("Friction and the integration error"), *sliding,
+        Figure("integration_order.png", "integration") if result["integration"] else
+        Text("The integration error's order: not applicable."), Heading("Checks"), Checks(checks(result))])
+    return paths + [write_page(page, out / "energy_ledger.md")]

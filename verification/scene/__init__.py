@@ -39,12 +39,11 @@ import numpy as np
 
 from mpmref import Scene, Simulation
 from mpmref.errors import MpmrefError
-from mpmref.io.atomic import write_text_atomic
 from mpmref.run.emitters import schedule
 from mpmref.run.stability import StabilityWarning
 from mpmref.scene.parsers import ASYNC_TIME_KEYS
 
-from ..framework.common import checks_table
+from ..framework.page import Checks, Figure, Page, Text, write_page
 from ..framework.report import pyplot, save_figure
 
 #: check name -> module, in the order they run
@@ -224,13 +223,11 @@ def figure_with(draw, path, caption, **axes):
     return save_figure(fig, path, caption=caption)
 
 
-def write_report(out_dir, name, title, result, checks, figure, table=""):
-    """Write a check's ``NAME.png`` (``figure(result, path)``) and ``NAME.md``: ``title``, what ran, ``table``, the
-    checks and the figure; returns their paths."""
+def write_report(out_dir, name, title, result, checks, figure, table=None):
+    """Write a check's ``NAME.png`` (``figure(result, path)``) and ``NAME.md``: ``title``, what ran, ``table`` (a
+    :class:`~verification.framework.page.Table`, or ``None``), the checks and the figure; returns their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     png = figure(result, out / f"{name}.png")
-    table = f"{table}\n\n" if table else ""
-    write_text_atomic(out / f"{name}.md", f"# {title}\n\n{result['ran']}\n\n{table}{checks_table(checks)}\n\n"
-                      f"![{name}]({name}.png)\n")
-    return [png, out / f"{name}.md"]
+    page = Page(title, [Text(result["ran"]), *([table] if table else []), Checks(checks), Figure(f"{name}.png", name)])
+    return [png, write_page(page, out / f"{name}.md")]

@@ -38,6 +38,7 @@ from mpmref.run.stability import StabilityWarning, first_unbounded, stable_cfl
 from ..framework.applicable import HYPERELASTIC, NotApplicable
 from ..framework.case import VerificationCase
 from ..framework.common import Check, Finding
+from ..framework.page import Table
 from . import Params, as_run, figure_with, matched, resume, trajectory, what_ran, write_report
 
 SMALL_CFL = 0.3
@@ -243,10 +244,9 @@ def plot(result, path):
 
 def report(result, out_dir):
     """Write ``stability.md`` with the three runs, and a figure of their largest velocity changes."""
-    rows = [f"| {_label(result, k)} | {r['steps']} | {r['jump']:.3g} | {r['energy']:.3g} | {_outcome(r)} |"
-            for k, r in result["runs"].items()]
-    table = "\n".join(["| run | steps | largest ‖Δv‖Δt/Δx | largest (K+Ψ)/E_avail | outcome |", "|---|---|---|---|---|",
-                       *rows])
+    rows = tuple((_label(result, k), r["steps"], f"{r['jump']:.3g}", f"{r['energy']:.3g}", _outcome(r))
+                 for k, r in result["runs"].items())
+    table = Table(("run", "steps", "largest ‖Δv‖Δt/Δx", "largest (K+Ψ)/E_avail", "outcome"), rows)
     return write_report(out_dir, "stability", f"Stability of {result['scene']}", result, checks(result), plot, table)
 
 

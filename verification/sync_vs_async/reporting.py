@@ -4,9 +4,8 @@ result of its :func:`~verification.sync_vs_async.run`.
 
 from pathlib import Path
 
-from mpmref.io.atomic import write_text_atomic
-
-from ..framework.common import Check, Finding, checks_table
+from ..framework.common import Check, Finding
+from ..framework.page import Checks, Figure, Heading, Items, Page, Table, Text, write_page
 from ..framework.report import pyplot, save_figure, write_series
 from .sweeps import fitted_slope
 
@@ -170,17 +169,42 @@ def _trade_plot(result, path):
 
 
 def table(result):
-    rows = ["| scene | interface | particles | levels (log2 ticks) | updates sync | updates async (own) | saved | "
-            "wall sync [s] | wall async [s] | energy diff | position diff [Δx] | P drift sync / async | "
-            "L drift sync / async | stale shadows |", "|---" * 14 + "|"]
+    """The table of the paired runs: work, wall time and the differences between the synchronous and the
+    asynchronous run."""
+    header = ("scene", "interface", "particles", "levels (log2 ticks)", "updates sync", "updates async (own)", "saved",
+              "wall sync [s]", "wall async [s]", "energy diff", "position diff [Δx]", "P drift sync / async",
+              "L drift sync / async", "stale shadows")
+    rows = []
     for key, itf, p in _pairs(result):
         c = p["compare"]
-        rows.append(f"| {key} | {itf} | {p['n']} | {p['levels']} | {p['updates_sync']} | {p['updates_async']} "
-                    f"({p['own_updates']}) | {p['updates_sync'] / p['updates_async']:.2f}x | {p['wall_sync']:.2f} | "
-                    f"{p['wall_async']:.2f} | {c['energy_rel']:.2e} | {p['position_dx']:.3f} | "
-                    f"{c['P_drift_sync']:.2e} / {c['P_drift_async']:.2e} | {c['L_drift_sync']:.2e} / "
-                    f"{c['L_drift_async']:.2e} | {p['stale']} |")
-    return "\n".join(rows)
+        rows.append((key, itf, p["n"], p["levels"], p["updates_sync"], f"{p['updates_async']} ({p['own_updates']})",
+                     f"{p['updates_sync'] / p['updates_async']:.2f}x", f"{p['wall_sync']:.2f}",
+                     f"{p['wall_async']:.2f}", f"{c['energy_rel']:.2e}", f"{p['position_dx']:.3f}",
+                     f"{c['P_drift_sync']:.2e} / {c['P_drift_async']:.2e}",
+                     f"{c['L_drift_sync']:.2e} / {c['L_drift_async']:.2e}", p["stale"]))
+    return Table(header, tuple(rows))
+
+
+def bonded_table(result):
+    """The table of the bonded bodies: per CFL number, the largest energy difference per interface."""
+    itfs = result["params"].bonded_interfaces
+    return Table(("CFL", *itfs), tuple((r["cfl"], *(f"{r[i]:.2e}" for i in itfs)) for r in result["bonded"]))
+
+
+def series_table(result):
+    """The table of the balls over shrinking steps: per CFL number, the velocity differences per interface."""
+    itfs = result["params"].series_interfaces
+    return Table(("CFL", "finest step [ticks]", *itfs, "sync vs sync/4"), tuple(
+        (r["cfl"], r["finest_ticks"],
+         *(f"{r[i]['sync']:.3g} / {r[i].get('sync/4', float('nan')):.3g}" for i in itfs),
+         f"{r.get('sync_vs_sync4', float('nan')):.3g}") for r in result["series"]))
+
+
+def trade_table(result):
+    """The table of error against wall time, with the runs on the Pareto front."""
+    return Table(("run", "wall [s]", "error [Δx]", "Pareto"), tuple(
+        (r["label"], f"{r['wall']:.3f}", f"{r['error_dx']:.3g}", "yes" if r["pareto"] else "")
+        for r in result["trade"]))
 
 
 def report(result, out_dir):
@@ -197,33 +221,23 @@ def report(result, out_dir):
                    for r in result["one_level"])
     iso = "; ".join(f"{itf}: linear {r['P']:.2e}, angular {r['L']:.2e} (levels {r['levels']})"
                     for itf, r in result["isolated"].items())
-    bonded_itfs = result["params"].bonded_interfaces
-    bonded = "\n".join(f"| {r['cfl']} | " + " | ".join(f"{r[i]:.2e}" for i in bonded_itfs) + " |"
-                       for r in result["bonded"])
-    series_itfs = result["params"].series_interfaces
-    series = "\n".join(f"| {r['cfl']} | {r['finest_ticks']} | " + " | ".join(
-        f"{r[i]['sync']:.3g} / {r[i].get('sync/4', float('nan')):.3g}" for i in series_itfs)
-        + f" | {r.get('sync_vs_sync4', float('nan')):.3g} |" for r in result["series"])
-    trade_rows = "\n".join(f"| {r['label']} | {r['wall']:.3f} | {r['error_dx']:.3g} | {'yes' if r['pareto'] else ''} |"
-                           for r in result["trade"])
-    text = (f"# Sync vs async (backend {result['backend']}; the one-level part on numpy and numba)\n\n"
-            f"One level: {ol}.\n\nFree fall: max relative error of v_com {result['free_fall']['max_rel']:.2e} on "
-            f"levels {result['free_fall']['levels']}.\n\nSchedule: worked example reproduced: {sc['matches']}; census "
-            f"over {sc['census_ticks']} ticks ({sc['census_intervals']} synchronised intervals, levels "
-            f"{sc['census_levels']}): {sc['lost']} lost, {sc['duplicated']} duplicated.\n\n"
-            f"Isolated pressed disks, momentum drift relative to its scale: {iso}.\n\n"
-            f"## Paired runs\n\nSync runs at the finest async step. 'updates' count every particle a substep "
-            f"moves, ghosts included (own: the particles' own steps). Wall times include compilation on a "
-            f"first run and are from this machine, not a benchmark (see `mpmref bench --only async`).\n\n"
-            f"{table(result)}\n\n" + "\n".join(f"![{k}](energy_{k}.png)" for k in PAIRS)
-            + "\n\n## Bonded bodies at every CFL number (stork2d, max |E_async - E_sync| / E_0)\n\n| CFL | "
-            + " | ".join(bonded_itfs) + " |\n|---|" + "---|" * len(bonded_itfs) + f"\n{bonded}\n\n"
-            + "## Balls over shrinking steps (end velocity difference / impact speed: vs sync at the same step / "
-            "vs sync at a 4x finer step)\n\n| CFL | finest step [ticks] | " + " | ".join(series_itfs)
-            + " | sync vs sync/4 |\n|---|---|" + "---|" * len(series_itfs) + f"---|\n{series}\n\n"
-            + f"## Error against wall time (stork2d)\n\n| run | wall [s] | error [Δx] | Pareto |\n|---|---|---|---|\n"
-            f"{trade_rows}\n\n![trade](trade.png)\n\n## Findings\n\n"
-            + "\n".join(f"- {f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result))
-            + f"\n\n## Checks\n\n{checks_table(checks(result))}\n")
-    write_text_atomic(out / "sync_vs_async.md", text)
-    return paths + [out / "sync_vs_async.md"]
+    page = Page(f"Sync vs async (backend {result['backend']}; the one-level part on numpy and numba)", [
+        Text(f"One level: {ol}."),
+        Text(f"Free fall: max relative error of v_com {result['free_fall']['max_rel']:.2e} on "
+             f"levels {result['free_fall']['levels']}."),
+        Text(f"Schedule: worked example reproduced: {sc['matches']}; census over {sc['census_ticks']} ticks "
+             f"({sc['census_intervals']} synchronised intervals, levels {sc['census_levels']}): {sc['lost']} lost, "
+             f"{sc['duplicated']} duplicated."),
+        Text(f"Isolated pressed disks, momentum drift relative to its scale: {iso}."),
+        Heading("Paired runs"),
+        Text("Sync runs at the finest async step. 'updates' count every particle a substep moves, ghosts included "
+             "(own: the particles' own steps). Wall times include compilation on a first run and are from this "
+             "machine, not a benchmark (see `mpmref bench --only async`)."),
+        table(result), *(Figure(f"energy_{k}.png", k) for k in PAIRS),
+        Heading("Bonded bodies at every CFL number (stork2d, max |E_async - E_sync| / E_0)"), bonded_table(result),
+        Heading("Balls over shrinking steps (end velocity difference / impact speed: vs sync at the same step / "
+                "vs sync at a 4x finer step)"), series_table(result),
+        Heading("Error against wall time (stork2d)"), trade_table(result), Figure("trade.png", "trade"),
+        Heading("Findings"), Items(tuple(f"{f.name}: {f.value:.3g}. {f.sentence}" for f in findings(result))),
+        Heading("Checks"), Checks(checks(result))])
+    return paths + [write_page(page, out / "sync_vs_async.md")]
