@@ -215,6 +215,8 @@ BAD_STEP_ARGUMENTS = [
     ("step", {"dt": float("inf")}, "dt"), ("step", {"t_end": "now"}, "t_end"),
     ("run", {"steps": -3}, "steps"), ("run", {"steps": 2.5}, "steps"), ("run", {"t_end": "before"}, "t_end"),
     ("run", {"t_end": float("nan")}, "t_end"), ("run", {"t_end": float("inf")}, "t_end"),
+    ("run", {"steps": 2, "dt": 0.0}, "dt"), ("run", {"steps": 2, "dt": -1e-3}, "dt"),
+    ("run", {"steps": 2, "dt": float("nan")}, "dt"), ("run", {"t_end": 1.0, "dt": float("inf")}, "dt"),
 ]
 
 
@@ -240,6 +242,35 @@ def test_run_to_the_current_time_or_zero_steps_does_nothing_and_is_allowed():
     sim = Simulation(jelly_with_loner(dt=1e-3))
     sim.run(steps=2)
     assert sim.run(t_end=sim.time)["steps"] == 0 and sim.run(steps=0)["steps"] == 0 and sim.step_count == 2
+
+
+def test_run_calls_each_step_after_every_step_on_the_stepped_state():
+    """``each_step`` sees each step's state once, after it; a fixed ``dt`` steps as a loop of ``step(dt)`` does, to
+    the bit; what the hook raises ends the run there and propagates."""
+    seen = []
+    sim = Simulation(jelly_with_loner(cfl=0.3))
+    sim.run(steps=4, dt=7e-4, each_step=lambda s: seen.append((s.step_count, s.time, s.x.copy())))
+    loop = Simulation(jelly_with_loner(cfl=0.3))
+    for n in range(1, 5):
+        loop.step(7e-4)
+        assert seen[n - 1][:2] == (n, loop.time) and np.array_equal(seen[n - 1][2], loop.x)
+    assert len(seen) == 4 and np.array_equal(sim.x, loop.x) and np.array_equal(sim.v, loop.v)
+
+    def stop_at_2(s):
+        if s.step_count == 2:
+            raise KeyboardInterrupt
+
+    stopped = Simulation(jelly_with_loner(cfl=0.3))
+    with pytest.raises(KeyboardInterrupt):
+        stopped.run(t_end=1.0, each_step=stop_at_2)
+    assert stopped.step_count == 2
+
+
+def test_run_to_an_end_time_calls_each_step_as_often_as_it_steps():
+    sim = Simulation(jelly_with_loner(cfl=0.3))
+    times = []
+    summary = sim.run(t_end=0.01, each_step=lambda s: times.append(s.time))
+    assert len(times) == summary["steps"] == sim.step_count and times[-1] == sim.time
 
 
 def cadence_scene(steps=23):

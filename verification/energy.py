@@ -53,7 +53,6 @@ stretch (the same oscillation between stored and kinetic energy, through the vol
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from time import perf_counter
 
 import numpy as np
 
@@ -66,7 +65,8 @@ from .framework.case import VerificationCase
 from .framework.common import Check
 from .framework.executor import Executor
 from .framework.page import Checks, Figure, Heading, Page, Table, write_page
-from .framework.report import ledger_figure, pyplot, save_figure, snapshot, write_series
+from .framework.recording import record
+from .framework.report import ledger_figure, pyplot, save_figure, write_series
 from .momentum import VARIANT, VARIANTS
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
@@ -187,19 +187,11 @@ def run_variant(job):
     step, VTK frames."""
     params, problem, key, backend = job
     sim = make_simulation(params, problem, VARIANT[key], backend, ledger=True)
-    t_end = sim.scene.time.t_end
-    rows, frames = [_energies(sim)], [snapshot(sim)]
-    next_frame, start = t_end / params.frames, perf_counter()
-    while sim.time < t_end * (1.0 - 1e-12):
-        sim.step_clipped(t_end)
-        rows.append(_energies(sim))
-        if sim.time >= next_frame * (1.0 - 1e-12):
-            frames.append(snapshot(sim))
-            next_frame += t_end / params.frames
-    a = np.array(rows)
+    run = record(sim, _energies, params.frames, t_end=sim.scene.time.t_end)
+    a = np.array(run.rows)
     return {"t": a[:, 0], "kinetic": a[:, 1], "elastic": a[:, 2], "total": a[:, 3],
             "ledger": {term: a[:, 4 + k] for k, term in enumerate(TERMS)}, "steps": sim.step_count,
-            "n_particles": sim.n_particles, "wall_s": perf_counter() - start, "frames": frames}
+            "n_particles": sim.n_particles, "wall_s": run.wall_s, "frames": run.frames}
 
 
 def run(params=Params(), backend="numpy", executor=None):

@@ -180,31 +180,37 @@ def _probe(sim, steps, energy_factor):
     steps. The engine's :class:`~mpmref.errors.NonFiniteError`, :class:`~mpmref.errors.InstabilityError` (an
     unbounded velocity change that takes a particle out of the domain) and
     :class:`~mpmref.errors.DomainExitError` are caught and recorded as breaks. A simulation with an
-    output folder writes a frame every ``scene.output.every`` steps.
+    output folder writes what :meth:`~mpmref.run.simulation.Simulation.run` writes (a frame every
+    ``scene.output.every`` steps).
     """
-    e0, dx = total_energy(sim), sim.scene.grid.dx
-    crossing, peak = 0.0, 1.0
+    e0, dx, first = total_energy(sim), sim.scene.grid.dx, sim.step_count
+    crossing, peak, x_old = 0.0, 1.0, sim.x
 
     def outcome(kind, step):
         return {"stable": kind is None, "kind": kind, "step": step, "crossing": crossing, "energy_peak": peak}
 
-    for n in range(steps):
-        x_old = sim.x
-        try:
-            sim.step()
-        except NonFiniteError:
-            return outcome("non-finite", n + 1)
-        except InstabilityError:  # an unbounded velocity change that takes a particle out of the domain
-            return outcome("unbounded", n + 1)
-        except DomainExitError:
-            return outcome("left domain", n + 1)
+    def watch(sim):
+        nonlocal crossing, peak, x_old
         crossing = max(crossing, float(np.max(np.linalg.norm(sim.x - x_old, axis=1))) / dx)
-        if sim.output is not None and sim.step_count % sim.scene.output.every == 0:
-            sim.write_output()
-        peak = max(peak, total_energy(sim) / e0)
+        peak, x_old = max(peak, total_energy(sim) / e0), sim.x
         if not peak <= energy_factor:
-            return outcome("energy", n + 1)
+            raise _EnergyBreak
+
+    try:
+        sim.run(steps=steps, each_step=watch)
+    except _EnergyBreak:
+        return outcome("energy", sim.step_count - first)
+    except NonFiniteError:  # a step that raises is not taken: it is the next one
+        return outcome("non-finite", sim.step_count - first + 1)
+    except InstabilityError:  # an unbounded velocity change that takes a particle out of the domain
+        return outcome("unbounded", sim.step_count - first + 1)
+    except DomainExitError:
+        return outcome("left domain", sim.step_count - first + 1)
     return outcome(None, steps)
+
+
+class _EnergyBreak(Exception):
+    """The total energy grew past the probe's factor: the end of :func:`_probe`'s run."""
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,6 @@ until the spin is gone, and a rigid start is what :func:`spin_loss_rate` predict
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from time import perf_counter
 
 import numpy as np
 
@@ -58,7 +57,8 @@ from .framework.case import VerificationCase
 from .framework.common import Check
 from .framework.executor import Executor
 from .framework.page import Checks, Figure, Page, Table, write_page
-from .framework.report import pyplot, save_figure, snapshot, write_series
+from .framework.recording import record
+from .framework.report import pyplot, save_figure, write_series
 
 #: the figure that carries this case's main claim (the one ``index.html`` shows)
 MAIN_FIGURE = "momentum_drift.png"
@@ -269,22 +269,15 @@ def run_variant(job):
     scene = fit(_scene(params, VARIANT[key]), backend, VARIANT[key].allows(ALLOWS)).scene
     sim = Simulation(scene, backend=backend)
     inertia = (scene.kernel.inertia_factor or 0.0) * scene.grid.dx**2  # D of the affine schemes (C: none without)
-    dt, every = time_step(params, scene), max(1, params.steps // params.frames)
-    rows, frames = [_measure(sim, inertia)], [snapshot(sim)]
-    start = perf_counter()
-    for n in range(1, params.steps + 1):
-        sim.step(dt)
-        rows.append(_measure(sim, inertia))
-        if n % every == 0 or n == params.steps:
-            frames.append(snapshot(sim))
-    wall = perf_counter() - start
-    a, dim = np.array(rows), scene.dim
+    dt = time_step(params, scene)
+    run = record(sim, lambda s: _measure(s, inertia), params.frames, steps=params.steps, dt=dt)
+    a, dim, frames = np.array(run.rows), scene.dim, run.frames
     x0 = frames[0][1]
     rate = spin_loss_rate(sim.mass, x0[:, :2], np.zeros(2), spin_inertia(scene, x0))  # the spin is about z
     return {"t": a[:, 0], "P": a[:, 3:3 + dim], "L": a[:, 3 + dim:], "scale_P": float(a[:, 1].max()),
             "scale_L": float(a[:, 2].max()), "dt": dt, "n_particles": sim.n_particles, "spin_loss_rate": rate,
             "support": scene.kernel.support, "dim": dim, "ppc": round(params.ppc ** (dim / 2)),
-            "eps": float(np.finfo(scene.dtype).eps), "wall_s": wall, "frames": frames}
+            "eps": float(np.finfo(scene.dtype).eps), "wall_s": run.wall_s, "frames": frames}
 
 
 def run(params=Params(), backend="numpy", executor=None):

@@ -1,8 +1,8 @@
 """What a valid step size, step count and end time are: one definition for the Python API and the command line.
 
-``Simulation.step(dt=...)``, ``Simulation.run(steps=..., until_step=..., t_end=...)`` and the options ``--steps``,
-``--until-step`` and ``--t-end`` of ``mpmref run`` (``--t-end`` of ``mpmref study``) check their values here, and
-:func:`stop` is the one rule of what a run's stop means. Each function returns the value (as ``float`` or
+``Simulation.step(dt=...)``, ``Simulation.run(steps=..., until_step=..., t_end=..., dt=...)`` and the options
+``--steps``, ``--until-step`` and ``--t-end`` of ``mpmref run`` (``--t-end`` of ``mpmref study``) check their values
+here, and :func:`stop` is the one rule of what a run's stop means. Each function returns the value (as ``float`` or
 ``int``) or raises :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) naming the argument, the value and what
 is allowed; the command line reports the same text with exit status 2.
 """

@@ -344,7 +344,7 @@ class Simulation:
                                            path=self.output.dir / f"last_good_{reason}.npz")
 
     # ----------------------------------------------------------------------------- running
-    def run(self, steps=None, until_step=None, t_end=None, progress=False, record=False):
+    def run(self, steps=None, until_step=None, t_end=None, progress=False, record=False, dt=None, each_step=None):
         """Run ``steps`` more steps, or until step ``until_step`` or time ``t_end`` (at most one of the three; default:
         the scene's ``time.steps`` or ``time.t_end``).
 
@@ -357,11 +357,17 @@ class Simulation:
         steps and a row of ``diagnostics.csv`` every ``scene.output.diagnostics_every`` steps, both also at the
         start and the end. Returns a summary dict (steps, wall time, particle-steps/s, drifts); with ``record``, its
         ``"series"`` holds the diagnostics rows of this run at the same cadence (its first state, every
-        ``diagnostics_every`` steps, its last state), with or without an output folder. Negative ``steps`` or
-        ``until_step``, a ``t_end`` before the current time (or not finite), or two stops at once raise
-        :class:`~mpmref.errors.ArgumentError` (a ``ValueError``) before any work.
+        ``diagnostics_every`` steps, its last state), with or without an output folder.
+
+        ``dt`` fixes every step's Δt (as :meth:`step` takes it; default: the scene's rule, shortened so as not to
+        pass ``t_end``). ``each_step(sim)``, if given, is called after every step, once the run's own outputs of
+        that step are written; what it raises ends the run and propagates (as the step's own errors do). Negative
+        ``steps`` or ``until_step``, a ``t_end`` before the current time (or not finite), a ``dt`` that is not a
+        finite number > 0, or two stops at once raise :class:`~mpmref.errors.ArgumentError` (a ``ValueError``)
+        before any work.
         """
         steps, t_end = self._resolve_stop(*arguments.stop(steps, until_step, t_end, self.step_count, self.time))
+        dt = None if dt is None else arguments.time_step(dt)
         first = self.diagnostics()
         series = [first] if record else None
         if self.output is not None and self.step_count == 0 and not self.output.rows:
@@ -370,11 +376,13 @@ class Simulation:
         start, done, particle_steps = _time.perf_counter(), 0, 0
         try:
             while not self._finished(done, steps, t_end):
-                dt = self.step_clipped(t_end)
+                taken = self.step_clipped(t_end) if dt is None else self.step(dt, t_end)
                 done += 1
                 particle_steps += self.last_updates
-                bar.update(1 if steps is not None else dt)
+                bar.update(1 if steps is not None else taken)
                 self._write_due(series)
+                if each_step is not None:
+                    each_step(self)
         finally:
             bar.close()
         wall = _time.perf_counter() - start

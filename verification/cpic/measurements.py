@@ -6,6 +6,7 @@ independent simulations and :func:`run` runs them through an :class:`~verificati
 """
 
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -19,6 +20,7 @@ from mpmref.rigid.trimesh import TriMesh, triangle_frame
 from mpmref.scene.sampling import sample_particles
 
 from ..framework.executor import Executor
+from ..framework.recording import record
 from ..framework.report import snapshot
 from .results import Baseline, Collision, CpicResult, Cut, Sliding, Watched, Wheel
 from .scenes import (
@@ -85,20 +87,21 @@ def run_watching(scene, frames, every_step=None, particles=None, shapes=None, ba
     fixed polylines ``shapes``) every step; ``every_step(sim)`` is called after each step. Returns the simulation at
     the end and its :class:`~verification.cpic.results.Watched` record."""
     sim = Simulation(scene, backend=backend, particles=particles)
-    crossed = set()
-    state = first = segment_offsets(sim, shapes)
-    shots = [snapshot(sim, CPIC_FRAME_OUTPUTS)]
-    t_end, frame_dt = scene.time.t_end, scene.time.t_end / frames
-    while sim.time < t_end * (1 - 1e-12):
-        sim.step(t_end=t_end)
+    crossed, first, last = set(), None, None  # the segment offsets of the first and of the latest state
+
+    def watch(sim):
+        nonlocal first, last
         new = segment_offsets(sim, shapes)
-        crossed |= count_crossings(state, new)
-        state = new
-        if every_step is not None:
-            every_step(sim)
-        if sim.time >= len(shots) * frame_dt * (1 - 1e-9):
-            shots.append(snapshot(sim, CPIC_FRAME_OUTPUTS))
-    return sim, Watched(crossings=len(crossed), far_side=len(count_crossings(first, state)), frames=shots,
+        if first is None:
+            first = new
+        else:
+            crossed.update(count_crossings(last, new))
+            if every_step is not None:
+                every_step(sim)
+        last = new
+
+    run = record(sim, watch, frames, t_end=scene.time.t_end, frame=partial(snapshot, fields=CPIC_FRAME_OUTPUTS))
+    return sim, Watched(crossings=len(crossed), far_side=len(count_crossings(first, last)), frames=run.frames,
                         n_particles=sim.n_particles, steps=sim.step_count,
                         bodies=shapes or current_shapes(scene.rigid_bodies, sim.state.rigid))
 

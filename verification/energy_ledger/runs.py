@@ -26,6 +26,7 @@ from mpmref.rigid import dynamics as rigid_dynamics
 
 from .. import energy
 from ..framework.applicable import Allow, fit
+from ..framework.recording import record
 from ..framework.report import snapshot
 from ..momentum import VARIANT, VARIANTS
 
@@ -249,38 +250,32 @@ def ledger_run(sim, key, frames, t_end=None, steps=None, candidate=None):
     and a VTK frame with the per-particle shares; with a ``candidate`` backend, its ledger beside the reference's from
     the states half-way and at the end (``compared``, :func:`compare`; empty otherwise). ``left``: the particles the
     domain's edge deleted or clamped over the run (the ledger books steps, not those)."""
-    first = sim.step_count
+    first, left = sim.step_count, sim.deleted + sim.clamped
+    totals = {term: np.zeros(sim.n_particles) for term in shared_terms(sim.scene)}
+    compared, paused = [], []
 
-    def done(fraction=1.0):
+    def halfway():  # half the run done, not all of it
         if steps is not None:
-            return sim.step_count - first >= fraction * steps
-        return sim.time >= fraction * t_end * (1.0 - 1e-12)
+            return 2 * (sim.step_count - first) >= steps > sim.step_count - first
+        return 0.5 * t_end * (1.0 - 1e-12) <= sim.time < t_end * (1.0 - 1e-12)
 
-    terms = shared_terms(sim.scene)
-    totals = {term: np.zeros(sim.n_particles) for term in terms}
-    rows, samples, shots, compared = [ledger_row(sim)], [energies(sim)], [frame(sim, totals)], []
-    next_frame, start, left = 1.0 / frames, perf_counter(), sim.deleted + sim.clamped
-    while not done():
-        if candidate and not compared and done(0.5):
-            paused = perf_counter()
-            compared.append(compare_here(sim, candidate))
-            start += perf_counter() - paused  # the run's wall time leaves the candidate's step out
-        sim.step() if steps is not None else sim.step_clipped(t_end)
-        rows.append(ledger_row(sim))
-        if totals:
+    def measure(sim):
+        if totals and sim.step_count > first:
             add_shares(totals, sim.stepper.ledger.shares)
-        if done(next_frame) or done():
-            samples.append(energies(sim))
-            shots.append(frame(sim, totals))
-            next_frame += 1.0 / frames
-    wall = perf_counter() - start
+        if candidate and not compared and halfway():
+            start = perf_counter()
+            compared.append(compare_here(sim, candidate))
+            paused.append(perf_counter() - start)  # the run's wall time leaves the candidate's step out
+        return ledger_row(sim)
+
+    run = record(sim, measure, frames, steps=steps, t_end=t_end, frame=lambda s: (energies(s), frame(s, totals)))
     if candidate:
         compared.append(compare_here(sim, candidate))
-    h, e = np.array(rows), np.array(samples)
+    h, e = np.array(run.rows), np.array([sample for sample, _ in run.frames])
     return {"key": key, "method": method_label(sim.scene), "n_particles": sim.n_particles,
-            "steps": sim.step_count - first,
-            "wall_s": wall, "t": h[:, 0], "ledger": h[:, 1:], "sampled_steps": e[:, 0].astype(int) - first,
-            "energies": e[:, 1:], "frames": shots, "compared": compared, "left": sim.deleted + sim.clamped - left,
+            "steps": sim.step_count - first, "wall_s": run.wall_s - sum(paused), "t": h[:, 0], "ledger": h[:, 1:],
+            "sampled_steps": e[:, 0].astype(int) - first, "energies": e[:, 1:], "frames": [f for _, f in run.frames],
+            "compared": compared, "left": sim.deleted + sim.clamped - left,
             **signs_fixed(sim.scene)}
 
 
