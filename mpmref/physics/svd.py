@@ -32,7 +32,7 @@ Both are backward stable: the computed factors are exact for a matrix :math:`F +
 
 The NumPy reference backend does **not** use this module: its materials keep ``np.linalg.svd``
 (:func:`mpmref.physics.materials.signed_svd`), an implementation independent of the one the Numba backend
-compiles (:mod:`mpmref.backends.numba.svd`, the same algorithm as here, per particle). The conformance
+compiles (:mod:`mpmref.backends.pointwise.svd`, the same algorithm as here, per particle). The conformance
 harness therefore checks the fast SVD against LAPACK on every stress and return-map case, instead of
 checking one algorithm against itself; it holds at :math:`10^{-12}` because both factorisations are
 backward stable and the stress and the return maps are well-conditioned functions of :math:`F` even where
