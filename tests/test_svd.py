@@ -36,7 +36,6 @@ import numpy as np
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
-
 from numba import njit
 
 from mpmref.backends.pointwise import svd as pointwise_svd
