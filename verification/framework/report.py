@@ -5,9 +5,10 @@ representative runs and their PNG plots (the energy ledger's stacked areas with 
 carries its caption, the sentence that says what to look for, in its ``Description`` text chunk:
 :func:`figure_caption`). ``mpmref verify`` turns each case's :class:`~verification.framework.registry.Outcome` into a
 :class:`CaseRecord` (:func:`case_record`: the backends it ran, its findings, its figures, the one that carries its main
-claim) and writes the per-case ``report.md`` and ``index.html`` (:func:`write_case_report`) and the top-level
-``report.md``, ``index.html`` and ``results.json`` (:func:`write_index`). Every file is written atomically
-(:mod:`mpmref.io.atomic`).
+claim) and writes the per-case ``report.md`` (:func:`case_page`) and ``index.html`` (:func:`write_case_report`) and the
+top-level ``report.md`` (:func:`index_page`), ``index.html`` and ``results.json`` (:func:`write_index`). The Markdown
+pages are :class:`~verification.framework.page.Page` objects, rendered as the cases' own pages are. Every file is
+written atomically (:mod:`mpmref.io.atomic`).
 """
 
 import datetime
@@ -27,6 +28,7 @@ from mpmref.io.vtk import write_particles_vtu, write_pvd
 
 from . import html_report, registry
 from .common import backend_sentence, cell, check_header, failed, summary_sentence, verdict_word
+from .page import Checks, Figure, Heading, Items, Page, Table, Text, write_page
 
 #: the outputs (names of ``[output] fields``, :data:`mpmref.scene.parsers.OUTPUT_FIELDS`) that the VTK frames of
 #: verification runs record
@@ -268,73 +270,72 @@ def _files_by_kind(case_dir, since):
             [f for f in files if f.suffix in (".md", ".csv") and f.name != "report.md"])
 
 
-def _findings_md(findings, with_case):
-    """Markdown table of ``findings`` = ``[(case name, Finding), ...]``, with a case column if asked."""
-    head = ["case"] * with_case + ["finding", "figure", "what it shows"]
-    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return rows + ["| " + " | ".join([cell(case)] * with_case + [cell(f.name), f"{f.value:.6g}", cell(f.sentence)])
-                   + " |" for case, f in findings]
+def _findings_table(findings, with_case):
+    """The table of ``findings`` = ``[(case name, Finding), ...]``, with a case column if asked."""
+    head = ("case",) * with_case + ("finding", "figure", "what it shows")
+    return Table(head, tuple((case,) * with_case + (f.name, f"{f.value:.6g}", f.sentence) for case, f in findings))
 
 
-def case_summary_md(record, case_dir):
-    """Markdown text of one case's ``report.md``: set-up, findings, checks, figures, VTK series, other files."""
+def _links(files):
+    """A list of links to ``files`` (paths relative to the page)."""
+    return Items(tuple(f"[{f.as_posix()}]({f.as_posix()})" for f in files))
+
+
+def case_page(record, case_dir):
+    """The :class:`~.page.Page` of one case's ``report.md``: set-up, findings, checks, what did not apply, figures,
+    VTK series, other files."""
     outcome = record.outcome
-    lines = [f"# {outcome.name}", "", outcome.title, "",
-             f"Preset `{outcome.preset}`, backends run: {', '.join(record.backends)}, wall time "
-             f"{outcome.wall_s:.1f} s, verdict **{outcome.verdict}**.", "", "## Parameters", "",
-             "| parameter | value |", "|---|---|"]
-    lines += [f"| {k} | {cell(v)} |" for k, v in asdict(outcome.params).items()] if outcome.params is not None else []
+    page = Page(outcome.name, [Text(outcome.title), Text(
+        f"Preset `{outcome.preset}`, backends run: {', '.join(record.backends)}, wall time {outcome.wall_s:.1f} s, "
+        f"verdict **{outcome.verdict}**."), Heading("Parameters")])
+    params = asdict(outcome.params).items() if outcome.params is not None else ()
+    page.add(Table(("parameter", "value"), tuple((k, v) for k, v in params)))
     if outcome.error is not None:
-        where = [f"Raised in {outcome.error_line}", ""] if outcome.error_line else []
-        lines += ["", "## Error", "", *where, "```text", outcome.error.rstrip(), "```"]
+        page.add(Heading("Error"), *([Text(f"Raised in {outcome.error_line}")] if outcome.error_line else []),
+                 Text(f"```text\n{outcome.error.rstrip()}\n```"))
     if record.findings:
-        lines += ["", "## Findings (measured, not judged)", ""]
-        lines += _findings_md([(outcome.name, f) for f in record.findings], with_case=False)
-    lines += ["", "## Checks", ""] + (_checks_md(outcome.checks) if outcome.checks else ["(none)"])
-    lines += _not_applicable_md(outcome)
+        page.add(Heading("Findings (measured, not judged)"),
+                 _findings_table([(outcome.name, f) for f in record.findings], with_case=False))
+    page.add(Heading("Checks"), Checks(tuple(outcome.checks)) if outcome.checks else Text("(none)"))
+    page.add(*_not_applicable_sections(outcome))
     _, series, others = _files_by_kind(case_dir, outcome.started)
     if record.figures:
-        lines += ["", "## Figures"]
+        page.add(Heading("Figures"))
         for path, caption in record.figures:
-            lines += ["", f"![{path.stem}]({path.as_posix()})", "", caption]
+            page.add(Figure(path.as_posix(), path.stem), Text(caption))
     if series:
-        lines += ["", "## VTK series (open in ParaView)", ""] + [f"- [{f.as_posix()}]({f.as_posix()})" for f in series]
+        page.add(Heading("VTK series (open in ParaView)"), _links(series))
     if others:
-        lines += ["", "## Tables and details", ""] + [f"- [{f.as_posix()}]({f.as_posix()})" for f in others]
-    return "\n".join(lines) + "\n"
+        page.add(Heading("Tables and details"), _links(others))
+    return page
 
 
-def _not_applicable_md(outcome):
-    """The case's sections on what did not apply to the backend and what was adapted to it (none: no lines)."""
-    lines = []
+def _not_applicable_sections(outcome):
+    """The case's sections on what did not apply to the backend and what was adapted to it (none: no sections)."""
+    sections = []
     if outcome.not_applicable:
-        lines += ["", "## Not applicable to this backend", "",
-                  "Checks, or runs and the checks they carry, that the backend does not implement (never a failure):",
-                  "", "| not applicable | why |", "|---|---|"]
-        lines += [f"| {cell(item.name)} | {cell(item.why)} |" for item in outcome.not_applicable]
+        sections += [Heading("Not applicable to this backend"),
+                     Text("Checks, or runs and the checks they carry, that the backend does not implement "
+                          "(never a failure):"),
+                     Table(("not applicable", "why"), tuple((item.name, item.why) for item in outcome.not_applicable))]
     if outcome.adapted:
-        lines += ["", "## Adapted to this backend", "",
-                  "Runs made on a scene fitted to what the backend implements, within what the claim allows "
-                  "(the case's docstring says why each keeps its claim):", "", "| runs | what changed |", "|---|---|"]
-        lines += [f"| {cell(', '.join(a.names))} | {cell(' '.join(c.rstrip('.') + '.' for c in a.changes))} |"
-                  for a in outcome.adapted]
-    return lines
+        sections += [Heading("Adapted to this backend"),
+                     Text("Runs made on a scene fitted to what the backend implements, within what the claim allows "
+                          "(the case's docstring says why each keeps its claim):"),
+                     Table(("runs", "what changed"),
+                           tuple((", ".join(a.names), " ".join(c.rstrip(".") + "." for c in a.changes))
+                                 for a in outcome.adapted))]
+    return sections
 
 
 def write_case_report(record, case_dir):
     """Write ``case_dir/report.md`` and ``case_dir/index.html`` for one case's :class:`CaseRecord`."""
     case_dir = Path(case_dir)
     case_dir.mkdir(parents=True, exist_ok=True)
-    path = case_dir / "report.md"
-    write_text_atomic(path, case_summary_md(record, case_dir))
+    path = write_page(case_page(record, case_dir), case_dir / "report.md")
     _, series, others = _files_by_kind(case_dir, record.outcome.started)
     write_text_atomic(case_dir / "index.html", html_report.case_html(record, series, others))
     return path
-
-
-# -------------------------------------------------------------------------------------------- tables
-def _checks_md(checks):
-    return check_header() + [c.line() for c in checks]
 
 
 # -------------------------------------------------------------------------------------------- index
@@ -360,39 +361,39 @@ def _all_backends(records):
     return list(dict.fromkeys(b for r in records for b in r.backends))
 
 
-def index_md(records, meta):
-    """Markdown of the top-level ``report.md``: the verdict and the failures, the cases, the findings, then every
-    check (the order of ``index.html``)."""
+def index_page(records, meta):
+    """The :class:`~.page.Page` of the top-level ``report.md``: the verdict and the failures, the cases, the findings,
+    then every check (the order of ``index.html``)."""
     n = _summary(records)
-    lines = ["# mpmref verification report", "", f"**{verdict_word(n)}**: {summary_sentence(n)}.", "",
-             f"Preset `{meta['preset']}`; backends run: {', '.join(_all_backends(records))} (per case below); "
-             f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s. {backend_sentence(meta)}", "",
-             "Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + ".", "", "## Failures", ""]
+    page = Page("mpmref verification report", [
+        Text(f"**{verdict_word(n)}**: {summary_sentence(n)}."),
+        Text(f"Preset `{meta['preset']}`; backends run: {', '.join(_all_backends(records))} (per case below); "
+             f"sweeps run in {meta['executor']}; total wall time {meta['wall_s']:.1f} s. {backend_sentence(meta)}"),
+        Text("Machine: " + ", ".join(f"{k} {v}" for k, v in meta["machine"].items()) + "."), Heading("Failures")])
     failing = [(o, c) for o, c in _check_rows(records) if c is None or not c.passed]
-    if failing:
-        lines += check_header(True) + [_error_row(o) if c is None else c.line(o.name) for o, c in failing]
-    else:
-        lines.append("None: every check of every case passes.")
-    lines += ["", "## Cases", "", "| case (its report) | backends | checks | verdict | wall time [s] |",
-              "|---|---|---|---|---|"]
-    lines += [f"| [{r.name}]({r.name}/report.md) | {', '.join(r.backends)} | {len(r.outcome.checks)} | "
-              f"{r.outcome.verdict} | {r.outcome.wall_s:.1f} |" for r in records]
-    lines += _index_not_applicable_md(records)
-    lines += ["", "## Findings (measured, not judged)", ""]
+    page.add(_case_checks(failing) if failing else Text("None: every check of every case passes."))
+    page.add(Heading("Cases"), Table(("case (its report)", "backends", "checks", "verdict", "wall time [s]"), tuple(
+        (f"[{r.name}]({r.name}/report.md)", ", ".join(r.backends), len(r.outcome.checks), r.outcome.verdict,
+         f"{r.outcome.wall_s:.1f}") for r in records)))
+    page.add(*_index_not_applicable(records), Heading("Findings (measured, not judged)"))
     findings = [(r.name, f) for r in records for f in r.findings]
-    lines += _findings_md(findings, with_case=True) if findings else ["(none in these cases)"]
-    lines += ["", "## Every check", ""] + check_header(True)
-    lines += [_error_row(o) if c is None else c.line(o.name) for o, c in _check_rows(records)]
-    return "\n".join(lines) + "\n"
+    page.add(_findings_table(findings, with_case=True) if findings else Text("(none in these cases)"))
+    return page.add(Heading("Every check"), _case_checks(list(_check_rows(records))))
 
 
-def _index_not_applicable_md(records):
+def _case_checks(rows):
+    """The checks table with a case column of ``rows`` = ``[(outcome, check or None), ...]``; ``None``: the case
+    stopped with an error."""
+    return Text("\n".join(check_header(True) + [_error_row(o) if c is None else c.line(o.name) for o, c in rows]))
+
+
+def _index_not_applicable(records):
     """The index's section on what was not applicable, case by case (nothing when everything applied)."""
     items = [(r.name, item) for r in records for item in r.outcome.not_applicable]
     if not items:
         return []
-    return (["", "## Not applicable to this backend", "", "| case | not applicable | why |", "|---|---|---|"]
-            + [f"| {cell(case)} | {cell(item.name)} | {cell(item.why)} |" for case, item in items])
+    return [Heading("Not applicable to this backend"),
+            Table(("case", "not applicable", "why"), tuple((case, item.name, item.why) for case, item in items))]
 
 
 def _error_row(outcome):
@@ -468,7 +469,7 @@ def write_index(out_dir, records, meta):
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = out / "report.md", out / "index.html", out / "results.json"
-    write_text_atomic(paths[0], index_md(records, meta))
+    write_page(index_page(records, meta), paths[0])
     write_text_atomic(paths[1], index_html(records, meta))
     write_text_atomic(paths[2], json.dumps(results(records, meta), indent=2, allow_nan=False) + "\n")
     return paths
