@@ -20,6 +20,7 @@ from numba import njit, prange
 
 from ..pointwise.laws import WORK, functions, law_digest, parameter_table
 from .source_digest import SOURCE_DIGEST
+from .twin import parallel_kernel
 
 #: particles per chunk of a material kernel's parallel loop (one set of work arrays per chunk)
 CHUNK = 64
@@ -89,7 +90,7 @@ def law_kernels(law):
                 out[k] = law_wave_speed(prm, Fp, Jv, Jpv)
 
     def compiled(kernel):
-        return njit(parallel=True, cache=True)(bound(kernel, law_stress=found.stress, law_wave_speed=found.wave_speed,
+        return parallel_kernel(cache=True)(bound(kernel, law_stress=found.stress, law_wave_speed=found.wave_speed,
                                                      law_return_map=found.return_map))
 
     return types.SimpleNamespace(stress=compiled(stress), wave_speeds=compiled(wave_speeds),
