@@ -111,7 +111,7 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=Fals
                                          mode_index, AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
 
     return parallel_kernel(
-        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None), cache=True, fastmath={"contract"})
+        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None), cache=True)
 
 
 @lru_cache(maxsize=None)
@@ -123,7 +123,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     SOURCES = SOURCE_DIGEST
     N = BLOCK**3
 
-    @parallel_kernel(cache=True, fastmath={"contract"})
+    @parallel_kernel(cache=True)
     def g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
             modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
@@ -198,7 +198,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     SOURCES = SOURCE_DIGEST
     N = BLOCK**3
 
-    @parallel_kernel(cache=True, fastmath={"contract"})
+    @parallel_kernel(cache=True)
     def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout
