@@ -17,6 +17,7 @@ import pytest
 from numba import prange
 
 from mpmref.backends.numba import twin
+from mpmref.errors import ArgumentError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -28,9 +29,8 @@ def summed(x, out):
 
 @pytest.fixture
 def serial_until_cached():
-    twin.serial_until_cached(True)
-    yield
-    twin.serial_until_cached(False)
+    with twin.builds("serial-until-cached"):
+        yield
 
 
 def test_a_kernel_without_a_cached_parallel_build_runs_serially_until_told(serial_until_cached):
@@ -53,9 +53,28 @@ def test_a_kernel_whose_parallel_build_is_compiled_runs_it(serial_until_cached):
 
 
 def test_by_default_every_kernel_runs_its_parallel_build():
+    assert twin.mode_from_environment({}) == "parallel"
     kernel = twin.parallel_kernel(summed)
-    kernel(np.arange(3.0), np.zeros(3))
-    assert kernel not in twin.serial_kernels() and kernel._serial is None  # never built
+    with twin.builds("parallel"):
+        kernel(np.arange(3.0), np.zeros(3))
+        assert kernel not in twin.serial_kernels() and kernel._serial is None  # never built
+
+
+def test_in_the_serial_mode_every_kernel_runs_its_serial_build_and_a_block_restores_the_mode_before():
+    kernel = twin.parallel_kernel(summed)
+    before = twin.mode()
+    with twin.builds("serial"):
+        kernel(np.arange(3.0), np.zeros(3))
+        assert kernel in twin.serial_kernels() and not kernel.parallel.overloads
+    assert twin.mode() == before
+
+
+def test_an_unknown_mode_is_refused_with_the_allowed_ones():
+    with pytest.raises(ArgumentError, match="MPMREF_KERNEL_BUILDS = 'threads' is invalid: allowed one of parallel"):
+        twin.mode_from_environment({twin.BUILDS_VARIABLE: "threads"})
+    with pytest.raises(ArgumentError, match="mode = 'fast' is invalid"):
+        with twin.builds("fast"):
+            pass
 
 
 def test_the_serial_build_is_a_serial_compilation_cached_under_its_own_name():
@@ -65,7 +84,7 @@ def test_the_serial_build_is_a_serial_compilation_cached_under_its_own_name():
 
 
 def first_run(cache, *args):
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), twin.BUILDS_VARIABLE: "parallel"}  # the default mode
     return subprocess.run([sys.executable, "-m", "mpmref.cli", "run", str(ROOT / "examples" / "mpm88.toml"),
                            "--backend", "numba", "--no-progress", "--overwrite", *args], env=env, cwd=ROOT,
                           capture_output=True, text=True, timeout=900)
@@ -80,4 +99,4 @@ def test_a_first_run_starts_serially_switches_when_the_parallel_kernels_are_cach
     assert "starts on serial kernels" in long.stderr and "parallel kernels ready" in long.stderr
     again = first_run(tmp_path / "cache", "--steps", "5", *out)
     assert again.returncode == 0, again.stderr
-    assert "serial" not in again.stderr
+    assert "serial kernels" not in again.stderr, again.stderr

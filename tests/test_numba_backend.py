@@ -96,14 +96,12 @@ def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads_and_the_ser
         after = run(backend, particles, 10, dt)
         return backend.p2g(after), after
 
-    one = with_threads(1, p2g_after_steps)
-    two = with_threads(2, p2g_after_steps)
-    twin.use_serial()
-    try:
+    with twin.builds("parallel"):
+        one = with_threads(1, p2g_after_steps)
+        two = with_threads(2, p2g_after_steps)
+    with twin.builds("serial"):
         serial = p2g_after_steps()
         assert twin.serial_kernels()
-    finally:
-        twin.use_parallel()
     for other in (two, serial):
         for name in ("mass", "momentum", "force"):
             assert np.array_equal(getattr(one[0], name), getattr(other[0], name)), name

@@ -20,13 +20,22 @@ from ..backends.numba import twin
 def warm_up(sim, backend):
     """Compile (or load) the kernels of ``sim``, serial builds for the parallel ones not cached yet; a started
     :class:`ParallelBuild` of the scene on ``backend`` (the name or reference ``sim`` was made with) if any kernel
-    runs serially, else ``None``."""
-    twin.serial_until_cached(True)
+    runs serially, else ``None``. Only where kernels run their parallel builds (the default mode of
+    :mod:`~mpmref.backends.numba.twin`); in another mode, the kernels of that mode."""
+    chosen = twin.mode()
+    if chosen != "parallel":
+        sim.warm_up()
+        return None
+    twin.choose_again("serial-until-cached")
     try:
         sim.warm_up()
-    finally:
-        twin.serial_until_cached(False)
-    return ParallelBuild(sim.scene, backend) if twin.serial_kernels() else None
+    except BaseException:
+        twin.choose_again(chosen)
+        raise
+    if not twin.serial_kernels():
+        twin.choose_again(chosen)
+        return None
+    return ParallelBuild(sim.scene, backend)
 
 
 def compile_parallel(scene, backend):
@@ -58,7 +67,9 @@ class ParallelBuild:
         return True
 
     def stop(self):
-        """End the process if it still compiles (what it cached so far stays: Numba writes each file whole)."""
+        """End the process if it still compiles (what it cached so far stays: Numba writes each file whole); kernels
+        choose their parallel builds again from their next call."""
         if self.process.is_alive():
             self.process.terminate()
         self.process.join()
+        twin.use_parallel()

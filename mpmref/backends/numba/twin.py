@@ -8,20 +8,44 @@ on the number of threads (particles gathered by their own thread, scatters colou
 a node in one pass, every sum in a fixed order), and one thread running the loop in order is such a count.
 
 :func:`parallel_kernel` declares a kernel as both: a :class:`TwinKernel` runs its parallel build unless told
-otherwise. With :func:`serial_until_cached`, a kernel whose parallel build is not in Numba's on-disk cache for the
-arguments it is first called with runs its serial build (compiled once, and cached apart: its copy of the function
-has its own name, ``NAME_serial``) until :func:`use_parallel` says the parallel builds have been compiled, by
-another process, into the cache; it then loads them from there (:mod:`mpmref.backends.numba.first_run`).
+otherwise (:data:`MODES`): in the mode ``serial``, every kernel runs its serial build (compiled once, and cached apart:
+its copy of the function has its own name, ``NAME_serial``); in the mode ``serial-until-cached``, a kernel whose
+parallel build is not in Numba's on-disk cache for the arguments it is first called with runs its serial build
+until :func:`use_parallel` says the parallel builds have been compiled, by another process, into the cache; it then
+loads them from there (:mod:`mpmref.run.first_run`). The mode is ``parallel`` unless the environment variable
+:data:`BUILDS_VARIABLE` says otherwise (the test suite runs in the mode ``serial``, but where threads are the point)
+or :func:`builds` changes it for a block.
 """
 
+import os
 import types
+from contextlib import contextmanager
 
 from numba import njit
 
-#: whether kernels whose parallel build is not cached run serially for now (:func:`serial_until_cached`)
-_SERIAL_UNTIL_CACHED = [False]
-#: the kernels declared so far (:func:`use_parallel` switches them)
+from ...errors import ArgumentError
+
+#: the environment variable that chooses the builds kernels run (:data:`MODES`); unset, ``parallel``
+BUILDS_VARIABLE = "MPMREF_KERNEL_BUILDS"
+#: the builds a kernel may run: ``parallel`` (the default), ``serial`` (every kernel compiled and run serially: a
+#: shorter compilation for runs that gain nothing from threads, such as the tests), or ``serial-until-cached`` (a
+#: kernel whose parallel build is not cached runs serially: :mod:`mpmref.run.first_run`)
+MODES = ("parallel", "serial", "serial-until-cached")
+#: the kernels declared so far (:func:`builds` makes them choose again)
 _KERNELS = []
+
+
+def mode_from_environment(environ=os.environ):
+    """The mode :data:`BUILDS_VARIABLE` names (``parallel`` when unset); another value is refused with the allowed
+    ones."""
+    mode = environ.get(BUILDS_VARIABLE) or "parallel"
+    if mode not in MODES:
+        raise ArgumentError(f"the environment variable {BUILDS_VARIABLE}", mode, "one of " + ", ".join(MODES))
+    return mode
+
+
+#: the mode kernels choose their build by, at their first call after it is set (:func:`builds`)
+_MODE = [mode_from_environment()]
 
 
 class TwinKernel:
@@ -54,15 +78,12 @@ class TwinKernel:
         return run(*args)
 
     def _choose(self, args):
-        """The build to run: the parallel one, unless serial runs are allowed and its parallel build for these
-        arguments' types is neither compiled here nor in the disk cache."""
-        if not _SERIAL_UNTIL_CACHED[0] or cached_build(self.parallel, args):
+        """The build to run in the current mode: the parallel one, the serial one, or (``serial-until-cached``) the
+        parallel one if its build for these arguments' types is compiled here or in the disk cache."""
+        mode = _MODE[0]
+        if mode == "parallel" or mode == "serial-until-cached" and cached_build(self.parallel, args):
             return self.parallel
         return self.serial
-
-    def use_parallel(self):
-        """Run the parallel build from the next call on."""
-        self._run = self.parallel
 
 
 def cached_build(dispatcher, args):
@@ -87,10 +108,46 @@ def parallel_kernel(function=None, **options):
     return TwinKernel(function, options)
 
 
-def serial_until_cached(on=True):
-    """From now on, a kernel first called with arguments whose parallel build is not cached runs serially (``on``),
-    or every kernel runs its parallel build (``on=False``, the default). Kernels already called keep their choice."""
-    _SERIAL_UNTIL_CACHED[0] = on
+@contextmanager
+def builds(mode):
+    """Within the block, every kernel chooses its build by ``mode`` (one of :data:`MODES`) at its next call; after
+    it, by the mode before."""
+    if mode not in MODES:
+        raise ArgumentError("mode", mode, "one of " + ", ".join(MODES))
+    before = _MODE[0]
+    choose_again(mode)
+    try:
+        yield
+    finally:
+        choose_again(before)
+
+
+@contextmanager
+def builds_everywhere(mode):
+    """:func:`builds` for the block, here and in the processes started within it (which read
+    :data:`BUILDS_VARIABLE`); the environment and the mode before are restored after it."""
+    before = os.environ.get(BUILDS_VARIABLE)
+    os.environ[BUILDS_VARIABLE] = mode
+    try:
+        with builds(mode):
+            yield
+    finally:
+        if before is None:
+            os.environ.pop(BUILDS_VARIABLE, None)
+        else:
+            os.environ[BUILDS_VARIABLE] = before
+
+
+def mode():
+    """The mode kernels choose their build by now (one of :data:`MODES`)."""
+    return _MODE[0]
+
+
+def choose_again(mode):
+    """From now on, kernels choose their build by ``mode``, each at its next call."""
+    _MODE[0] = mode
+    for kernel in _KERNELS:
+        kernel._run = None
 
 
 def serial_kernels():
@@ -98,15 +155,7 @@ def serial_kernels():
     return [k for k in _KERNELS if k._run is not None and k._run is not k.parallel]
 
 
-def use_serial():
-    """Every kernel runs its serial build from its next call: what a first run does where nothing is cached (the
-    tests compare its bits with the parallel builds')."""
-    for kernel in _KERNELS:
-        kernel._run = kernel.serial
-
-
 def use_parallel():
     """Every kernel runs its parallel build from its next call (loaded from the disk cache, where another process put
-    it, or compiled)."""
-    for kernel in _KERNELS:
-        kernel.use_parallel()
+    it, or compiled): what a first run does once they are cached."""
+    choose_again("parallel")
