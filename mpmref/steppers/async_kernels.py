@@ -227,7 +227,7 @@ def base_node(x, origin, dx, shift, node_shape, base, a):
     return min(max(b, 0), node_shape[a] - 1)
 
 
-@parallel_kernel(cache=True)
+@njit(parallel=True, cache=True)  # not a twin kernel: boundary_steps, compiled, calls it
 def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner):
     """At a step boundary of the particles ``idx``: their base nodes ``base`` and owner blocks ``owner`` (C order
     of the block lattice ``blocks_per_axis``), in parallel. ``block`` (cells per block edge) is a power of two, so
@@ -260,7 +260,7 @@ def shadow_nodes(x, idx, origin, dx, shift, node_shape, end, shadow_base, shadow
     return drift
 
 
-@parallel_kernel(cache=True)
+@njit(parallel=True, cache=True)  # not a twin kernel: boundary_steps, compiled, calls it
 def particle_steps(idx, block_dt, owner, alignment, limit, dt_p):
     """Each particle's step at its boundary: its block's step, capped by the tick's ``alignment`` and by the
     largest power of two within its own ``limit`` (ticks, >= 1), in parallel; returns the set of steps taken, as
