@@ -102,3 +102,39 @@ def test_a_mixed_scene_gives_each_material_its_own_rule():
         c = np.full(particles.n, np.nan)
         new = substep(backend, particles, 5e-4, 0.0, wave_speed=c)
         assert same_as_pass(name, backend, scene, c, new), name
+
+
+@pytest.mark.parametrize("material", list(MATERIALS))
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+def test_asynchronous_stepping_on_the_steps_wave_speeds_is_the_run_on_the_pass_bit_for_bit(name, material):
+    """Two levels of ``material``: the level rule reading each particle's wave speed from its last update gives the
+    run that a pass at every step boundary gives, bit for bit; the pass runs once, at the first interval."""
+    from test_async import _two_level_scene
+
+    from mpmref import Simulation
+
+    scene = _two_level_scene(2, {"scheme": "mls"}, material)
+    runs = []
+    for from_step in (True, False):
+        sim = Simulation(scene, backend=name)
+        sim.stepper.speeds_from_step = from_step
+        backend = sim.stepper.backend
+        calls = []
+        own_pass = backend.wave_speeds
+
+        def counted(particles, idx, own_pass=own_pass, calls=calls):
+            calls.append(idx.size)
+            return own_pass(particles, idx)
+
+        backend.wave_speeds = counted
+        for _ in range(3):
+            sim.step()
+        runs.append((sim, calls))
+    (fast, fast_calls), (slow, slow_calls) = runs
+    assert len(set(fast.particles.level.tolist())) >= 2
+    assert fast_calls == [fast.n_particles] and len(slow_calls) > 3
+    for field in ("x", "v", "C", "F", "J", "Jp", "level", "id"):
+        a, b = getattr(fast.particles, field), getattr(slow.particles, field)
+        assert (a is None) == (b is None) and (a is None or np.array_equal(a, b)), field
+    for key, value in fast.state.stepper.items():
+        assert np.array_equal(value, slow.state.stepper[key]), key
