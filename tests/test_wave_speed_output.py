@@ -7,13 +7,15 @@ it to round-off (``math.pow``, ``math.log`` against NumPy's), not bit for bit, a
 
 import numpy as np
 import pytest
+from test_async import _two_level_scene
 
-from mpmref import Scene
+from mpmref import Scene, Simulation
 from mpmref.backends import make_backend
 from mpmref.backends.base import gives_wave_speeds
 from mpmref.scene.sampling import sample_particles
 from mpmref.steppers import substep
 from mpmref.steppers.limits import wave_speeds
+from verification.sync_vs_async import two_bodies
 
 MATERIALS = {
     "fixed_corotated": {"type": "fixed_corotated", "E": 400.0, "nu": 0.3, "rho": 1.0},
@@ -109,10 +111,6 @@ def test_a_mixed_scene_gives_each_material_its_own_rule():
 def test_asynchronous_stepping_on_the_steps_wave_speeds_is_the_run_on_the_pass_bit_for_bit(name, material):
     """Two levels of ``material``: the level rule reading each particle's wave speed from its last update gives the
     run that a pass at every step boundary gives, bit for bit; the pass runs once, at the first interval."""
-    from test_async import _two_level_scene
-
-    from mpmref import Simulation
-
     scene = _two_level_scene(2, {"scheme": "mls"}, material)
     runs = []
     for from_step in (True, False):
@@ -138,3 +136,20 @@ def test_asynchronous_stepping_on_the_steps_wave_speeds_is_the_run_on_the_pass_b
         assert (a is None) == (b is None) and (a is None or np.array_equal(a, b)), field
     for key, value in fast.state.stepper.items():
         assert np.array_equal(value, slow.state.stepper[key]), key
+
+
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+def test_an_asynchronous_run_resumed_from_its_checkpoint_is_bit_identical(name, tmp_path):
+    """The resumed run starts from the backend's pass (no speeds carried over a checkpoint), the full run from the
+    speeds its updates left: the same bits, on both backends."""
+    scene = two_bodies(cfl=0.4, tick=1e-5, levels=6, steps=6)
+    full = Simulation(scene, backend=name, out_dir=tmp_path / "full")
+    full.run(steps=6)
+    Simulation(scene, backend=name, out_dir=tmp_path / "half").run(steps=3)
+    resumed = Simulation.resume(scene, tmp_path / "half", backend=name)
+    resumed.run(steps=3)
+    assert len(set(full.particles.level.tolist())) >= 2
+    for field, array in full.particles.arrays().items():
+        assert np.array_equal(array, getattr(resumed.particles, field)), field
+    for key, value in full.state.stepper.items():
+        assert np.array_equal(value, resumed.state.stepper[key]), key
