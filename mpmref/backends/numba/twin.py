@@ -71,6 +71,17 @@ class TwinKernel:
             self._serial = njit(**self.options)(copy)
         return self._serial
 
+    @property
+    def py_func(self):
+        """The Python function both builds compile (as a Numba dispatcher's ``py_func``)."""
+        return self.function
+
+    @property
+    def signatures(self):
+        """The argument types compiled so far, by either build (as a Numba dispatcher's ``signatures``)."""
+        serial = self._serial.signatures if self._serial is not None else []
+        return list(self.parallel.signatures) + list(serial)
+
     def __call__(self, *args):
         run = self._run
         if run is None:
