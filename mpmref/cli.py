@@ -188,13 +188,21 @@ def _open_simulation(scene, args, out_dir):
         raise OptionError(f"--out {out_dir}: cannot write there ({exc.strerror or exc})") from None
 
 
-def _warm_up(sim, who="mpmref"):
+def _warm_up(sim, backend, who="mpmref"):
     """Compile the backend's kernels (and an asynchronous stepper's bookkeeping) for this scene before the timed
-    run, saying so, where they are cached, and how long it took (:func:`compiling`)."""
+    run, saying so, where they are cached, and how long it took (:func:`compiling`). A kernel whose parallel build
+    is not cached yet is compiled serially, and the parallel builds in another process while the run goes on
+    (:mod:`mpmref.run.first_run`): the started :class:`~mpmref.run.first_run.ParallelBuild`, or ``None``."""
+    from .run import first_run
+
     if not sim.compiles:
-        return
+        return None
     with compiling(who):
-        sim.warm_up()
+        build = first_run.warm_up(sim, backend)
+    if build is not None:
+        print(f"{who}: the run starts on serial kernels; their parallel builds compile in the background, and the run "
+              "goes on with them once they are cached", file=sys.stderr)
+    return build
 
 
 @contextlib.contextmanager
@@ -221,6 +229,20 @@ def compiling(who="mpmref", stream=None, every_s=1.0):
             ticker.join()
             print(f"\r{line}", end="", file=stream)
         print(f" done in {time.perf_counter() - start:.1f} s", file=stream, flush=True)
+
+
+def _switch_when_built(build, who="mpmref"):
+    """A run's per-step hook that goes on with the parallel kernels once ``build`` has cached them, saying so at that
+    step (``None`` without a build)."""
+    if build is None:
+        return None
+
+    def switch(sim):
+        if build.poll():
+            print(f"{who}: parallel kernels ready; the run goes on with them from step {sim.step_count + 1}",
+                  file=sys.stderr)
+
+    return switch
 
 
 def resume_command(args, out_dir):
@@ -315,18 +337,21 @@ def cmd_run(args):
     _check_out(out_dir, args.resume, args.overwrite)
     apply_threads(args.threads)
     sim = _open_simulation(scene, args, out_dir)
-    _warm_up(sim)
+    build = _warm_up(sim, args.backend)
     if args.t_end is not None:
         _announce_length(sim, args)
     args.start_step = sim.step_count
     try:
         summary = sim.run(steps=args.steps, until_step=args.until_step, t_end=args.t_end,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress, each_step=_switch_when_built(build))
     except KeyboardInterrupt:
         path = sim.save_checkpoint("interrupted")
         print(f"mpmref: interrupted at step {sim.step_count}; checkpoint saved to {path}; resume with: "
               f"{resume_command(args, out_dir)}", file=sys.stderr)
         return INTERRUPTED
+    finally:
+        if build is not None:
+            build.stop()
     print(_format_summary(summary, out_dir, sim.backend_info))
     return 0
 

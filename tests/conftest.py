@@ -6,14 +6,28 @@ import pytest
 from hypothesis import settings
 
 from mpmref.backends import BACKENDS
+from mpmref.backends.numba import twin
 
 # the repository root, for the exercises' worked solutions (exercises/, not an installed package)
 sys.path.append(os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")))
 # Numba's cache: mpmref's own per-user folder (mpmref/__init__.py, imported above), or NUMBA_CACHE_DIR if set
 # the thread-count determinism test needs at least two Numba threads, even on a one-core machine
 os.environ.setdefault("NUMBA_NUM_THREADS", str(max(2, os.cpu_count() or 1)))
+# the tests run the Numba kernels' serial builds, which compile in about 60 % of the time of the parallel builds and
+# give the same bits (tests/test_numba_backend.py compares them step by step); the tests whose point is threads run the
+# parallel builds (the fixture parallel_builds). MPMREF_KERNEL_BUILDS=parallel runs every test on the parallel builds.
+# Set in the environment, so that the processes a test starts (verify's, study's, the command line's) do the same.
+os.environ.setdefault(twin.BUILDS_VARIABLE, "serial")
+twin.choose_again(twin.mode_from_environment())
 settings.register_profile("mpmref", derandomize=True, deadline=None, max_examples=25)
 settings.load_profile("mpmref")
+
+
+@pytest.fixture
+def parallel_builds():
+    """The Numba kernels run their parallel builds within the test (what a test of thread counts needs)."""
+    with twin.builds("parallel"):
+        yield
 
 
 @pytest.fixture

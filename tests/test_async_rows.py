@@ -123,7 +123,7 @@ def test_a_backend_without_the_row_stages_runs_the_same_bits_through_the_adapter
 
 
 @needs_numba
-def test_the_same_bits_on_one_thread_and_two(monkeypatch):
+def test_the_same_bits_on_one_thread_and_two(monkeypatch, parallel_builds):
     """The level updates' stages are the backend's (coloured P2G, a fixed order per node) and the bookkeeping's
     parallel passes only write each particle's own entries: an asynchronous run gives the same bits on one thread
     and on two (with the small scene run in parallel too)."""

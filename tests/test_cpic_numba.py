@@ -141,7 +141,7 @@ def run_with_threads(threads, scene, steps):
         numba.set_num_threads(before)
 
 
-def test_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch):
+def test_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch, parallel_builds):
     monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     scene = plate_scene()
     one, two = run_with_threads(1, scene, 40), run_with_threads(2, scene, 40)

@@ -114,7 +114,7 @@ def test_numba_3d_trajectory_with_bodies_follows_the_reference(candidate):
 
 
 @pytest.mark.slow
-def test_3d_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch):
+def test_3d_cpic_steps_are_bitwise_identical_for_one_and_two_threads(monkeypatch, parallel_builds):
     monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     states = []
     for threads in (1, 2):

@@ -14,6 +14,7 @@ import pytest
 from mpmref import Scene
 from mpmref.backends import make_backend
 from mpmref.backends.numba import threads as numba_threads
+from mpmref.backends.numba import twin
 from mpmref.errors import BackendError
 from mpmref.scene.sampling import sample_particles
 from mpmref.steppers import substep
@@ -80,8 +81,10 @@ def test_p2g_goes_by_slabs_only_when_each_colour_has_enough(scene, by_slabs):
     pytest.param(block_3d({"scheme": "polypic", "kernel": "cubic"},
                           {"type": "neo_hookean", "E": 1e3, "nu": 0.3, "rho": 1.0}), marks=pytest.mark.slow),
 ], ids=["mpm88", "snow88", "layer-by-slabs", "3d-mls-fluid", "3d-polypic-cubic"])
-def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene, monkeypatch):
-    """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count."""
+def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads_and_the_serial_builds(scene, monkeypatch):
+    """Coloured block-parallel P2G has a fixed summation order per node, whatever the thread count; so the kernels
+    compiled serially, which a first run uses while their parallel builds compile (:mod:`mpmref.run.first_run`),
+    give the same bits."""
     monkeypatch.setattr(numba_threads, "SERIAL_BELOW", 0)  # small scenes would otherwise run on one thread
     backend = make_backend("numba", scene)
     particles = sample_particles(scene)
@@ -93,12 +96,17 @@ def test_p2g_and_steps_are_bitwise_identical_for_one_and_two_threads(scene, monk
         after = run(backend, particles, 10, dt)
         return backend.p2g(after), after
 
-    one = with_threads(1, p2g_after_steps)
-    two = with_threads(2, p2g_after_steps)
-    for name in ("mass", "momentum", "force"):
-        assert np.array_equal(getattr(one[0], name), getattr(two[0], name)), name
-    for name, array in one[1].arrays().items():
-        assert np.array_equal(array, two[1].arrays()[name]), name
+    with twin.builds("parallel"):
+        one = with_threads(1, p2g_after_steps)
+        two = with_threads(2, p2g_after_steps)
+    with twin.builds("serial"):
+        serial = p2g_after_steps()
+        assert twin.serial_kernels()
+    for other in (two, serial):
+        for name in ("mass", "momentum", "force"):
+            assert np.array_equal(getattr(one[0], name), getattr(other[0], name)), name
+        for name, array in one[1].arrays().items():
+            assert np.array_equal(array, other[1].arrays()[name]), name
     assert np.abs(one[0].force).max() > 0  # a stressed state: the force scatter is exercised too
 
 

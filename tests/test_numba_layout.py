@@ -23,11 +23,11 @@ def decorator_name(node):
 
 
 def compiled_functions(path):
-    """Every function of ``path`` (nested ones too) decorated with Numba's ``jit`` or ``njit``, or ``pointwise``
-    (compiled with ``njit`` for the CPU)."""
+    """Every function of ``path`` (nested ones too) decorated with Numba's ``jit`` or ``njit``, ``pointwise``
+    (compiled with ``njit`` for the CPU) or ``parallel_kernel`` (:mod:`mpmref.backends.numba.twin`)."""
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.FunctionDef) and any(decorator_name(d) in ("jit", "njit", "pointwise")
-                                                     for d in node.decorator_list):
+        compilers = ("jit", "njit", "pointwise", "parallel_kernel")
+        if isinstance(node, ast.FunctionDef) and any(decorator_name(d) in compilers for d in node.decorator_list):
             yield node
 
 

@@ -254,3 +254,28 @@ def test_the_warm_up_queue_hands_out_every_scene_once_from_either_end():
     queue = multiprocessing.Array("i", [0, 5])
     taken = [warmup.claim(queue, from_back=k % 2 == 1) for k in range(7)]
     assert taken == [0, 4, 1, 3, 2, None, None]
+
+
+def test_the_quick_preset_runs_the_serial_kernel_builds_here_and_in_its_processes_unless_told_otherwise(
+        monkeypatch):
+    """``verify --quick`` compiles the serial builds (the same bits, compiled sooner: tests/test_numba_backend.py),
+    in its own process and, through the environment, in those it starts; ``--threads`` above one, another preset or
+    a mode the environment chose keep the mode in force, and the mode and environment before come back after."""
+    from mpmref.backends.numba import twin
+    from verification.framework.cli import kernel_builds
+
+    monkeypatch.delenv(twin.BUILDS_VARIABLE)
+
+    def builds_within(preset, threads=None):
+        with kernel_builds(argparse.Namespace(preset=preset, threads=threads)):
+            return twin.mode(), os.environ.get(twin.BUILDS_VARIABLE)
+
+    before = twin.mode()
+    with twin.builds("parallel"):  # what a user's process starts in
+        assert builds_within("quick") == ("serial", "serial")
+        assert twin.mode() == "parallel" and twin.BUILDS_VARIABLE not in os.environ
+        assert builds_within("quick", threads=2) == ("parallel", None)
+        assert builds_within("default") == ("parallel", None)
+        monkeypatch.setenv(twin.BUILDS_VARIABLE, "parallel")
+        assert builds_within("quick") == ("parallel", "parallel")
+    assert twin.mode() == before

@@ -15,7 +15,8 @@ stepping), so the order P2G → grid update → G2P → return map is written on
 ``g2p(particles, v_grid, v_tilde, dt, prepared=None)``
     new particles (velocity, affine matrix or modes, deformation, position);
 ``return_map(particles)``
-    the plastic projection of the plastic materials' particles (new particles).
+    the plastic projection of the plastic materials' particles (new particles); the stage that finalises a step's
+    deformation (``F``, ``J``, ``Jp``: G2P's for the elastic materials and the fluid, which it leaves as they are).
 
 ``running(n_particles)`` is a context manager in which a step's stages run (the Numba backend picks its
 thread count there); it is not a stage.
@@ -26,6 +27,15 @@ Asynchronous stepping (:mod:`mpmref.steppers.asynchronous`) adds two stages, :da
     the P-wave speed of particles ``idx`` (the blocks' step limits);
 ``interface_kicks(grid_state, dt, kappa)``
     the node kicks of conservative level interfaces (:mod:`mpmref.physics.interface`).
+
+A backend may give the level rule's wave speeds from the step itself (:func:`gives_wave_speeds`): its
+``return_map(particles, wave_speed=None)`` (and ``return_map_rows(particles, rows, wave_speed=None)``) takes an
+optional output ``wave_speed``, a float64 array with a row per particle, into which it writes each stepped particle's
+current wave speed :math:`c_p` (:meth:`wave_speeds`' value, bit for bit) of its new state, where the deformation is
+finalised: after the projection for the plastic materials, of G2P's state for the others. Asynchronous stepping asks
+for it in every update, so that no pass over the particles is left for :math:`c_p` at a step boundary; the
+synchronous step does not, and pays nothing. A backend without it is stepped as before, ``wave_speeds`` at every
+boundary.
 
 A backend that couples rigid bodies by CPIC (:class:`CoupledBackend`, docs/cpic.md) has three more,
 :data:`CPIC_BACKEND_STAGES`: ``cpic_contact`` (the colored distance field, the particles' tags and the
@@ -55,8 +65,9 @@ rows after them (:mod:`mpmref.steppers.asynchronous`), so an update gathers and 
     the new state of the particles ``rows``, written into the same rows of ``out`` (a :class:`~mpmref.state.Particles`
     as long, which may be ``particles`` itself: G2P in place); with ``kicks`` it returns each row's impulse and
     moment ``(dP, dL)``, in the order of ``rows``;
-``return_map_rows(particles, rows)``
-    the plastic projection of the particles ``rows``, in place.
+``return_map_rows(particles, rows, wave_speed=None)``
+    the plastic projection of the particles ``rows``, in place (with ``wave_speed``, their wave speeds into its rows
+    ``rows``, as ``return_map``'s).
 
 A backend without them (the NumPy reference, a user's own code) steps the same updates through an adapter
 (:func:`mpmref.steppers.pipeline.substep` with ``rows``) that gathers the rows into a new
@@ -70,6 +81,7 @@ These are the stages of a backend; the conformance harness has its own list of w
 
 import inspect
 from contextlib import nullcontext
+from functools import lru_cache
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -170,6 +182,21 @@ def steps_rows(backend):
     return all(callable(getattr(backend, stage, None)) for stage in ROW_BACKEND_STAGES)
 
 
+def gives_wave_speeds(backend):
+    """Whether ``backend``'s return map takes the optional output ``wave_speed`` (see the module docstring), and its
+    ``return_map_rows`` too where it has the row stages. Looked up once per backend class."""
+    return _takes_wave_speed(type(backend))
+
+
+@lru_cache(maxsize=None)
+def _takes_wave_speed(cls):
+    def takes(stage):
+        method = getattr(cls, stage, None)
+        return callable(method) and "wave_speed" in inspect.signature(method).parameters
+
+    return takes("return_map") and (not callable(getattr(cls, "return_map_rows", None)) or takes("return_map_rows"))
+
+
 def stage_signature(stage):
     """``stage(arguments) -> result`` as the protocol declares it, for messages (e.g. ``p2g(particles,
     prepared=None, contact=None, classes=None) -> GridState(...)``)."""
@@ -217,11 +244,16 @@ class MaterialTable:
     """Per-material dispatch, written once: a backend's ``{material class: (stress, return_map)}`` kernels
     applied to each material's particles.
 
-    A kernel table maps a material class to ``(stress, return_map)``:
+    A kernel table maps a material class to ``(stress, return_map)``, or ``(stress, return_map, wave_speed)``:
 
     * ``stress(material, particles, idx, tau)`` writes the Kirchhoff stress of particles ``idx`` into ``tau``;
     * ``return_map(material, F, Jp, idx)`` projects ``F`` and ``Jp`` of particles ``idx`` in place, or is
-      ``None`` for elastic materials.
+      ``None`` for elastic materials;
+    * ``wave_speed(material, F, J, Jp, idx, out)`` (optional) writes the current wave speed :math:`c_p` of particles
+      ``idx`` into ``out[idx]`` (float64), from their ``F``, ``J`` and ``Jp`` (``None`` where the scene has none): the
+      optional output ``wave_speed`` of :meth:`return_map` and :meth:`return_map_rows` for an elastic material. With
+      that output, a plastic material's ``return_map`` is called as ``return_map(material, F, Jp, idx, out)`` and
+      writes the wave speed of the projected state itself (in the same pass, where the backend can).
 
     Adding a material adds one entry to each backend's table; no caller tests material types.
     """
@@ -232,6 +264,11 @@ class MaterialTable:
         if missing:
             raise TypeError(f"no kernels for material(s) {missing} in this backend")
         self.kernels = [kernels[type(m)] for m in self.materials]
+
+    @property
+    def gives_wave_speeds(self):
+        """Whether every material's kernels include ``wave_speed`` (the return map's optional output)."""
+        return all(len(k) > 2 and k[2] is not None for k in self.kernels)
 
     def groups(self, particles, rows=None):
         """``(material, kernels, idx)`` for each material that has particles
@@ -255,23 +292,40 @@ class MaterialTable:
 
     def stress_into(self, particles, rows, tau):
         """Kirchhoff stress of every particle, or of the particles ``rows``, into their rows of ``tau`` (n, d, d)."""
-        for material, (stress, _), idx in self.groups(particles, rows):
+        for material, (stress, *_), idx in self.groups(particles, rows):
             stress(material, particles, idx, tau)
 
-    def return_map(self, particles):
-        """Plastic projection of every plastic material's particles (a new state; the others untouched)."""
+    def return_map(self, particles, wave_speed=None):
+        """Plastic projection of every plastic material's particles (a new state; the others untouched); with
+        ``wave_speed`` (float64, (n,)), each particle's wave speed :math:`c_p` in its new state written there too."""
         if particles.Jp is None:
+            if wave_speed is not None:
+                self._speeds(particles, None, particles.F, None, wave_speed)
             return particles
         F, Jp = particles.F.copy(), particles.Jp.copy()
-        self._project(particles, None, F, Jp)
+        self._project(particles, None, F, Jp, wave_speed)
         return particles.with_(F=F, Jp=Jp)
 
-    def return_map_rows(self, particles, rows):
-        """Plastic projection of the plastic materials' particles among ``rows``, in place."""
+    def return_map_rows(self, particles, rows, wave_speed=None):
+        """Plastic projection of the plastic materials' particles among ``rows``, in place; with ``wave_speed``
+        (float64, as long as ``particles``' arrays), the wave speed :math:`c_p` of the particles ``rows`` in their new
+        state written into its rows ``rows``."""
         if particles.Jp is not None:
-            self._project(particles, rows, particles.F, particles.Jp)
+            self._project(particles, rows, particles.F, particles.Jp, wave_speed)
+        elif wave_speed is not None:
+            self._speeds(particles, rows, particles.F, None, wave_speed)
 
-    def _project(self, particles, rows, F, Jp):
-        for material, (_, return_map), idx in self.groups(particles, rows):
-            if return_map is not None:
+    def _project(self, particles, rows, F, Jp, wave_speed=None):
+        for material, kernels, idx in self.groups(particles, rows):
+            return_map = kernels[1]
+            if return_map is None:
+                if wave_speed is not None:
+                    kernels[2](material, F, particles.J, Jp, idx, wave_speed)
+            elif wave_speed is None:
                 return_map(material, F, Jp, idx)
+            else:
+                return_map(material, F, Jp, idx, wave_speed)
+
+    def _speeds(self, particles, rows, F, Jp, wave_speed):
+        for material, kernels, idx in self.groups(particles, rows):
+            kernels[2](material, F, particles.J, Jp, idx, wave_speed)

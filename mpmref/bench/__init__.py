@@ -65,6 +65,7 @@ from importlib import metadata
 from pathlib import Path
 
 from ..backends import BACKENDS, reference_argument
+from ..backends.numba import twin
 from ..io.atomic import write_text_atomic
 from .goals import goals_section, render_goals
 from .scenes import table2_cells
@@ -147,6 +148,12 @@ def run_bench(options, log=print, progress=_to_stderr):
     measurement being started.
     """
     check_threads(options.backends, options.threads)
+    with twin.builds("parallel"):  # what the threads of the Numba backend run, whatever the environment chose
+        return _run_sections(options, log, progress)
+
+
+def _run_sections(options, log, progress):
+    """:func:`run_bench`'s work."""
     results = {"schema": SCHEMA, "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                "environment": environment(), "options": asdict(options), **{name: None for name in SECTIONS}}
     for i, name in enumerate(options.sections, 1):

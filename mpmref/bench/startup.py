@@ -20,6 +20,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+from ..backends.numba.twin import BUILDS_VARIABLE
 from ..errors import ArgumentError
 
 #: the commit the startup goals are measured against (issue "The first minute")
@@ -63,12 +64,14 @@ def worktree(root, rev):
 
 
 def cold_run(root, args):
-    """Run ``python -m mpmref.cli ARGS`` in ``root`` with that checkout first on the import path and empty caches:
+    """Run ``python -m mpmref.cli ARGS`` in ``root`` with that checkout first on the import path, empty caches and the
+    default kernel builds:
     ``{"wall_s", "cpu_s", "status"}`` (CPU: the process and its children)."""
     with tempfile.TemporaryDirectory(prefix="mpmref-cold-") as cache:
         out = Path(cache) / "out"
         env = dict(os.environ, PYTHONPATH=str(root), NUMBA_CACHE_DIR=str(Path(cache) / "numba"),
                    XDG_CACHE_HOME=cache)
+        env.pop(BUILDS_VARIABLE, None)  # the kernel builds a user gets by default
         argv = [sys.executable, "-m", "mpmref.cli", *[str(out) if a == "OUT" else a for a in args]]
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = time.perf_counter()

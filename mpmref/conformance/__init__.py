@@ -8,7 +8,9 @@ reports the relative error of every output; it also exports the states and the r
 Stages and their signatures (those of :class:`mpmref.backends.numpy.NumpyBackend`)
 ----------------------------------------------------------------------------------
 * ``stress(particles) -> tau (n, d, d)``: Kirchhoff stress of every particle, through its material;
-* ``return_map(particles) -> Particles``: plastic projection (identity for elastic materials);
+* ``return_map(particles, wave_speed=None) -> Particles``: plastic projection (identity for elastic materials); with
+  the optional output ``wave_speed`` (a float64 array the harness passes where the backend takes it), each particle's
+  wave speed in its new state, compared like every output;
 * ``p2g(particles) -> GridState(mass (N,), momentum (N, d), force (N, d))``, the stress computed inside, or given
   as ``p2g(particles, stress=tau)`` to a P2G that has a ``stress`` parameter;
 * ``p2g_fused(particles, dt) -> GridState(mass, momentum = (mv)_i + Δt f_i)`` (optional), given the stress as

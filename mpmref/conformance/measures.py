@@ -133,7 +133,12 @@ def natural_scales(expected, inputs, dx, stiffness=None, wave_speed=0.0, dt=0.0,
     * ``modes`` (PolyPIC): :math:`c_{pr} = \sum_i w_{ip} v_i N_r(x_i - x_p) / \sum_i w_{ip} N_r^2` carries the
       round-off of its speeds over the scale of its basis function, :math:`\Delta x^{k}` for a mode of degree
       :math:`k`: the scale of ``v`` over :math:`\Delta x` to the highest degree (``mode_degree``), which decides a
-      particle's row.
+      particle's row;
+    * ``wave_speed`` (per particle, the return map's): :math:`c_p` reads :math:`J_p = \det F_p`, whose round-off is
+      :math:`\epsilon\,(\|F_p\|_F^2/d)^{d/2}`, not :math:`\epsilon\,|\det F_p|`: near a vanishing singular value
+      (the extremes) that is the condition :math:`\kappa_p = \max(1, (\|F_p\|_F^2/d)^{d/2} / |\det F_p|)` times
+      more, and :math:`c_p` moves by about :math:`\epsilon\kappa_p` of itself: :math:`\kappa_p c_p`, of the output
+      ``F``.
 
     Parameters
     ----------
@@ -169,7 +174,22 @@ def natural_scales(expected, inputs, dx, stiffness=None, wave_speed=0.0, dt=0.0,
         tau = stress_scales(inputs, stiffness)
         force = _largest(np.asarray(inputs["vol0"], dtype=np.float64) * tau) / dx
         out.update({"tau": tau, "grid_force": force, "grid_momentum_after_force": dt * force})
+    if "wave_speed" in expected and "F" in expected:
+        out["wave_speed"] = np.abs(np.asarray(expected["wave_speed"], dtype=np.float64)) * determinant_condition(
+            expected["F"])
     return {k: v for k, v in out.items() if k in expected and np.any(np.asarray(v) > 0.0)}
+
+
+def determinant_condition(F):
+    r""":math:`\kappa_p = \max(1, (\|F_p\|_F^2/d)^{d/2} / |\det F_p|)` of each particle (float64 (n,)): how many
+    times its determinant's round-off exceeds :math:`\epsilon |\det F_p|` (:func:`natural_scales`, ``wave_speed``);
+    1 for a rotation, at most :math:`1/\epsilon` (a singular :math:`F_p`, whose determinant is round-off alone)."""
+    F = np.asarray(F, dtype=np.float64)
+    d = F.shape[-1]
+    mean_square = np.einsum("pij,pij->p", F, F) / d
+    with np.errstate(divide="ignore"):
+        kappa = mean_square ** (d / 2) / np.abs(np.linalg.det(F))
+    return np.clip(np.nan_to_num(kappa, nan=np.inf), 1.0, 1.0 / np.finfo(np.float64).eps)
 
 
 def stress_scales(inputs, stiffness):

@@ -10,6 +10,8 @@ turns it into :class:`~mpmref.state.Particles` / :class:`~mpmref.state.GridState
 * grid nodes (C order, see :mod:`mpmref.conformance`): ``grid_mass (N,)``, ``grid_momentum (N,d)``,
   ``grid_force (N,d)``, ``grid_momentum_after_force (N,d)`` (the fused P2G's (mv)_i + Δt f_i),
   ``grid_v (N,d)``, ``grid_v_tilde (N,d)``;
+* the return map's second output ``wave_speed (n,)`` (float64): each particle's wave speed in its new state, where the
+  backend gives it (:func:`mpmref.backends.base.gives_wave_speeds`; :func:`optional_outputs`);
 * scalars (0-d arrays): ``dt``, ``time``; the stress stage's output ``tau (n,d,d)``, which is also an input of the
   P2G cases, fused or not (for a P2G that takes the stress, :func:`takes_stress`);
 * the stages of asynchronous stepping (:mod:`mpmref.physics.interface`): ``idx (m,) int64`` and the output
@@ -65,6 +67,32 @@ def particles_from(flat):
 def particle_outputs(particles):
     """The evolving fields of ``particles`` that are allocated, as a flat dict."""
     return {k: getattr(particles, k) for k in EVOLVING_FIELDS if getattr(particles, k) is not None}
+
+
+def takes_wave_speed(fn):
+    """Whether the return-map callable ``fn`` declares the optional output ``wave_speed``
+    (:func:`mpmref.backends.base.gives_wave_speeds`)."""
+    try:
+        return "wave_speed" in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def optional_outputs(stage, fn):
+    """The outputs of ``stage`` that the stage callable ``fn`` does not give, by design: ``wave_speed`` of a return
+    map without that optional output. The harness leaves them out of the comparison; every other output it
+    compares."""
+    return ("wave_speed",) if stage == "return_map" and not takes_wave_speed(fn) else ()
+
+
+def _return_map(fn, flat):
+    """``return_map(particles)``: the evolving fields after the projection and, where ``fn`` takes the optional output
+    ``wave_speed`` (:func:`takes_wave_speed`), each particle's wave speed in its new state (float64)."""
+    if not takes_wave_speed(fn):
+        return _particle_stage(fn, flat)
+    particles = particles_from(flat)
+    speeds = np.full(particles.n, np.nan)
+    return {**particle_outputs(fn(particles, wave_speed=speeds)), "wave_speed": speeds}
 
 
 def _stress(fn, flat):
@@ -174,7 +202,7 @@ def _g2p_kicks(fn, flat):
     return {**particle_outputs(new), "impulse_P": impulse, "impulse_L": moment}
 
 
-_CALLERS = {"stress": _stress, "return_map": _particle_stage, "p2g": _p2g, "p2g_fused": _p2g_fused,
+_CALLERS = {"stress": _stress, "return_map": _return_map, "p2g": _p2g, "p2g_fused": _p2g_fused,
             "grid_update": _grid_update, "g2p": _g2p, "step": _step, "ledger": _ledger,
             "wave_speeds": _wave_speeds, "p2g_classes": _p2g_classes, "interface_kicks": _interface_kicks,
             "g2p_kicks": _g2p_kicks, **{stage: _flat_stage for stage in CPIC_CONFORMANCE_STAGES}}

@@ -17,6 +17,8 @@ call loops over every field whatever its shape and dtype.
 import numpy as np
 from numba import literal_unroll, njit, prange
 
+from ..backends.numba.twin import parallel_kernel
+
 #: particles per task of the parallel passes over the particles at a step boundary
 CHUNK = 512
 
@@ -225,7 +227,7 @@ def base_node(x, origin, dx, shift, node_shape, base, a):
     return min(max(b, 0), node_shape[a] - 1)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)  # not a twin kernel: boundary_steps, compiled, calls it
 def boundary_nodes(x, idx, origin, dx, shift, node_shape, block, blocks_per_axis, base, owner):
     """At a step boundary of the particles ``idx``: their base nodes ``base`` and owner blocks ``owner`` (C order
     of the block lattice ``blocks_per_axis``), in parallel. ``block`` (cells per block edge) is a power of two, so
@@ -258,7 +260,7 @@ def shadow_nodes(x, idx, origin, dx, shift, node_shape, end, shadow_base, shadow
     return drift
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)  # not a twin kernel: boundary_steps, compiled, calls it
 def particle_steps(idx, block_dt, owner, alignment, limit, dt_p):
     """Each particle's step at its boundary: its block's step, capped by the tick's ``alignment`` and by the
     largest power of two within its own ``limit`` (ticks, >= 1), in parallel; returns the set of steps taken, as
@@ -380,7 +382,7 @@ def relevel_due(block_dt, order, level_start, owner, idx, limit, t, alignment, m
     return due
 
 
-@njit(parallel=True, cache=True)
+@parallel_kernel(cache=True)
 def step_limits(v, idx, wave_speed, dx, strength, advection, tick, max_step_s, max_units):
     r"""Step limit in ticks of the particles ``idx`` (Fang et al. 2018's rule; module docstring of
     :mod:`mpmref.steppers.asynchronous`):

@@ -46,11 +46,13 @@ registers (``dP``, ``dL``) and are applied at the end of each particle's own ste
 read again (at its next boundary tick, or when the interval ends).
 """
 
+import inspect
 from dataclasses import dataclass, field, fields, replace
 from time import perf_counter
 
 import numpy as np
 
+from ..backends.base import gives_wave_speeds, steps_rows
 from ..errors import AsyncCensusError, MpmrefError, TickTooLongError
 from ..observe.ledger import ASYNC_COLUMNS, ledger_columns
 from ..physics.interface import ACTIVE, COARSER, FINER
@@ -284,6 +286,9 @@ class AsyncInterval:
         # shadow's base node and tick: rows of P, every row written at the first tick
         held = stepper.bookkeeping(n, self.P.dim)
         self.dt_p, self.base, self.owner, self.shadow_base, self.shadow_t = held
+        #: each row's wave speed c_p from its last update (the return map's output ``wave_speed``), or ``None`` where
+        #: the backend has no such output (the level rule then runs the backend's ``wave_speeds`` at each boundary)
+        self.c = stepper.carried_speeds(self.P)
         self.cohorts = [_Cohort(0, self.t, 0, n)]  # all due at the first tick
         self.drift = 0  # the farthest a shadow has been from its particle's base node, nodes per axis
         self.schedule = AsyncSchedule.of(state)
@@ -332,7 +337,7 @@ class AsyncInterval:
         at = np.arange(n_due, dtype=np.int64)
         self.close_registers(at)
         P = self.P
-        limit = s.particle_limits(P, at)
+        limit = s.particle_limits(P, at) if self.c is None else s.particle_limits(P, at, speeds=self.c[:n_due])
         if limit.min() < 1:
             bad = int(np.argmin(limit))
             raise TickTooLongError(t, int(P.id[at[bad]]), float(limit[bad] + 1) * s.tick_s)
@@ -385,7 +390,8 @@ class AsyncInterval:
         s, t, n = self.s, self.t, self.n
         exchange = None if s.ledger is None else LevelExchange(np.full(n, ACTIVE, dtype=np.int64), False)
         start = perf_counter()
-        new = substep(s.backend, self.P, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange)
+        new = substep(s.backend, self.P, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange,
+                      wave_speed=self.c)
         self.count_update(perf_counter() - start, n, n)
         level = np.full(n, int(D).bit_length() - 1, dtype=np.int64) if chosen is None else chosen
         self.P = new.with_(level=level)
@@ -431,6 +437,11 @@ class AsyncInterval:
             self.store = s.stores.grown(self.store, spare)
         self.P = self.store.particles
         arrays = self.P_arrays = self.store.arrays
+        if self.c is not None and self.c.shape[0] < self.store.capacity:  # the ghosts' rows write theirs too
+            c = np.empty(self.store.capacity)
+            c[:self.n] = self.c[:self.n]
+            self.c = c
+        speeds = () if self.c is None else (self.c,)
         self.evolving = tuple(k for k in arrays if k in EVOLVING_FIELDS)
         self.shadow = s.store(self.P, self.evolving, "shadow", self.n)
         self.proposed = s.store(self.P, self.evolving, "proposed", self.n)
@@ -438,7 +449,7 @@ class AsyncInterval:
         self.rows = {"P": row_views(arrays[k] for k in self.evolving), "shadow": row_views(self.shadow.values()),
                      "proposed": row_views(self.proposed.values()),
                      "P_constant": row_views(arrays[k] for k in constant),
-                     "moving": row_views([*arrays.values(), self.dt_p, self.base, self.owner])}
+                     "moving": row_views([*arrays.values(), self.dt_p, self.base, self.owner, *speeds])}
 
     def pairs(self, src, dst):
         """``(source, destination)`` row views of every field between two stores."""
@@ -532,7 +543,7 @@ class AsyncInterval:
             classes = np.repeat(CLASSES, [n_active, level_ghosts.size, shadow_ghosts.size])
             exchange = LevelExchange(classes, kicks)
         substep(s.backend, self.P, D * s.tick_s, t * s.tick_s, s.hooks, ledger=s.ledger, exchange=exchange,
-                rows=rows)
+                rows=rows, wave_speed=self.c)
         if kicks:
             self.add_impulses(active, shadow_ghosts, n_active + level_ghosts.size, exchange.impulses)
         self.count_update(perf_counter() - start, rows.size, n_active)
@@ -574,6 +585,8 @@ class AsyncInterval:
             self.close_registers(np.arange(self.n, dtype=np.int64))
         particles = self.P if self.store is None else self.store.live()
         census(self.state.particles.id, particles.id, self.t)
+        if self.c is not None:  # each particle's wave speed from its last update, for the next interval's first tick
+            self.s.carry_speeds(particles, self.c)
         n, ticks, old = self.n, self.t - self.t0, self.schedule
         schedule = AsyncSchedule(self.block_dt, old.updates + self.updates, old.own_updates + self.own_updates,
                                  old.sync_updates + n * ticks / self.finest, old.stale_shadows + self.stale,
@@ -632,6 +645,12 @@ class AsynchronousStepper:
         self.record_trace = False
         #: what the intervals did and cost since construction, summed (:class:`WorkRecord`)
         self.work = WorkRecord()
+        #: whether the level rule reads each particle's wave speed from its last update (the return map's output
+        #: ``wave_speed``, :func:`~mpmref.backends.base.gives_wave_speeds`) rather than from a pass at each boundary;
+        #: not for a subclass whose own :meth:`particle_limits` takes no ``speeds`` (a rule of its own)
+        self.speeds_from_step = (gives_wave_speeds(backend)
+                                 and "speeds" in inspect.signature(type(self).particle_limits).parameters)
+        self._carried = None  # (particles, wave speeds) the last interval ended with (:meth:`carry_speeds`)
 
     # ------------------------------------------------------------------ state
     def initial_state(self, particles):
@@ -650,13 +669,35 @@ class AsynchronousStepper:
         return self.grid.owner_blocks(self.base_nodes(x))
 
     # ------------------------------------------------------------------ limits
-    def particle_limits(self, particles, idx=None):
+    def particle_limits(self, particles, idx=None, speeds=None):
         """Step limit in ticks, ``min(S_p, A_p, 2^levels)`` (float64; see the module docstring), of each particle
-        of ``particles`` or of its particles ``idx``."""
+        of ``particles`` or of its particles ``idx``; ``speeds`` their wave speeds :math:`c_p` (one per particle of
+        ``idx``), or ``None`` for the backend's pass (``wave_speeds``)."""
         dx = self.grid.dx
         idx = np.arange(particles.n) if idx is None else idx
-        return step_limits(particles.v, idx, self.backend.wave_speeds(particles, idx), dx, self.strength,
-                           self.advection, self.tick_s, MAX_STEP_S, self.max_units)
+        if speeds is None:
+            speeds = self.backend.wave_speeds(particles, idx)
+        return step_limits(particles.v, idx, speeds, dx, self.strength, self.advection, self.tick_s, MAX_STEP_S,
+                           self.max_units)
+
+    def carried_speeds(self, particles):
+        """The wave speed :math:`c_p` of each particle of ``particles`` (float64, a row per particle, which the
+        interval then owns and writes), at the start of an interval: the speeds the last interval's updates left
+        (:meth:`carry_speeds`) when ``particles`` are the particles it returned, else (the first interval, a restart, a
+        state replaced between intervals: emitters, the domain policy) the backend's pass, whose values are the same
+        bits (:func:`~mpmref.backends.base.gives_wave_speeds`). ``None`` where the backend gives no speeds from its
+        step."""
+        if not self.speeds_from_step:
+            return None
+        held, self._carried = self._carried, None
+        if held is not None and held[0] is particles:
+            return held[1]
+        return np.ascontiguousarray(self.backend.wave_speeds(particles, np.arange(particles.n)), dtype=np.float64)
+
+    def carry_speeds(self, particles, speeds):
+        """Keep ``speeds`` (a row per particle of ``particles``, and maybe spare rows) for the next interval, should it
+        start from ``particles`` (:meth:`carried_speeds`)."""
+        self._carried = (particles, speeds)
 
     def store(self, particles, names, key, n):
         """Arrays of ``n`` rows shaped like the fields ``names`` of ``particles`` (contents undefined), kept on the
@@ -684,7 +725,9 @@ class AsynchronousStepper:
         """Compile (or load from Numba's cache) the bookkeeping kernels for these particles' fields, on one particle,
         and with conservative interfaces the level update by classes on one particle and a copy of it as its ghost,
         at Δt = 0: ``particles`` is not modified."""
+        carried = self._carried
         interval = self.interval_type(self, self.initial_state(particles.select(slice(0, 1))))
+        self._carried = carried
         one = np.zeros(1, dtype=np.int64)
         step_limits(interval.P.v, NO_ROWS, np.empty(0), 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
         boundary_steps(interval.P.x, one, *self.lattice, np.ones(1), 0, 1, 1, self.max_units, interval.block_dt,
@@ -700,6 +743,10 @@ class AsynchronousStepper:
         interval.ghosts(zone(one, interval.base, self.reach, self.node_shape), [cohort], interval.base, 0)
         rows = interval.group(one, one, NO_ROWS)  # the particle and a copy of it as a level ghost
         same_ids(interval.store.live().id, interval.store.live().id)
+        if interval.c is not None:  # the return map's wave speeds: of some rows, and of a whole step
+            self.backend.return_map(interval.P.select(one), wave_speed=np.empty(1))
+            if steps_rows(self.backend):
+                self.backend.return_map_rows(interval.P, one, wave_speed=interval.c)
         if self.conservative:  # the backend's kernels of a level update by classes, and the registers
             exchange = LevelExchange(CLASSES[:2].copy(), kicks=True)
             substep(self.backend, interval.P, 0.0, 0.0, exchange=exchange, rows=rows)

@@ -80,7 +80,7 @@ def nodal_body_force(particles, grid, kernel, b):
 
 
 def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=None, exchange=None, rows=None,
-            out=None):
+            out=None, wave_speed=None):
     """One symplectic-Euler MPM step of ``particles`` from ``time`` with step ``dt``; returns new particles.
 
     The only place the stages are composed, for every stepper: prepare, P2G, the hooks, grid update (gravity,
@@ -107,10 +107,15 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
     A ``ledger`` (:class:`~mpmref.observe.ledger.EnergyLedger`, or :class:`~mpmref.observe.ledger.LevelLedger` for a
     level update) observes the stages' outputs and books the step's energy change by stage (docs/energy_ledger.md); it
     changes nothing the stages compute.
+
+    With ``wave_speed`` (a float64 array with a row per particle; no ``rigid``; a backend of which
+    :func:`~mpmref.backends.base.gives_wave_speeds` holds), the return map's second output: each stepped particle's
+    wave speed :math:`c_p` in its new state, written into its row (the rows ``rows``, or every row), what asynchronous
+    stepping's level rule reads at the particle's next step boundary.
     """
     if rows is not None and (ledger is not None or hooks.body_force is not None or hooks.grid_folds
                              or not steps_rows(backend)):
-        return gathered_substep(backend, particles, rows, dt, time, hooks, ledger, exchange, out)
+        return gathered_substep(backend, particles, rows, dt, time, hooks, ledger, exchange, out, wave_speed)
     scene = backend.scene
     with backend.running(particles.n if rows is None else rows.size):
         if ledger is not None:
@@ -133,15 +138,22 @@ def substep(backend, particles, dt, time, hooks=NO_HOOKS, rigid=None, ledger=Non
         if rows is not None:
             out = particles if out is None else out
             impulses = backend.g2p_rows(particles, v_grid, v_tilde, dt, prepared, out, kicks)
-            backend.return_map_rows(out, rows)
+            if wave_speed is None:
+                backend.return_map_rows(out, rows)
+            else:
+                backend.return_map_rows(out, rows, wave_speed=wave_speed)
             if kicks is not None:
                 exchange.impulses = impulses
             return None
+        return_map = backend.return_map
+        if wave_speed is not None:
+            def return_map(trial):
+                return backend.return_map(trial, wave_speed=wave_speed)
         if kicks is not None:
             trial, exchange.impulses = backend.g2p(particles, v_grid, v_tilde, dt, prepared, kicks=kicks)
-            new = _observed(ledger, trial, backend.return_map)
+            new = _observed(ledger, trial, return_map)
         elif contact is None:
-            new = _observed(ledger, backend.g2p(particles, v_grid, v_tilde, dt, prepared), backend.return_map)
+            new = _observed(ledger, backend.g2p(particles, v_grid, v_tilde, dt, prepared), return_map)
         else:
             new, rigid = _coupled_g2p(backend, particles, prepared, contact, grid_state, v_grid, rigid, dt, time,
                                       ledger)
@@ -163,17 +175,23 @@ def _p2g(backend, particles, prepared, dt, hooks, ledger, contact, exchange):
     return backend.p2g(particles, prepared, classes=exchange.classes)
 
 
-def gathered_substep(backend, particles, rows, dt, time, hooks=NO_HOOKS, ledger=None, exchange=None, out=None):
+def gathered_substep(backend, particles, rows, dt, time, hooks=NO_HOOKS, ledger=None, exchange=None, out=None,
+                     wave_speed=None):
     """:func:`substep` of the particles ``rows`` of ``particles`` through the plain stages: the rows gathered into
-    new particles (in the order of ``rows``), one step of them, and their evolving fields written into the same
-    rows of ``out`` (default ``particles``). The adapter that steps rows on a backend without the row stages
-    (:class:`~mpmref.backends.base.RowBackend`); the particles it steps are the group such a backend would see, in
-    the same order, so its results are the row stages' bit for bit."""
-    new = substep(backend, particles.select(rows), dt, time, hooks, ledger=ledger, exchange=exchange)
+    new particles (in the order of ``rows``), one step of them, and their evolving fields (and with ``wave_speed``,
+    their wave speeds) written into the same rows of ``out`` (default ``particles``) and of ``wave_speed``. The
+    adapter that steps rows on a backend without the row stages (:class:`~mpmref.backends.base.RowBackend`); the
+    particles it steps are the group such a backend would see, in the same order, so its results are the row
+    stages' bit for bit."""
+    speeds = None if wave_speed is None else np.empty(rows.size)
+    new = substep(backend, particles.select(rows), dt, time, hooks, ledger=ledger, exchange=exchange,
+                  wave_speed=speeds)
     out = particles if out is None else out
     for name in EVOLVING_FIELDS:
         if (array := getattr(new, name)) is not None:
             getattr(out, name)[rows] = array
+    if wave_speed is not None:
+        wave_speed[rows] = speeds
 
 
 def folds_force(backend, hooks, ledger):

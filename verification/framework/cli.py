@@ -22,6 +22,7 @@ with the reasons, and counted apart from the checks.
 preset; a scene the backend does not implement is refused before any work (exit 2).
 """
 
+import contextlib
 import json
 import os
 import shlex
@@ -82,20 +83,35 @@ def cmd_verify(args):
     backend = check_backend(args.backend)
     executor = Executor(scheduler=args.scheduler, workers=args.workers)
     start = time.perf_counter()
-    compiling = warmup.start(names, args.preset, args.backend)
-    if compiling is not None:
-        _progress(args, "compiling the Numba kernels of later cases in a background process (cache: "
-                        f"{os.environ.get('NUMBA_CACHE_DIR', 'Numba default')}; delete it to recompile)")
-    records = {}
-    try:
-        _run_cases(args, names, executor, compiling, records)
-    except KeyboardInterrupt:
-        return interrupted(args, names, records)
-    finally:
-        warmup.stop(compiling)
-    meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
-            "machine": machine(), "backend": backend}
+    with kernel_builds(args):
+        compiling = warmup.start(names, args.preset, args.backend)
+        if compiling is not None:
+            _progress(args, "compiling the Numba kernels of later cases in a background process (cache: "
+                            f"{os.environ.get('NUMBA_CACHE_DIR', 'Numba default')}; delete it to recompile)")
+        records = {}
+        try:
+            _run_cases(args, names, executor, compiling, records)
+        except KeyboardInterrupt:
+            return interrupted(args, names, records)
+        finally:
+            warmup.stop(compiling)
+        meta = {"preset": args.preset, "executor": executor.describe(), "wall_s": time.perf_counter() - start,
+                "machine": machine(), "backend": backend}
     return finish(args, [records[n] for n in names], meta)
+
+
+def kernel_builds(args):
+    """The Numba kernels' builds the cases run: the serial builds in the quick preset unless ``--threads`` asks for
+    more than one thread or the environment chose a mode (:mod:`mpmref.backends.numba.twin`), here and in the
+    processes verify starts; else the mode in force. A serial build compiles in about 60 % of the time of a parallel
+    one and gives its bits (tests/test_numba_backend.py), and the quick preset's scenes are small, so that a cold
+    ``verify --quick`` spends less of its time compiling; the report says which builds ran (``machine``)."""
+    from mpmref.backends.numba import twin
+
+    threads = args.threads is not None and args.threads > 1
+    if args.preset != "quick" or threads or os.environ.get(twin.BUILDS_VARIABLE):
+        return contextlib.nullcontext()
+    return twin.builds_everywhere("serial")
 
 
 def cmd_verify_scene(args):

@@ -179,15 +179,17 @@ def aspect_ratio(path):
 # ------------------------------------------------------------------------------------------ machine
 def machine():
     """What ran the cases, for reports: host, CPU, cores, load average now, OS, Python and NumPy versions
-    (and Numba's version and thread count when a case used it: its timings depend on them)."""
+    (and Numba's version, thread count and kernel builds when a case used it: its timings depend on them)."""
     info = {"host": platform.node(), "cpu": _cpu_model(), "cores": os.cpu_count(),
             "load average (1, 5, 15 min)": " / ".join(f"{x:.2f}" for x in os.getloadavg()),
             "os": platform.platform(), "python": sys.version.split()[0], "numpy": np.__version__}
     numba = sys.modules.get("numba")
     if numba is not None:
+        from mpmref.backends.numba import twin
         from mpmref.backends.numba.threads import describe_threads
 
-        info.update({"numba": numba.__version__, "numba threads": describe_threads()})
+        info.update({"numba": numba.__version__, "numba threads": describe_threads(),
+                     "numba kernel builds": twin.mode()})
     return info
 
 

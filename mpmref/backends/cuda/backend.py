@@ -316,15 +316,31 @@ class CudaBackend:
                                   if name in ("x", "v") or getattr(p, name) is not None})
 
     @either_memory
-    def return_map(self, particles):
+    def return_map(self, particles, wave_speed=None):
         """Plastic projection of the plastic materials' particles (:mod:`~mpmref.backends.cuda.materials`; a new state,
-        the others' ``F`` and ``Jp`` copied)."""
-        if not self.plastic or particles.Jp is None:
-            return particles
-        p = particles
-        F, Jp = self._take("particles_F_plastic", p.F.shape), self._take("particles_Jp_plastic", p.Jp.shape)
-        self.kernels.particles.return_map(p.n, p.F, p.Jp, p.material, self.rules, self.params, F, Jp)
-        return particles.with_(F=F, Jp=Jp)
+        the others' ``F`` and ``Jp`` copied). With ``wave_speed`` (float64, (n,), on the host or the device), each
+        particle's wave speed :math:`c_p` in its new state written there too, by its material's law on the device
+        (the ``wave_speeds`` kernel of :mod:`.particles`, after the projection; the reference and its equations:
+        :meth:`mpmref.backends.numpy.backend.NumpyBackend.return_map`). The backend refuses asynchronous stepping,
+        the one caller of this output; the conformance harness checks it."""
+        new = particles
+        if self.plastic and particles.Jp is not None:
+            p = particles
+            F, Jp = self._take("particles_F_plastic", p.F.shape), self._take("particles_Jp_plastic", p.Jp.shape)
+            self.kernels.particles.return_map(p.n, p.F, p.Jp, p.material, self.rules, self.params, F, Jp)
+            new = particles.with_(F=F, Jp=Jp)
+        if wave_speed is not None:
+            self._wave_speeds(new, wave_speed)
+        return new
+
+    def _wave_speeds(self, particles, out):
+        """Each particle's wave speed into ``out`` (a host or device float64 array of a row per particle)."""
+        p, d = particles, self.dim
+        speeds = out if self.holds(out) else self._work("wave_speed", (p.n,), np.float64)
+        self.kernels.particles.wave_speeds(p.n, self._or_none(p.F, 0, d, d), self._or_none(p.J, 0),
+                                           self._or_none(p.Jp, 0), p.material, self.rules, self.params, speeds)
+        if speeds is not out:
+            out[:p.n] = speeds.copy_to_host()
 
     # ------------------------------------------------------------------ reports and warm-up
     def describe_execution(self):

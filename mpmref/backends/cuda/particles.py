@@ -31,8 +31,8 @@ def summary_size(dim):
 
 @lru_cache(maxsize=None)
 def particle_kernels(dtype, dim, laws):
-    """The kernels ``stress``, ``return_map`` and ``summarize`` for particles of ``dtype`` in ``dim`` dimensions with
-    the material laws ``laws`` (a namespace of :class:`~.launch.DeviceKernel`)."""
+    """The kernels ``stress``, ``return_map``, ``wave_speeds`` and ``summarize`` for particles of ``dtype`` in ``dim``
+    dimensions with the material laws ``laws`` (a namespace of :class:`~.launch.DeviceKernel`)."""
     load()
     _, nb = real_types(dtype)
     D = dim
@@ -70,6 +70,16 @@ def particle_kernels(dtype, dim, laws):
         for a in range(D):
             for b in range(D):
                 F_out[p, a, b] = Fp[a, b]
+
+    def wave_speeds(F, J, Jp, material, rules, params, out):
+        """``out[p]``: particle ``p``'s wave speed :math:`c_p` in its current state, by its material's law (float64;
+        the return map's output ``wave_speed``)."""
+        p = cuda.grid(1)
+        if p >= material.shape[0]:
+            return
+        Fp = cuda.local.array((D, D), nb)
+        Jv, Jpv = load_state(p, F, J, Jp, Fp)
+        out[p] = mats_wave_speed(rules[material[p]], params[material[p]], Fp, Jv, Jpv)
 
     @device_function
     def finite(value):
@@ -146,5 +156,6 @@ def particle_kernels(dtype, dim, laws):
     return kernel_set(
         stress=(stress, (real3, real1, real1) + materials + (real3,)),
         return_map=(return_map, (real3, real1) + materials + (real3, real1)),
+        wave_speeds=(wave_speeds, (real3, real1, real1) + materials + (array(np.float64, 1),)),
         summarize=(summarize, (real2, real2, real2, real3, real3, real1, real1, real3) + materials
                    + (array(np.float64, 1),)))

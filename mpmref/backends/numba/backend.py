@@ -167,9 +167,12 @@ class NumbaBackend(RowStages):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
         return self.materials.stress(particles)
 
-    def return_map(self, particles):
-        """Plastic projection of every plastic material's particles (a new state; others untouched)."""
-        return self.materials.return_map(particles)
+    def return_map(self, particles, wave_speed=None):
+        """Plastic projection of every plastic material's particles (a new state; others untouched); with
+        ``wave_speed`` (float64, (n,)), each particle's current wave speed in its new state written there too, a
+        plastic law's in the loop of its projection (:func:`.materials.material_kernels`; the reference and its
+        equations: :meth:`mpmref.backends.numpy.backend.NumpyBackend.return_map`)."""
+        return self.materials.return_map(particles, wave_speed)
 
     def p2g(self, particles, prepared=None, contact=None, classes=None):
         """Node mass, momentum and internal force (parallel by colour over slabs or blocks; bitwise

@@ -21,8 +21,10 @@ for any thread count.
 import numpy as np
 from numba import njit, prange
 
+from .twin import parallel_kernel
 
-@njit(parallel=True, cache=True)
+
+@parallel_kernel(cache=True)
 def block_keys(x, rows, origin, dx, shift, block, blocks_per_axis):
     """The block (C-order number) of each particle: the block of its stencil's base node, in parallel; of every
     particle when ``rows`` is empty, else of the particles ``rows`` (the ``k``-th key that of ``rows[k]``).

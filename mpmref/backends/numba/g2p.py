@@ -4,7 +4,7 @@ and the per-particle update from the gathered sums (its motion, then its deforma
 
 from numba import njit
 
-from .tuple_math import matrix
+from .tuple_math import fma, matrix
 
 #: particles per task of G2P's parallel loop
 G2P_CHUNK = 256
@@ -20,7 +20,7 @@ def gather_modes(acc, idx, w, ks, v_grid, q, mode_index):
         for c in range(d):
             s *= q[c, mode_index[r, c], ks[c]]
         for a in range(d):
-            acc[r, a] += (w * s) * v_grid[idx, a]
+            acc[r, a] = fma(w * s, v_grid[idx, a], acc[r, a])
 
 
 @njit(cache=True, inline="always")

@@ -6,15 +6,16 @@ pointwise (:mod:`mpmref.backends.pointwise.grid`).
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..pointwise.grid import collide, node_velocity, project_in_bands
+from .twin import parallel_kernel
 
 #: nodes per task of the colliders' parallel loop
 NODE_CHUNK = 256
 
 
-@njit(parallel=True, cache=True)
+@parallel_kernel(cache=True)
 def grid_velocity(mass, momentum, force, dt, gravity, node_shape, strides, wall_width, wall_type, wall_friction,
                   v, v_tilde):
     r"""Grid update with Eq. 25 walls on the dense grid (node ``i`` at C-order index ``i``); see
@@ -26,7 +27,7 @@ def grid_velocity(mass, momentum, force, dt, gravity, node_shape, strides, wall_
                                  wall_friction)
 
 
-@njit(parallel=True, cache=True)
+@parallel_kernel(cache=True)
 def block_grid_velocity(mass, momentum, force, dt, gravity, node_shape, block, blocks, wall_width, wall_type,
                         wall_friction, v, v_tilde):
     r"""Grid update with Eq. 25 walls on the sparse grid (row ``r`` of the active blocks ``blocks`` of a
@@ -41,7 +42,7 @@ def block_grid_velocity(mass, momentum, force, dt, gravity, node_shape, block, b
                 project_in_bands(v, r, a, index, node_shape[a], wall_width, wall_type, wall_friction)
 
 
-@njit(parallel=True, cache=True)
+@parallel_kernel(cache=True)
 def collider_velocity(mass, node_x, table, n_colliders, time, v):
     r"""Every collider of the float64 ``table`` (:func:`~mpmref.backends.pointwise.grid.collider_table`) at each
     node with mass, at its position ``node_x`` (float64) and time ``time``, in place on ``v``

@@ -20,6 +20,7 @@ from numba import njit, prange
 
 from ..pointwise.laws import WORK, functions, law_digest, parameter_table
 from .source_digest import SOURCE_DIGEST
+from .twin import parallel_kernel
 
 #: particles per chunk of a material kernel's parallel loop (one set of work arrays per chunk)
 CHUNK = 64
@@ -53,7 +54,12 @@ def law_kernels(law):
 
     * ``stress(F, J, Jp, idx, prm, tau)``: the Kirchhoff stress of the particles ``idx`` into ``tau``;
     * ``return_map(F, Jp, idx, prm)``: their plastic projection, in place (``None`` for an elastic law);
-    * ``wave_speeds(F, J, Jp, idx, prm, out)``: the wave speed of the ``k``-th of them into ``out[k]`` (float64),
+    * ``wave_speeds(F, J, Jp, idx, prm, out)``: the wave speed of the ``k``-th of them into ``out[k]`` (float64);
+    * ``wave_speeds_at(F, J, Jp, idx, prm, out)``: the wave speed of particle ``idx[k]`` into ``out[idx[k]]`` (the
+      return map's output ``wave_speed`` for an elastic law, :class:`~mpmref.backends.base.MaterialTable`);
+    * ``return_map_speeds(F, Jp, idx, prm, out)``: the return map, and the wave speed of each projected particle
+      ``idx[k]`` into ``out[idx[k]]`` in the same loop, the particle's new state still in cache (``None`` for an
+      elastic law),
 
     ``prm`` the material's parameter row; ``F``, ``J``, ``Jp`` with no rows where the scene has none.
     """
@@ -88,12 +94,37 @@ def law_kernels(law):
                 Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], spare)
                 out[k] = law_wave_speed(prm, Fp, Jv, Jpv)
 
+    def wave_speeds_at(F, J, Jp, idx, prm, out):
+        LAW, SOURCES  # noqa: B018
+        n = idx.shape[0]
+        d = F.shape[1]
+        for chunk in prange(n_chunks(n)):
+            spare = np.ones((d, d), J.dtype)
+            for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+                p = idx[k]
+                Fp, Jv, Jpv = particle_state(F, J, Jp, p, spare)
+                out[p] = law_wave_speed(prm, Fp, Jv, Jpv)
+
+    def return_map_speeds(F, Jp, idx, prm, out):
+        LAW, SOURCES  # noqa: B018
+        n = idx.shape[0]
+        one = F.dtype.type(1.0)
+        for chunk in prange(n_chunks(n)):
+            work = np.empty((WORK, F.shape[1], F.shape[1]), F.dtype)
+            for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+                p = idx[k]
+                Jp[p] = law_return_map(prm, F[p], Jp[p], work)
+                out[p] = law_wave_speed(prm, F[p], one, Jp[p])
+
     def compiled(kernel):
-        return njit(parallel=True, cache=True)(bound(kernel, law_stress=found.stress, law_wave_speed=found.wave_speed,
+        return parallel_kernel(cache=True)(bound(kernel, law_stress=found.stress, law_wave_speed=found.wave_speed,
                                                      law_return_map=found.return_map))
 
+    plastic = found.return_map is not None
     return types.SimpleNamespace(stress=compiled(stress), wave_speeds=compiled(wave_speeds),
-                                 return_map=compiled(return_map) if found.return_map is not None else None)
+                                 wave_speeds_at=compiled(wave_speeds_at),
+                                 return_map=compiled(return_map) if plastic else None,
+                                 return_map_speeds=compiled(return_map_speeds) if plastic else None)
 
 
 @lru_cache(maxsize=None)
@@ -115,8 +146,9 @@ def particle_arrays(particles):
 
 
 def material_kernels(materials):
-    """``{material class: (stress, return_map)}`` for a :class:`~mpmref.backends.base.MaterialTable` of ``materials``,
-    from each class's declared law."""
+    """``{material class: (stress, return_map, wave_speed)}`` for a :class:`~mpmref.backends.base.MaterialTable` of
+    ``materials``, from each class's declared law. Given the output ``wave_speed``, a plastic law's return map writes
+    each particle's wave speed in the loop that projects it (``return_map_speeds`` of :func:`law_kernels`)."""
     out = {}
     for cls in {type(m) for m in materials}:
         kernels = law_kernels(cls.compiled)
@@ -124,10 +156,19 @@ def material_kernels(materials):
         def stress(material, particles, idx, tau, kernels=kernels):
             kernels.stress(*particle_arrays(particles), idx, parameter_row(material), tau)
 
-        def return_map(material, F, Jp, idx, kernels=kernels):
-            kernels.return_map(F, Jp, idx, parameter_row(material))
+        def return_map(material, F, Jp, idx, wave_speed=None, kernels=kernels):
+            if wave_speed is None:
+                kernels.return_map(F, Jp, idx, parameter_row(material))
+            else:
+                kernels.return_map_speeds(F, Jp, idx, parameter_row(material), wave_speed)
 
-        out[cls] = (stress, return_map if kernels.return_map is not None else None)
+        def wave_speed(material, F, J, Jp, idx, out, kernels=kernels):
+            dtype = F.dtype if F is not None else J.dtype
+            d = F.shape[1] if F is not None else 1
+            kernels.wave_speeds_at(_or_empty(F, dtype, 0, d, d), _or_empty(J, dtype, 0), _or_empty(Jp, dtype, 0), idx,
+                                   parameter_row(material), out)
+
+        out[cls] = (stress, return_map if kernels.return_map is not None else None, wave_speed)
     return out
 
 

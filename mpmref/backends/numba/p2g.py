@@ -3,6 +3,8 @@ the equations of :func:`mpmref.backends.numpy.transfers.p2g`)."""
 
 from numba import njit
 
+from .tuple_math import fma
+
 
 @njit(cache=True, inline="always")
 def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, affine, poly, fused, mls_force):
@@ -15,28 +17,30 @@ def p2g_node(grid, idx, w, d, fw, ks, m, mv, mC, Q, p, modes, q, mode_index, aff
     :math:`A_p = m_p C_p + \Delta t Q_p` with the MLS force, and with the classic force ``Q`` holds
     :math:`\Delta t Q_p`, added to the momentum instead of a force column."""
     dim = len(d)
-    grid[idx, 0] += w * m
+    grid[idx, 0] = fma(w, m, grid[idx, 0])
     for a in range(dim):
         mom = mv[a]
         if affine:
             for b in range(dim):
-                mom += mC[a][b] * d[b]
+                mom = fma(mC[a][b], d[b], mom)
         if poly:
             for r in range(mode_index.shape[0]):
                 s = m
                 for c in range(dim):
                     s *= q[c, mode_index[r, c], ks[c]]
-                mom += s * modes[p, r, a]
+                mom = fma(s, modes[p, r, a], mom)
         if fused and not mls_force:
-            f = Q[a][0] * fw[0]
-            for b in range(1, dim):
-                f += Q[a][b] * fw[b]
-            grid[idx, 1 + a] += w * mom + f
-        elif fused:
-            grid[idx, 1 + a] += w * mom
+            grid[idx, 1 + a] += fma(w, mom, force_row(Q, fw, a, dim))
         else:
-            grid[idx, 1 + a] += w * mom
-            f = Q[a][0] * fw[0]
-            for b in range(1, dim):
-                f += Q[a][b] * fw[b]
-            grid[idx, 1 + dim + a] += f
+            grid[idx, 1 + a] = fma(w, mom, grid[idx, 1 + a])
+            if not fused:
+                grid[idx, 1 + dim + a] += force_row(Q, fw, a, dim)
+
+
+@njit(cache=True, inline="always")
+def force_row(Q, fw, a, dim):
+    r""":math:`\sum_b Q_{ab}\,\mathrm{fw}_b`, the node force's component ``a`` (fused multiply-adds, in order)."""
+    f = Q[a][0] * fw[0]
+    for b in range(1, dim):
+        f = fma(Q[a][b], fw[b], f)
+    return f

@@ -36,10 +36,11 @@ class RowStages:
         the order of ``rows``, so the step gives the bits of that group's step."""
         return self._sorted(self._keys(particles, rows), rows)
 
-    def return_map_rows(self, particles, rows):
+    def return_map_rows(self, particles, rows, wave_speed=None):
         """Plastic projection of the plastic materials' particles among ``rows``, in place (the stage of
-        :class:`~mpmref.backends.base.RowBackend`)."""
-        self.materials.return_map_rows(particles, rows)
+        :class:`~mpmref.backends.base.RowBackend`); with ``wave_speed``, the rows' wave speeds in their new state into
+        its rows ``rows`` (see :meth:`~.backend.NumbaBackend.return_map`)."""
+        self.materials.return_map_rows(particles, rows, wave_speed)
 
     def g2p_rows(self, particles, v_grid, v_tilde, dt, prepared, out, kicks=None):
         """G2P of the particles ``prepared.rows`` (a :meth:`prepare_rows` sort) into the same rows of ``out``, which may

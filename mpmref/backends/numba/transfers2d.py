@@ -11,7 +11,7 @@ falls in (:func:`~.sparse.hops`) and its row offset inside (:func:`~.sparse.loca
 from functools import lru_cache
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..pointwise.laws import WORK, functions, law_digest
 from ..pointwise.stencil import axis_basis, kernel_axis
@@ -22,6 +22,7 @@ from .source_digest import SOURCE_DIGEST
 from .sparse import block_rows_2d, hops, local_rows
 from .stencil import axis_stencil, offsets, scaled
 from .tuple_math import add_outer, axpy, cross, matrix, row, scaled_row, zeros, zeros2
+from .twin import parallel_kernel
 
 #: the law by which P2G computes the stress where it does: each kernel reads its own (:func:`.materials.bound`)
 law_stress = None
@@ -50,9 +51,9 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=Fals
     :math:`Q_p = -V_p^0 \tau_p D_p^{-1}` (MLS-MPM) or :math:`-V_p^0\tau_p` (classic), the affine momentum
     :math:`m_p C_p` and the momentum :math:`m_p v_p`, and per axis the weights, node offsets :math:`x_i - x_p` and
     (classic) weight derivatives. Per node it then forms only products: :math:`f_i \mathrel{+}= Q_p\, w_{ip}(x_i - x_p)`
-    for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic MPM (:func:`~.p2g.p2g_node`). Products are contracted to
-    fused multiply-adds where the CPU has them (``fastmath={"contract"}``, no other fast-math licence: still
-    IEEE operations, one rounding fewer). With particle classes (a level update of asynchronous stepping with
+    for MLS-MPM and :math:`Q_p \nabla w_{ip}` for classic MPM (:func:`~.p2g.p2g_node`). The sums of products
+    over the stencil are fused multiply-adds written out (:func:`~.tuple_math.fma`: one rounding fewer, and the
+    same in every build of the kernel). With particle classes (a level update of asynchronous stepping with
     conservative interfaces, :mod:`mpmref.physics.interface`), ``class_rows[p]`` is the first row of particle
     ``p``'s class in a ``grid`` that holds one block of rows per class, so the classes are summed apart in
     this one pass; ``class_rows`` is empty otherwise.
@@ -133,8 +134,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=Fals
                             p2g_node(grid, row_i + r1[j], w, d, fw, (i, j), m, mv, mC, Q, p, modes, q, mode_index,
                                      AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
 
-    return njit(parallel=True, cache=True, fastmath={"contract"})(
-        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None))
+    return parallel_kernel(
+        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None), cache=True)
 
 
 @lru_cache(maxsize=None)
@@ -163,7 +164,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     SOURCES = SOURCE_DIGEST
     N = BLOCK**2
 
-    @njit(parallel=True, cache=True, fastmath={"contract"})
+    @parallel_kernel(cache=True)
     def g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
             modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
@@ -242,7 +243,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     SOURCES = SOURCE_DIGEST
     N = BLOCK**2
 
-    @njit(parallel=True, cache=True, fastmath={"contract"})
+    @parallel_kernel(cache=True)
     def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout

@@ -10,7 +10,7 @@ inside (:func:`~.sparse.local_rows`).
 from functools import lru_cache
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from ..pointwise.laws import WORK, functions, law_digest
 from ..pointwise.stencil import axis_basis, kernel_axis
@@ -21,6 +21,7 @@ from .source_digest import SOURCE_DIGEST
 from .sparse import block_rows_3d, hops, local_rows
 from .stencil import axis_stencil, offsets, scaled
 from .tuple_math import add_outer, axpy, cross, matrix, row, scaled_row, zeros, zeros2
+from .twin import parallel_kernel
 
 #: the law by which P2G computes the stress where it does: each kernel reads its own (:func:`.materials.bound`)
 law_stress = None
@@ -109,8 +110,8 @@ def p2g_kernel(KERNEL, S, AFFINE, POLY, MLS_FORCE, BLOCK, STRESS_LAW, FUSED=Fals
                                 p2g_node(grid, row_ij + r2[l], w, d, fw, (i, j, l), m, mv, mC, Q, p, modes, q,
                                          mode_index, AFFINE or (FUSED and MLS_FORCE), POLY, FUSED, MLS_FORCE)
 
-    return njit(parallel=True, cache=True, fastmath={"contract"})(
-        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None))
+    return parallel_kernel(
+        bound(p2g, law_stress=functions(STRESS_LAW).stress if FLUIDS_ONLY else None), cache=True)
 
 
 @lru_cache(maxsize=None)
@@ -122,7 +123,7 @@ def g2p_kernel(KERNEL, S, AFFINE, POLY, FLIP, MLS_GRADIENT, BLOCK):
     SOURCES = SOURCE_DIGEST
     N = BLOCK**3
 
-    @njit(parallel=True, cache=True, fastmath={"contract"})
+    @parallel_kernel(cache=True)
     def g2p(x, v, F, J, rows, layout, dt, flip_alpha, mode_index, v_grid, v_tilde, x_new, v_new, C_new, F_new, J_new,
             modes_new):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
@@ -197,7 +198,7 @@ def kick_gather_kernel(KERNEL, S, BLOCK):
     SOURCES = SOURCE_DIGEST
     N = BLOCK**3
 
-    @njit(parallel=True, cache=True, fastmath={"contract"})
+    @parallel_kernel(cache=True)
     def gather(x, mass, rows, layout, kick_rows, kicks, kicked, impulse, moment):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
         origin, dx, inertia, slot_of, table_strides = layout

@@ -1,8 +1,30 @@
 """Small-vector algebra of the transfer kernels on tuples (values a compiled loop keeps in registers): rows and
 matrices of arrays as tuples, zeros, ``y + a x``, outer-product updates and the cross product. ``dim`` is a
-compile-time constant at every call (2 or 3), so only one branch of each helper is compiled."""
+compile-time constant at every call (2 or 3), so only one branch of each helper is compiled.
 
-from numba import njit
+The sums of products over a stencil are fused multiply-adds written out (:func:`fma`: :math:`ab + c` rounded once),
+not left to the compiler: a compiler licensed to contract a product and a sum chooses which product of
+:math:`ab + cd` to fuse by how it schedules the code, so a kernel compiled in parallel and the same kernel compiled
+serially could round differently. Written out, every build rounds alike.
+"""
+
+from numba import njit, types
+from numba.extending import intrinsic
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """:math:`ab + c` rounded once (LLVM's ``llvm.fma``: one instruction where the CPU has it), in the widest
+    floating type of the three."""
+    if not all(isinstance(t, types.Float) for t in (a, b, c)):
+        return None
+    real = max((a, b, c), key=lambda t: t.bitwidth)
+
+    def codegen(context, builder, signature, args):
+        x, y, z = (context.cast(builder, v, t, real) for v, t in zip(args, signature.args))
+        return builder.fma(x, y, z)
+
+    return real(a, b, c), codegen
 
 
 @njit(cache=True, inline="always")
@@ -25,8 +47,8 @@ def zeros2(real, dim):
 def axpy(y, a, x, dim):
     """``y + a x`` of d-tuples."""
     if dim == 2:
-        return (y[0] + a * x[0], y[1] + a * x[1])
-    return (y[0] + a * x[0], y[1] + a * x[1], y[2] + a * x[2])
+        return (fma(a, x[0], y[0]), fma(a, x[1], y[1]))
+    return (fma(a, x[0], y[0]), fma(a, x[1], y[1]), fma(a, x[2], y[2]))
 
 
 @njit(cache=True, inline="always")
@@ -39,10 +61,10 @@ def cross(a, b):
 def add_outer(M, u, d, dim):
     """``M + u d^T`` of a d x d matrix ``M`` held as a flat row-major tuple and d-tuples ``u``, ``d``."""
     if dim == 2:
-        return (M[0] + u[0] * d[0], M[1] + u[0] * d[1], M[2] + u[1] * d[0], M[3] + u[1] * d[1])
-    return (M[0] + u[0] * d[0], M[1] + u[0] * d[1], M[2] + u[0] * d[2],
-            M[3] + u[1] * d[0], M[4] + u[1] * d[1], M[5] + u[1] * d[2],
-            M[6] + u[2] * d[0], M[7] + u[2] * d[1], M[8] + u[2] * d[2])
+        return (fma(u[0], d[0], M[0]), fma(u[0], d[1], M[1]), fma(u[1], d[0], M[2]), fma(u[1], d[1], M[3]))
+    return (fma(u[0], d[0], M[0]), fma(u[0], d[1], M[1]), fma(u[0], d[2], M[2]),
+            fma(u[1], d[0], M[3]), fma(u[1], d[1], M[4]), fma(u[1], d[2], M[5]),
+            fma(u[2], d[0], M[6]), fma(u[2], d[1], M[7]), fma(u[2], d[2], M[8]))
 
 
 @njit(cache=True, inline="always")

@@ -2,7 +2,7 @@
 
 from ...physics.catalogue import MATERIALS
 from ...physics.interface import interface_kicks
-from ...physics.materials import kirchhoff_stress_of, wave_speeds_of
+from ...physics.materials import evolved_fields, kirchhoff_stress_of, wave_speeds_of
 from ..base import MaterialTable, serial_context
 from . import cpic, transfers
 
@@ -11,12 +11,35 @@ def _stress_kernel(material, particles, idx, tau):
     tau[idx] = kirchhoff_stress_of(material, particles, idx)
 
 
-def _return_map_kernel(material, F, Jp, idx):
+def _return_map_kernel(material, F, Jp, idx, wave_speed=None):
     F[idx], Jp[idx] = material.return_map(F[idx], Jp[idx])
+    if wave_speed is not None:
+        _wave_speed_kernel(material, F, None, Jp, idx, wave_speed)
 
 
-#: the reference's material kernels: every material's own NumPy methods
-MATERIAL_KERNELS = {cls: (_stress_kernel, _return_map_kernel if getattr(cls, "plastic", False) else None)
+def _wave_speed_kernel(material, F, J, Jp, idx, out):
+    r"""The wave speed :math:`c_p` of the particles ``idx`` of ``material`` in their current state, into ``out[idx]``
+    (float64): the material's own rule (``material.wave_speeds``, :func:`mpmref.physics.materials.wave_speed_of`),
+    of the fields it evolves (:func:`~mpmref.physics.materials.evolved_fields`). For the elastic solids and sand the
+    P-wave speed at the current volume ratio :math:`J_p = \det F_p`,
+
+    .. math:: c_p^2 = \frac{4\mu}{3\rho_p} + \frac{K\,(1 - \ln J_p)}{\rho_0}, \qquad K = \tfrac23\mu + \lambda,
+              \qquad \rho_p = \rho_0 / J_p
+
+    (:math:`\sqrt{(\lambda + 2\mu)/\rho_0}` at rest; :func:`~mpmref.physics.materials.elastic_wave_speeds`); for
+    snow the same at its hardened Lamé parameters (:meth:`~mpmref.physics.plasticity.SnowPlasticity.wave_speeds`); for
+    the fluid the Tait sound speed :math:`c_p^2 = \gamma K / (\rho_0 J_p^{\gamma - 1})`
+    (:meth:`~mpmref.physics.materials.WeaklyCompressibleFluid.wave_speeds`). Fang et al. 2018 §4 (the rules of regional
+    time stepping); :math:`\mu, \lambda` Lamé parameters, :math:`\rho_0` rest density, :math:`\gamma, K` the Tait
+    exponent and stiffness.
+    """
+    fields = {"F": F, "J": J, "Jp": Jp}
+    out[idx] = material.wave_speeds(*(fields[name][idx] for name in evolved_fields(material)))
+
+
+#: the reference's material kernels: every material's own NumPy methods (stress, return map, wave speed)
+MATERIAL_KERNELS = {cls: (_stress_kernel, _return_map_kernel if getattr(cls, "plastic", False) else None,
+                          _wave_speed_kernel)
                     for cls in MATERIALS.values()}
 
 
@@ -42,9 +65,14 @@ class NumpyBackend:
         """Kirchhoff stress (n, d, d) of every particle, material by material."""
         return self.materials.stress(particles)
 
-    def return_map(self, particles):
-        """Plastic projection of every plastic material's particles (a new state; others untouched)."""
-        return self.materials.return_map(particles)
+    def return_map(self, particles, wave_speed=None):
+        """Plastic projection of every plastic material's particles (a new state; others untouched).
+
+        With ``wave_speed`` (float64, (n,)), the stage's second output: each particle's current wave speed :math:`c_p`
+        (the level rule's, :meth:`wave_speeds`' value) of its new state, written there, material by material
+        (:func:`_wave_speed_kernel`, which gives the equations): of the projected ``F`` and ``Jp`` for snow and sand,
+        of G2P's ``F`` or ``J`` for the others (:mod:`mpmref.backends.base`)."""
+        return self.materials.return_map(particles, wave_speed)
 
     def wave_speeds(self, particles, idx):
         """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64: each material's

@@ -13,6 +13,7 @@ from ....rigid.dynamics import current_shapes
 from ....rigid.trimesh import surface_samples
 from ...pointwise.stencil import QUADRATIC, kernel_axis
 from ..source_digest import SOURCE_DIGEST
+from ..twin import parallel_kernel
 from .common import (
     add_pair,
     add_side_sums,
@@ -129,7 +130,7 @@ def tag_kernel(KERNEL, S, PER_BODY):
     :func:`per_body_fits`), over the particles' blocks, skipping blocks far from every band."""
     SOURCES = SOURCE_DIGEST
 
-    @njit(parallel=True, cache=True)
+    @parallel_kernel(cache=True)
     def tags(x, origin, dx, shape, strides, field, old_tags, new_tags, fit, incompatible, groups, block,
              blocks_per_axis, body_fit):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)

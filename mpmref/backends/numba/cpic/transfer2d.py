@@ -10,6 +10,7 @@ from numba import njit, prange
 from ....physics.cdf import PENALTY_WINDOW
 from ...pointwise.stencil import kernel_axis
 from ..source_digest import SOURCE_DIGEST
+from ..twin import parallel_kernel
 from .common import crossed_body, tagged_by_several
 
 
@@ -108,7 +109,7 @@ def p2g_kernel(KERNEL, S, AFFINE, MLS_FORCE, PER_BODY):
     """
     SOURCES = SOURCE_DIGEST
 
-    @njit(parallel=True, cache=True)
+    @parallel_kernel(cache=True)
     def p2g(x, v, C, mass, vol0, tau, layout, groups, contact, bodies, gravity_dv, ghost_force, dt, grid_mass,
             grid_momentum, grid_force, rejected_momentum, rejected_force, fits):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
@@ -232,7 +233,7 @@ def g2p_kernel(KERNEL, S, AFFINE, MLS_FORCE, MLS_GRADIENT, TRACKS_F, TRACKS_J, P
     SOURCES = SOURCE_DIGEST
     LO, HI = PENALTY_WINDOW
 
-    @njit(parallel=True, cache=True)
+    @parallel_kernel(cache=True)
     def g2p(x, v, gravity_dv, F, J, mass, vol0, tau, ghost_force, layout, dt, groups, v_grid, contact, bodies, push,
             penalty, out, block_impulse, fits):
         SOURCES  # noqa: B018 - a closure constant: part of the cache key (see source_digest)
