@@ -54,9 +54,9 @@ def law_kernels(law):
 
     * ``stress(F, J, Jp, idx, prm, tau)``: the Kirchhoff stress of the particles ``idx`` into ``tau``;
     * ``return_map(F, Jp, idx, prm)``: their plastic projection, in place (``None`` for an elastic law);
-    * ``wave_speeds(F, J, Jp, idx, prm, out)``: the wave speed of the ``k``-th of them into ``out[k]`` (float64);
-    * ``wave_speeds_at(F, J, Jp, idx, prm, out)``: the wave speed of particle ``idx[k]`` into ``out[idx[k]]`` (the
-      return map's output ``wave_speed`` for an elastic law, :class:`~mpmref.backends.base.MaterialTable`);
+    * ``wave_speeds(F, J, Jp, idx, at, prm, out)``: the wave speed of particle ``idx[k]`` into ``out[at[k]]``
+      (float64): ``at`` is ``idx`` for the return map's output ``wave_speed``
+      (:class:`~mpmref.backends.base.MaterialTable`), positions in a compact array for :func:`wave_speeds`;
     * ``return_map_speeds(F, Jp, idx, prm, out)``: the return map, and the wave speed of each projected particle
       ``idx[k]`` into ``out[idx[k]]`` in the same loop, the particle's new state still in cache (``None`` for an
       elastic law),
@@ -84,7 +84,7 @@ def law_kernels(law):
                 p = idx[k]
                 Jp[p] = law_return_map(prm, F[p], Jp[p], work)
 
-    def wave_speeds(F, J, Jp, idx, prm, out):
+    def wave_speeds(F, J, Jp, idx, at, prm, out):
         LAW, SOURCES  # noqa: B018
         n = idx.shape[0]
         d = F.shape[1]
@@ -92,18 +92,7 @@ def law_kernels(law):
             spare = np.ones((d, d), J.dtype)
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
                 Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], spare)
-                out[k] = law_wave_speed(prm, Fp, Jv, Jpv)
-
-    def wave_speeds_at(F, J, Jp, idx, prm, out):
-        LAW, SOURCES  # noqa: B018
-        n = idx.shape[0]
-        d = F.shape[1]
-        for chunk in prange(n_chunks(n)):
-            spare = np.ones((d, d), J.dtype)
-            for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-                p = idx[k]
-                Fp, Jv, Jpv = particle_state(F, J, Jp, p, spare)
-                out[p] = law_wave_speed(prm, Fp, Jv, Jpv)
+                out[at[k]] = law_wave_speed(prm, Fp, Jv, Jpv)
 
     def return_map_speeds(F, Jp, idx, prm, out):
         LAW, SOURCES  # noqa: B018
@@ -122,7 +111,6 @@ def law_kernels(law):
 
     plastic = found.return_map is not None
     return types.SimpleNamespace(stress=compiled(stress), wave_speeds=compiled(wave_speeds),
-                                 wave_speeds_at=compiled(wave_speeds_at),
                                  return_map=compiled(return_map) if plastic else None,
                                  return_map_speeds=compiled(return_map_speeds) if plastic else None)
 
@@ -165,8 +153,8 @@ def material_kernels(materials):
         def wave_speed(material, F, J, Jp, idx, out, kernels=kernels):
             dtype = F.dtype if F is not None else J.dtype
             d = F.shape[1] if F is not None else 1
-            kernels.wave_speeds_at(_or_empty(F, dtype, 0, d, d), _or_empty(J, dtype, 0), _or_empty(Jp, dtype, 0), idx,
-                                   parameter_row(material), out)
+            kernels.wave_speeds(_or_empty(F, dtype, 0, d, d), _or_empty(J, dtype, 0), _or_empty(Jp, dtype, 0), idx, idx,
+                                parameter_row(material), out)
 
         out[cls] = (stress, return_map if kernels.return_map is not None else None, wave_speed)
     return out
@@ -181,7 +169,5 @@ def wave_speeds(table, particles, idx):
     for i, material in enumerate(table.materials):
         where = np.flatnonzero(of_idx == i)
         if where.size:
-            speeds = np.empty(where.size)
-            law_kernels(type(material).compiled).wave_speeds(*arrays, idx[where], parameter_row(material), speeds)
-            out[where] = speeds
+            law_kernels(type(material).compiled).wave_speeds(*arrays, idx[where], where, parameter_row(material), out)
     return out
