@@ -98,6 +98,32 @@ def test_the_numba_backend_has_the_row_stages_with_the_protocols_arguments():
         assert list(inspect.signature(getattr(backend, stage)).parameters)[:len(declared)] == declared
 
 
+@needs_numba
+def test_a_sort_of_rows_is_reused_while_the_rows_keep_their_blocks():
+    """``prepare_rows`` hands back its kept sort for the same rows in the same blocks, the one a fresh backend makes;
+    a particle moved to another block, or other rows, are sorted again; the caller's rows array is not the kept one."""
+    from mpmref.backends.numba.rows import KEPT_ROW_SORTS
+
+    scene = case.pressed_disks()
+    sim = Simulation(scene, backend="numba")
+    backend, particles = sim.backend, sim.particles
+    rows = np.arange(1, particles.n, 2)
+    first = backend.prepare_rows(particles, rows)
+    rows[:] = 0  # the caller's array, used again: the kept sort has its own
+    rows = np.arange(1, particles.n, 2)
+    again = backend.prepare_rows(particles, rows)
+    fresh = _numba_backend()(scene).prepare_rows(particles, rows)
+    assert again is first
+    for name in ("order", "block_start", "rows"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name), err_msg=name)
+    moved = particles.copy()
+    moved.x[rows[0]] += scene.grid.dx * scene.grid.block  # into the next block along the first axis
+    assert backend.prepare_rows(moved, rows) is not first
+    others = [backend.prepare_rows(particles, np.arange(k, particles.n, 3)) for k in range(KEPT_ROW_SORTS)]
+    assert all(backend.prepare_rows(particles, np.arange(k, particles.n, 3)) is b for k, b in enumerate(others))
+    assert backend.prepare_rows(particles, rows) is not first  # pushed out by the others
+
+
 def _plain_numba(scene):
     """The Numba backend without its row stages (as a user's plain backend is): asynchronous stepping gathers for
     it."""

@@ -115,6 +115,8 @@ class NumbaBackend(RowStages):
         self.n_blocks = int(np.prod(grid.blocks_per_axis))
         #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
         self._last_sort = (None, None)
+        #: ``[(rows, keys, Blocks)]`` of the last sorts of rows, the latest first (:meth:`prepare_rows`)
+        self._row_sorts = []
         self._held_class_rows = NO_ROWS  # the class rows of a P2G of some rows (:meth:`_class_rows`), reused
 
     running = staticmethod(threads_for)

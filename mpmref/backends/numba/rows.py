@@ -21,6 +21,9 @@ NO_ROWS = np.empty(0, dtype=np.int64)
 #: update's rows are two: its level's and the ghosts'), through the index of the rows otherwise: the kernel reads
 #: its particles through an index array about a quarter slower
 MAX_RUNS = 4
+#: block sorts of rows kept for reuse (:meth:`RowStages.prepare_rows`): a level update's rows, sorted again while
+#: none of them changed block, as the levels of a run take turns
+KEPT_ROW_SORTS = 8
 #: the kick row of each particle class (-1: the class receives no kick)
 KICK_ROW_OF_CLASS = np.array([KICK_ROW.get(c, -1) for c in range(N_CLASSES)], dtype=np.int64)
 
@@ -33,8 +36,22 @@ class RowStages:
         """:meth:`prepare` of the particles ``rows`` (an int64 index array) of ``particles``: their block sort, whose
         ``order`` lists particle indices, so P2G reads them where they are (the stage of
         :class:`~mpmref.backends.base.RowBackend`). The sort of the rows is the sort of a group holding them in
-        the order of ``rows``, so the step gives the bits of that group's step."""
-        return self._sorted(self._keys(particles, rows), rows)
+        the order of ``rows``, so the step gives the bits of that group's step.
+
+        The sort is a function of the rows and their blocks alone (:func:`.blocks.counting_sort`), so the sort of the
+        same rows in the same blocks, one of the last :data:`KEPT_ROW_SORTS`, is returned as it is, as
+        :meth:`~.backend.NumbaBackend.prepare` does for a whole step (the rows' blocks are computed every time)."""
+        keys = self._keys(particles, rows)
+        kept = self._row_sorts
+        for i, (kept_rows, kept_keys, blocks) in enumerate(kept):
+            if np.array_equal(kept_rows, rows) and np.array_equal(kept_keys, keys):
+                kept.insert(0, kept.pop(i))
+                return blocks
+        rows = rows.copy()  # the caller may reuse its array; the sort keeps its own
+        blocks = self._sorted(keys, rows)
+        kept.insert(0, (rows, keys, blocks))
+        del kept[KEPT_ROW_SORTS:]
+        return blocks
 
     def return_map_rows(self, particles, rows, wave_speed=None):
         """Plastic projection of the plastic materials' particles among ``rows``, in place (the stage of
