@@ -139,12 +139,12 @@ def render_async(section):
     lines = ["Async vs sync at the finest async step; updates include ghosts (own steps in brackets); per level "
              "update: us in the step's stages / us of bookkeeping; 'itf x': stage time per update with ghosts, "
              "conservative over reference interfaces; wall times of the stepping alone",
-             f"{'case':13}{'backend':8}{'levels':>13}{'sync upd':>11}{'async upd':>20}{'upd x':>7}"
+             f"{'case':17}{'backend':8}{'levels':>13}{'sync upd':>11}{'async upd':>20}{'upd x':>7}"
              f"{'sync s':>9}{'async s':>9}{'wall x':>8}{'dE/E0':>10}{'dx':>8}{'updates':>9}{'us/update':>15}"
              f"{'itf x':>7}"]
     for r in section["results"]:
         a = r["async"]
-        lines.append(f"{r['case']:13}{r['backend']:8}{str(r['levels']):>13}{r['sync']['updates']:>11}"
+        lines.append(f"{r['case']:17}{r['backend']:8}{str(r['levels']):>13}{r['sync']['updates']:>11}"
                      f"{a['updates']:>11} ({a['own_updates']:>7}){r['updates_ratio']:>6.2f}x"
                      f"{r['sync']['median_s']:>9.3f}{a['median_s']:>9.3f}{r['wall_ratio']:>7.2f}x"
                      f"{r['energy_difference']:>10.2e}{r['position_difference_dx']:>8.3f}{a['level_updates']:>9}"
@@ -156,11 +156,11 @@ def render_async(section):
               "'1-level': the async stepper on one level / sync at that step (its own cost), and its bookkeeping in "
               "us per update; bookkeeping visits per level update (ghost candidates, ghost-zone nodes) and per tick "
               "(due blocks)",
-              f"{'case':13}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"
+              f"{'case':17}{'backend':8}{'ideal x':>9}{'work x':>8}{'wall x':>8}{'work/id':>9}{'wall/wk':>9}"
               f"{'cfl x':>8}{'1-level':>9}{'us/upd':>8}{'cand/upd':>10}{'zone/upd':>10}{'blocks/tick':>13}"]
     for r in section["results"]:
         counts, n = r["async"]["counts"], max(r["async"]["level_updates"], 1)
-        lines.append(f"{r['case']:13}{r['backend']:8}{r['own_updates_ratio']:>8.2f}x{r['updates_ratio']:>7.2f}x"
+        lines.append(f"{r['case']:17}{r['backend']:8}{r['own_updates_ratio']:>8.2f}x{r['updates_ratio']:>7.2f}x"
                      f"{r['wall_ratio']:>7.2f}x{r['ghost_efficiency']:>9.2f}{r['implementation_efficiency']:>9.2f}"
                      f"{r['cfl_wall_ratio']:>7.2f}x{r['one_level_overhead']:>8.2f}x"
                      f"{r['one_level'].get('bookkeeping_us_per_update', float('nan')):>8.0f}"
