@@ -41,11 +41,20 @@ def n_chunks(n):
 
 
 @njit(cache=True, inline="always")
-def particle_state(F, J, Jp, p, spare):
-    """Particle ``p``'s deformation gradient (the matrix ``spare`` where the scene has none: a law of :math:`J` does
-    not read it), volume ratio and plastic volume ratio (1 where the scene has none)."""
-    one = spare.dtype.type(1.0)
-    return (F[p] if F.shape[0] > 0 else spare, J[p] if J.shape[0] > 0 else one, Jp[p] if Jp.shape[0] > 0 else one)
+def deformation_source(F, spare):
+    """The array a chunk of particles reads its deformation gradients from: ``F``, or where the scene has none
+    ``spare``, one (1, d, d) matrix (a law of :math:`J` does not read it). Chosen once per chunk: an array chosen per
+    particle is reference-counted at every particle, which made the serial build of the wave-speed kernel ten times
+    slower (docs/performance.md, "An array chosen per particle")."""
+    return F if F.shape[0] > 0 else spare
+
+
+@njit(cache=True, inline="always")
+def particle_state(F, J, Jp, p, source):
+    """Particle ``p``'s deformation gradient (from ``source``, :func:`deformation_source`), volume ratio and plastic
+    volume ratio (1 where the scene has none)."""
+    one = source.dtype.type(1.0)
+    return (source[p if F.shape[0] > 0 else 0], J[p] if J.shape[0] > 0 else one, Jp[p] if Jp.shape[0] > 0 else one)
 
 
 @lru_cache(maxsize=None)
@@ -69,10 +78,12 @@ def law_kernels(law):
     def stress(F, J, Jp, idx, prm, tau):
         LAW, SOURCES  # noqa: B018 - closure constants: the cache key (module doc)
         n = idx.shape[0]
+        d = tau.shape[1]
         for chunk in prange(n_chunks(n)):
-            work = np.empty((WORK, tau.shape[1], tau.shape[1]), tau.dtype)
+            work = np.empty((WORK, d, d), tau.dtype)
+            source = deformation_source(F, np.empty((1, d, d), tau.dtype))
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-                Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], work[3])
+                Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], source)
                 law_stress(prm, Fp, Jv, Jpv, tau[idx[k]], work)
 
     def return_map(F, Jp, idx, prm):
@@ -89,9 +100,9 @@ def law_kernels(law):
         n = idx.shape[0]
         d = F.shape[1]
         for chunk in prange(n_chunks(n)):
-            spare = np.ones((d, d), J.dtype)
+            source = deformation_source(F, np.ones((1, d, d), J.dtype))
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-                Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], spare)
+                Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], source)
                 out[at[k]] = law_wave_speed(prm, Fp, Jv, Jpv)
 
     def return_map_speeds(F, Jp, idx, prm, out):
