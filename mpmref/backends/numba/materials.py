@@ -44,8 +44,8 @@ def n_chunks(n):
 def deformation_source(F, spare):
     """The array a chunk of particles reads its deformation gradients from: ``F``, or where the scene has none
     ``spare``, one (1, d, d) matrix (a law of :math:`J` does not read it). Chosen once per chunk: an array chosen per
-    particle is reference-counted at every particle, which made the serial build of the wave-speed kernel ten times
-    slower (docs/performance.md, "An array chosen per particle")."""
+    particle is reference-counted at every particle, which made the serial build of the wave-speed kernel four times
+    slower than its parallel build on one thread (docs/performance.md, "An array chosen per particle")."""
     return F if F.shape[0] > 0 else spare
 
 
