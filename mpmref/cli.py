@@ -85,7 +85,9 @@ def apply_threads(count):
 end_time_option = option_value(float, arguments.end_time, "a number")
 
 
-def _parser():
+def _parser(command=None):
+    """The command line's parser: every subcommand's, or (``command``, the name of one) only that one's, so that a
+    command does not import what the others need (``mpmref run`` does not load SciPy's statistics for ``compare``)."""
     parser = _Parser(prog="mpmref", description="Material Point Method reference toolkit")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a scene file and write a ParaView series")
@@ -107,10 +109,26 @@ def _parser():
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.set_defaults(func=cmd_run)
     for module in COMMAND_MODULES:
-        importlib.import_module(module).add_parser(sub)
+        if command in (None, _command_name(module)):
+            importlib.import_module(module).add_parser(sub)
     for plugin in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
-        plugin.load()(sub)
+        if command in (None, plugin.name):
+            plugin.load()(sub)
     return parser
+
+
+def _command_name(module):
+    """The subcommand a module of :data:`COMMAND_MODULES` adds: its last name (``mpmref.bench`` adds ``bench``)."""
+    return module.rsplit(".", 1)[1]
+
+
+def _command_of(argv):
+    """The subcommand ``argv`` names, if it is one of ours (``run``, :data:`COMMAND_MODULES`, the entry points of
+    :data:`COMMAND_GROUP`); else ``None``: ``--help``, no command or a misspelt one need every subcommand's parser."""
+    if not argv or argv[0].startswith("-"):
+        return None
+    known = {"run", *map(_command_name, COMMAND_MODULES), *(e.name for e in entry_points(group=COMMAND_GROUP))}
+    return argv[0] if argv[0] in known else None
 
 
 def _format_summary(summary, out_dir, backend=None):
@@ -370,8 +388,9 @@ def _one_line_warnings():
 
 def main(argv=None):
     try:
-        args = _parser().parse_args(argv)
-        args.argv = list(sys.argv[1:] if argv is None else argv)  # the command's words, for a line that resumes it
+        words = list(sys.argv[1:] if argv is None else argv)
+        args = _parser(_command_of(words)).parse_args(words)
+        args.argv = words  # the command's words, for a line that resumes it
         with _one_line_warnings():
             return args.func(args)
     except OptionError as exc:

@@ -309,3 +309,19 @@ def test_numba_cache_defaults_to_a_per_user_folder(tmp_path):
     env["NUMBA_CACHE_DIR"] = str(tmp_path / "mine")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     assert out.strip() == str(tmp_path / "mine")
+
+
+def test_a_command_loads_only_its_own_subcommand():
+    """``mpmref run`` builds the parser of ``run`` alone: the other subcommands' modules (``compare`` imports SciPy's
+    statistics, about a second) stay unimported; ``--help`` and a misspelt command still see every subcommand."""
+    code = ("import sys; from mpmref.cli import main; status = main(['run', 'missing.toml']); "
+            "print(status, sorted(m for m in sys.modules if m.startswith(('verification', 'scipy.stats', "
+            "'mpmref.bench', 'mpmref.conformance'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    assert out.split(maxsplit=1) == ["2", "[]\n"]
+    from mpmref.cli import _command_of, _parser
+
+    names = {"run", "bench", "conformance", "compare", "export", "study", "verify"}
+    assert set(_parser()._subparsers._group_actions[0].choices) == names
+    assert set(_parser("compare")._subparsers._group_actions[0].choices) == {"run", "compare"}
+    assert [_command_of(w) for w in (["verify", "--quick"], ["verfy"], ["--help"], [])] == ["verify", None, None, None]
