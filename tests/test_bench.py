@@ -494,3 +494,24 @@ def test_ledger_section_times_the_same_steps_with_the_ledger_off_and_on():
     assert [(r["case"], r["backend"], r["threads"]) for r in section["results"]] == [("mpm88", "numpy", 1),
                                                                                     ("block2d", "numpy", 1)]
     assert "on/off" in render_ledger(section)
+
+
+def test_the_startup_goals_are_the_wall_ratios_of_a_first_run_and_a_first_verify():
+    """Issue "The first minute": a first run of mpm88 at most half the older commit's wall time, a first
+    ``verify --quick`` at most 0.6 of it; the ratio is the startup section's (medians), read with its direction."""
+    from mpmref.bench.goals import goals_section
+
+    def row(command, this, against):
+        return {"command": command, "this": [{"wall_s": t} for t in this],
+                "against": [{"wall_s": t} for t in against], "ratio": sorted(this)[1] / sorted(against)[1]}
+
+    section = {"this": "abc1234", "against": "11a2006",
+               "rows": [row("run mpm88 (10 steps, numba)", [9.0, 12.0, 11.0], [24.0, 22.0, 30.0]),
+                        row("verify --quick", [120.0, 100.0, 110.0], [150.0, 160.0, 170.0])]}
+    by_name = {g["name"]: g for g in goals_section({"startup": section})}
+    first_run = by_name["run mpm88 (10 steps, numba), cold: wall / older commit's"]
+    assert first_run["figure"] == pytest.approx(11.0 / 24.0) and first_run["at_most"] and first_run["met"] is True
+    assert first_run["where"] == "abc1234: 11.0 s, 11a2006: 24.0 s, median of 3"
+    verify = by_name["verify --quick, cold: wall / older commit's"]
+    assert verify["figure"] == pytest.approx(110.0 / 160.0) and verify["met"] is False  # 0.69 > 0.6
+    assert goals_section({})[0]["met"] is None and by_name.keys() == {g["name"] for g in goals_section({})}

@@ -7,9 +7,12 @@ throughput cases (``--yardstick FILE``: their JSON lines, run beside this comman
 classic MPM over MLS-MPM in P2G and G2P on the Table-2 block, 2D and 3D, and the 3D P2G ratio against the
 operation counts' prediction; two threads over one on the 32 768-particle mpm88 case, and with one core busy;
 peak memory over the particle state (the Table-2 memory probe, at the Table-2 size); a 16³-cell body in a 256³
-domain against a 32³ one, time and memory; a CPIC step over a plain one.
+domain against a 32³ one, time and memory; a CPIC step over a plain one; a first run of mpm88 and a first
+``verify --quick`` from empty caches against an older commit (``startup``); asynchronous stepping's efficiency, wall
+ratios and one-level control (``async``).
 """
 
+import statistics
 from dataclasses import asdict, dataclass
 
 #: two threads, float32, the Numba backend: the setting the goals are stated for
@@ -119,10 +122,26 @@ def _cpic(results):
 #: asynchronous stepping, per bench case: the efficiency (wall ratio over update ratio, ghosts included) the large
 #: storks must reach, and the wall ratio (sync at the finest async step over async) of the example stork
 ASYNC_EFFICIENCY_GOALS = (("stork2d-256", 0.75), ("stork3d-128", 0.75))
-ASYNC_WALL_GOALS = (("stork2d", 1.5),)
+ASYNC_WALL_GOALS = (("stork2d", 1.5), ("stork2d-256", 2.5), ("stork3d-128", 2.3))
 #: the one-level control (async on one level over sync at that step) within this fraction of 1, on every stork
 ONE_LEVEL_OVERHEAD = 0.10
 ONE_LEVEL_CASES = ("stork2d", "stork2d-128", "stork2d-256", "stork3d", "stork3d-128")
+
+
+#: a user's first commands from empty caches (the ``startup`` section's labels): this checkout's wall time over the
+#: older commit's (:data:`~mpmref.bench.startup.DEFAULT_AGAINST` unless ``--against`` says otherwise) at most
+STARTUP_GOALS = (("run mpm88 (10 steps, numba)", 0.5), ("verify --quick", 0.6))
+
+
+def _startup(results, command):
+    """The startup section's wall ratio of ``command`` and where it stands: the median wall times and the commits."""
+    section = results.get("startup") or {}
+    r = _first(section.get("rows", []), command=command)
+    if r is None:
+        return None, ""
+    this, against = (statistics.median(run["wall_s"] for run in r[side]) for side in ("this", "against"))
+    return r["ratio"], (f"{section['this']}: {this:.1f} s, {section['against']}: {against:.1f} s, median of "
+                        f"{len(r['this'])}")
 
 
 def _async_ratio(results, case):
@@ -162,6 +181,9 @@ def goals(results):
     out.append(Goal("mpm88 example, one core busy: 2 threads / 1 thread, time", figure, 1.3, True, where))
     figure, where = _cpic(results)
     out.append(Goal("CPIC step / step without bodies", figure, 1.5, True, where))
+    for command, bound in STARTUP_GOALS:
+        figure, where = _startup(results, command)
+        out.append(Goal(f"{command}, cold: wall / older commit's", figure, bound, True, where))
     for case, bound in ASYNC_EFFICIENCY_GOALS:
         r, where = _async_ratio(results, case)
         figure = None if r is None else r["implementation_efficiency"]
