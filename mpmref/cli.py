@@ -9,6 +9,7 @@ exit, every particle gone); 130 interrupted (Ctrl-C; ``run`` saves a checkpoint 
 import argparse
 import contextlib
 import copy
+import functools
 import importlib
 import os
 import shlex
@@ -111,10 +112,17 @@ def _parser(command=None):
     for module in COMMAND_MODULES:
         if command in (None, _command_name(module)):
             importlib.import_module(module).add_parser(sub)
-    for plugin in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
+    for plugin in _plugins():
         if command in (None, plugin.name):
             plugin.load()(sub)
     return parser
+
+
+@functools.lru_cache(maxsize=1)
+def _plugins():
+    """The entry points of :data:`COMMAND_GROUP`, by name, read once per process (scanning the installed
+    distributions' metadata costs a few milliseconds, and :func:`main` asks twice)."""
+    return tuple(sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name))
 
 
 def _command_name(module):
@@ -127,7 +135,7 @@ def _command_of(argv):
     :data:`COMMAND_GROUP`); else ``None``: ``--help``, no command or a misspelt one need every subcommand's parser."""
     if not argv or argv[0].startswith("-"):
         return None
-    known = {"run", *map(_command_name, COMMAND_MODULES), *(e.name for e in entry_points(group=COMMAND_GROUP))}
+    known = {"run", *map(_command_name, COMMAND_MODULES), *(e.name for e in _plugins())}
     return argv[0] if argv[0] in known else None
 
 
