@@ -86,8 +86,6 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..physics.materials import material_groups
-
 #: the stages of every backend, in the order of a step
 BACKEND_STAGES = ("prepare", "stress", "p2g", "grid_update", "g2p", "return_map")
 #: the stages asynchronous stepping adds
@@ -240,6 +238,12 @@ def serial_context(n_particles):
     return nullcontext()
 
 
+class EachParticlesMaterial(tuple):
+    """A :class:`MaterialTable` entry ``(stress, return_map[, wave_speed])`` whose kernels read each particle's
+    parameters by its own material index: the table calls them once for every material of the class, with the
+    particles' material indices in place of a material."""
+
+
 class MaterialTable:
     """Per-material dispatch, written once: a backend's ``{material class: (stress, return_map)}`` kernels
     applied to each material's particles.
@@ -255,6 +259,11 @@ class MaterialTable:
       that output, a plastic material's ``return_map`` is called as ``return_map(material, F, Jp, idx, out)`` and
       writes the wave speed of the projected state itself (in the same pass, where the backend can).
 
+    An entry that is a :class:`EachParticlesMaterial` reads each particle's parameters by its own material index: its
+    kernels are given the particles' material indices (``particles.material``) in place of ``material``, and one call
+    runs the particles of every material of that class (the storks' three fixed-corotated materials: one call per
+    stage instead of three).
+
     Adding a material adds one entry to each backend's table; no caller tests material types.
     """
 
@@ -264,6 +273,18 @@ class MaterialTable:
         if missing:
             raise TypeError(f"no kernels for material(s) {missing} in this backend")
         self.kernels = [kernels[type(m)] for m in self.materials]
+        # the calls of a stage: each material's, or one per class of materials whose kernels read each particle's
+        self.calls = []  # (the first material, its kernels, the material indices it runs)
+        for i, (material, entry) in enumerate(zip(self.materials, self.kernels)):
+            shared = isinstance(entry, EachParticlesMaterial)
+            joined = next((c for c in self.calls if shared and c[1] is entry), None)
+            if joined is None:
+                self.calls.append((material, entry, [i]))
+            else:
+                joined[2].append(i)
+        self.call_of = np.zeros(len(self.materials), dtype=np.int64)  # material index -> its call
+        for c, (_, _, members) in enumerate(self.calls):
+            self.call_of[members] = c
 
     @property
     def gives_wave_speeds(self):
@@ -271,17 +292,16 @@ class MaterialTable:
         return all(len(k) > 2 and k[2] is not None for k in self.kernels)
 
     def groups(self, particles, rows=None):
-        """``(material, kernels, idx)`` for each material that has particles
-        (:func:`~mpmref.physics.materials.material_groups`), or that has some of the particles ``rows`` (``idx`` then
-        lists those, in the order of ``rows``)."""
-        kernels = {id(m): k for m, k in zip(self.materials, self.kernels)}
-        if rows is None:
-            return [(m, kernels[id(m)], idx) for m, idx in material_groups(self.materials, particles)]
-        if len(self.materials) == 1:
-            return [(self.materials[0], self.kernels[0], rows)]
-        of_rows = particles.material[rows]
-        return [(m, k, idx) for i, (m, k) in enumerate(zip(self.materials, self.kernels))
-                if (idx := rows[of_rows == i]).size]
+        """``(material, kernels, idx)`` for each call of a stage (:attr:`calls`: a material, or every material of a
+        class whose kernels read each particle's) that has particles, in order, or that has some of the particles
+        ``rows`` (``idx`` then lists those, in the order of ``rows``); ``material`` what the kernels take (the
+        particles' material indices for an :class:`EachParticlesMaterial`)."""
+        calls = [(particles.material if isinstance(k, EachParticlesMaterial) else m, k) for m, k, _ in self.calls]
+        if len(calls) == 1:
+            return [(*calls[0], np.arange(particles.n, dtype=np.int64) if rows is None else rows)]
+        of_call = self.call_of[particles.material if rows is None else particles.material[rows]]
+        return [(m, k, idx) for c, (m, k) in enumerate(calls)
+                if (idx := np.flatnonzero(of_call == c) if rows is None else rows[of_call == c]).size]
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle."""

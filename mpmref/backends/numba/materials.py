@@ -4,7 +4,9 @@ A material declares its law next to its reference class (:class:`mpmref.physics.
 functions (:mod:`mpmref.backends.pointwise.laws`) and its parameter row. :func:`law_kernels` builds the three parallel
 kernels of a law from them (stress, return map, wave speeds), one particle at a time; :func:`material_kernels` gives
 them in the shape of :class:`~mpmref.backends.base.MaterialTable`. Nothing here names a material: a new one runs as
-soon as it declares its law.
+soon as it declares its law. A kernel reads each particle's parameter row from the scene's parameter table by the
+particle's material index, so one call runs every material of a class
+(:class:`~mpmref.backends.base.EachParticlesMaterial`).
 
 The kernels loop over chunks of :data:`CHUNK` particles and allocate the laws' work arrays once per chunk. A law's
 functions are the kernel's globals (:func:`bound`) and its digest a closure constant: Numba's disk cache keys a
@@ -18,6 +20,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit, prange
 
+from ..base import EachParticlesMaterial
 from ..pointwise.laws import WORK, functions, law_digest, parameter_table
 from .source_digest import SOURCE_DIGEST
 from .twin import parallel_kernel
@@ -61,21 +64,23 @@ def particle_state(F, J, Jp, p, source):
 def law_kernels(law):
     """The parallel kernels of a :class:`~mpmref.physics.materials.CompiledLaw`, a namespace of
 
-    * ``stress(F, J, Jp, idx, prm, tau)``: the Kirchhoff stress of the particles ``idx`` into ``tau``;
-    * ``return_map(F, Jp, idx, prm)``: their plastic projection, in place (``None`` for an elastic law);
-    * ``wave_speeds(F, J, Jp, idx, at, prm, out)``: the wave speed of particle ``idx[k]`` into ``out[at[k]]``
-      (float64): ``at`` is ``idx`` for the return map's output ``wave_speed``
+    * ``stress(F, J, Jp, idx, material, table, tau)``: the Kirchhoff stress of the particles ``idx`` into ``tau``;
+    * ``return_map(F, Jp, idx, material, table)``: their plastic projection, in place (``None`` for an elastic law);
+    * ``wave_speeds(F, J, Jp, idx, at, material, table, out)``: the wave speed of particle ``idx[k]`` into
+      ``out[at[k]]`` (float64): ``at`` is ``idx`` for the return map's output ``wave_speed``
       (:class:`~mpmref.backends.base.MaterialTable`), positions in a compact array for :func:`wave_speeds`;
-    * ``return_map_speeds(F, Jp, idx, prm, out)``: the return map, and the wave speed of each projected particle
-      ``idx[k]`` into ``out[idx[k]]`` in the same loop, the particle's new state still in cache (``None`` for an
-      elastic law),
+    * ``return_map_speeds(F, Jp, idx, material, table, out)``: the return map, and the wave speed of each projected
+      particle ``idx[k]`` into ``out[idx[k]]`` in the same loop, the particle's new state still in cache (``None``
+      for an elastic law),
 
-    ``prm`` the material's parameter row; ``F``, ``J``, ``Jp`` with no rows where the scene has none.
+    particle ``p``'s parameters the row ``table[material[p]]`` (:func:`~mpmref.backends.pointwise.laws.parameter_table`
+    of the scene's materials, indexed by the particles' material indices ``material``); ``F``, ``J``, ``Jp`` with no
+    rows where the scene has none.
     """
     found = functions(law)
     LAW, SOURCES = law_digest(law), SOURCE_DIGEST
 
-    def stress(F, J, Jp, idx, prm, tau):
+    def stress(F, J, Jp, idx, material, table, tau):
         LAW, SOURCES  # noqa: B018 - closure constants: the cache key (module doc)
         n = idx.shape[0]
         d = tau.shape[1]
@@ -83,29 +88,31 @@ def law_kernels(law):
             work = np.empty((WORK, d, d), tau.dtype)
             source = deformation_source(F, np.empty((1, d, d), tau.dtype))
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-                Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], source)
-                law_stress(prm, Fp, Jv, Jpv, tau[idx[k]], work)
+                p = idx[k]
+                Fp, Jv, Jpv = particle_state(F, J, Jp, p, source)
+                law_stress(table[material[p]], Fp, Jv, Jpv, tau[p], work)
 
-    def return_map(F, Jp, idx, prm):
+    def return_map(F, Jp, idx, material, table):
         LAW, SOURCES  # noqa: B018
         n = idx.shape[0]
         for chunk in prange(n_chunks(n)):
             work = np.empty((WORK, F.shape[1], F.shape[1]), F.dtype)
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
                 p = idx[k]
-                Jp[p] = law_return_map(prm, F[p], Jp[p], work)
+                Jp[p] = law_return_map(table[material[p]], F[p], Jp[p], work)
 
-    def wave_speeds(F, J, Jp, idx, at, prm, out):
+    def wave_speeds(F, J, Jp, idx, at, material, table, out):
         LAW, SOURCES  # noqa: B018
         n = idx.shape[0]
         d = F.shape[1]
         for chunk in prange(n_chunks(n)):
             source = deformation_source(F, np.ones((1, d, d), J.dtype))
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-                Fp, Jv, Jpv = particle_state(F, J, Jp, idx[k], source)
-                out[at[k]] = law_wave_speed(prm, Fp, Jv, Jpv)
+                p = idx[k]
+                Fp, Jv, Jpv = particle_state(F, J, Jp, p, source)
+                out[at[k]] = law_wave_speed(table[material[p]], Fp, Jv, Jpv)
 
-    def return_map_speeds(F, Jp, idx, prm, out):
+    def return_map_speeds(F, Jp, idx, material, table, out):
         LAW, SOURCES  # noqa: B018
         n = idx.shape[0]
         one = F.dtype.type(1.0)
@@ -113,6 +120,7 @@ def law_kernels(law):
             work = np.empty((WORK, F.shape[1], F.shape[1]), F.dtype)
             for k in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
                 p = idx[k]
+                prm = table[material[p]]
                 Jp[p] = law_return_map(prm, F[p], Jp[p], work)
                 out[p] = law_wave_speed(prm, F[p], one, Jp[p])
 
@@ -124,12 +132,6 @@ def law_kernels(law):
     return types.SimpleNamespace(stress=compiled(stress), wave_speeds=compiled(wave_speeds),
                                  return_map=compiled(return_map) if plastic else None,
                                  return_map_speeds=compiled(return_map_speeds) if plastic else None)
-
-
-@lru_cache(maxsize=None)
-def parameter_row(material):
-    """The material's parameter row: the values of the parameters its law declares, in order (float64)."""
-    return parameter_table([material])[0]
 
 
 def _or_empty(array, dtype, *shape):
@@ -146,39 +148,45 @@ def particle_arrays(particles):
 
 def material_kernels(materials):
     """``{material class: (stress, return_map, wave_speed)}`` for a :class:`~mpmref.backends.base.MaterialTable` of
-    ``materials``, from each class's declared law. Given the output ``wave_speed``, a plastic law's return map writes
-    each particle's wave speed in the loop that projects it (``return_map_speeds`` of :func:`law_kernels`)."""
+    ``materials`` (the scene's, in order), from each class's declared law; each entry an
+    :class:`~mpmref.backends.base.EachParticlesMaterial`: its kernels take the particles' material indices as
+    ``material`` and read each particle's row of the scene's parameter table. Given the output ``wave_speed``, a
+    plastic law's return map writes each particle's wave speed in the loop that projects it (``return_map_speeds`` of
+    :func:`law_kernels`)."""
+    table = parameter_table(materials)
     out = {}
     for cls in {type(m) for m in materials}:
         kernels = law_kernels(cls.compiled)
 
         def stress(material, particles, idx, tau, kernels=kernels):
-            kernels.stress(*particle_arrays(particles), idx, parameter_row(material), tau)
+            kernels.stress(*particle_arrays(particles), idx, material, table, tau)
 
         def return_map(material, F, Jp, idx, wave_speed=None, kernels=kernels):
             if wave_speed is None:
-                kernels.return_map(F, Jp, idx, parameter_row(material))
+                kernels.return_map(F, Jp, idx, material, table)
             else:
-                kernels.return_map_speeds(F, Jp, idx, parameter_row(material), wave_speed)
+                kernels.return_map_speeds(F, Jp, idx, material, table, wave_speed)
 
         def wave_speed(material, F, J, Jp, idx, out, kernels=kernels):
             dtype = F.dtype if F is not None else J.dtype
             d = F.shape[1] if F is not None else 1
             kernels.wave_speeds(_or_empty(F, dtype, 0, d, d), _or_empty(J, dtype, 0), _or_empty(Jp, dtype, 0), idx, idx,
-                                parameter_row(material), out)
+                                material, table, out)
 
-        out[cls] = (stress, return_map if kernels.return_map is not None else None, wave_speed)
+        out[cls] = EachParticlesMaterial((stress, return_map if kernels.return_map is not None else None, wave_speed))
     return out
 
 
 def wave_speeds(table, particles, idx):
     """The current wave speed (float64) of the particles ``idx``, each by its material's law, through the
-    :class:`~mpmref.backends.base.MaterialTable` ``table``'s groups."""
+    :class:`~mpmref.backends.base.MaterialTable` ``table``'s calls."""
     out = np.empty(idx.size)
     arrays = particle_arrays(particles)
-    of_idx = particles.material[idx]
-    for i, material in enumerate(table.materials):
-        where = np.flatnonzero(of_idx == i)
+    parameters = parameter_table(table.materials)
+    of_idx = table.call_of[particles.material[idx]]
+    for c, (material, _, _) in enumerate(table.calls):
+        where = np.flatnonzero(of_idx == c) if len(table.calls) > 1 else np.arange(idx.size)
         if where.size:
-            law_kernels(type(material).compiled).wave_speeds(*arrays, idx[where], where, parameter_row(material), out)
+            law_kernels(type(material).compiled).wave_speeds(*arrays, idx[where], where, particles.material,
+                                                             parameters, out)
     return out
