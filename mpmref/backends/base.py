@@ -274,14 +274,11 @@ class MaterialTable:
             raise TypeError(f"no kernels for material(s) {missing} in this backend")
         self.kernels = [kernels[type(m)] for m in self.materials]
         # the calls of a stage: each material's, or one per class of materials whose kernels read each particle's
-        self.calls = []  # (the first material, its kernels, the material indices it runs)
+        calls = {}  # key -> (the first material, its kernels, the material indices it runs)
         for i, (material, entry) in enumerate(zip(self.materials, self.kernels)):
-            shared = isinstance(entry, EachParticlesMaterial)
-            joined = next((c for c in self.calls if shared and c[1] is entry), None)
-            if joined is None:
-                self.calls.append((material, entry, [i]))
-            else:
-                joined[2].append(i)
+            key = id(entry) if isinstance(entry, EachParticlesMaterial) else ("material", i)
+            calls.setdefault(key, (material, entry, []))[2].append(i)
+        self.calls = list(calls.values())
         self.call_of = np.zeros(len(self.materials), dtype=np.int64)  # material index -> its call
         for c, (_, _, members) in enumerate(self.calls):
             self.call_of[members] = c

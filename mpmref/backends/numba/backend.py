@@ -109,8 +109,9 @@ class NumbaBackend(RowStages):
         self.wall_friction = wall_friction.astype(self.dtype)
         self.colliders = collider_table(scene.colliders)
         self.gravity = np.asarray(scene.gravity, dtype=self.dtype)
-        self.materials = MaterialTable(scene.material_list, materials.material_kernels(scene.material_list))
         self.params = parameter_table(scene.material_list)
+        kernels = materials.material_kernels(scene.material_list, self.params)
+        self.materials = MaterialTable(scene.material_list, kernels)
         self.buffers = ArrayPool(np.empty, self.dtype)
         self.n_blocks = int(np.prod(grid.blocks_per_axis))
         #: ``(keys, Blocks)`` of the last sort: a step whose particles all stay in their blocks reuses it
@@ -163,7 +164,7 @@ class NumbaBackend(RowStages):
     def wave_speeds(self, particles, idx):
         """Current wave speed (the CFL rule's :math:`c_p`) of the particles ``idx``, float64, each by its material's
         law (:func:`.materials.wave_speeds`)."""
-        return materials.wave_speeds(self.materials, particles, idx)
+        return materials.wave_speeds(self.materials, self.params, particles, idx)
 
     def stress(self, particles):
         """Kirchhoff stress (n, d, d) of every particle, material by material."""

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..base import EachParticlesMaterial
-from ..pointwise.laws import WORK, functions, law_digest, parameter_table
+from ..pointwise.laws import WORK, functions, law_digest
 from .source_digest import SOURCE_DIGEST
 from .twin import parallel_kernel
 
@@ -146,14 +146,14 @@ def particle_arrays(particles):
             _or_empty(particles.Jp, dtype, 0))
 
 
-def material_kernels(materials):
+def material_kernels(materials, table):
     """``{material class: (stress, return_map, wave_speed)}`` for a :class:`~mpmref.backends.base.MaterialTable` of
     ``materials`` (the scene's, in order), from each class's declared law; each entry an
     :class:`~mpmref.backends.base.EachParticlesMaterial`: its kernels take the particles' material indices as
-    ``material`` and read each particle's row of the scene's parameter table. Given the output ``wave_speed``, a
+    ``material`` and read each particle's row of ``table``, the parameter table of ``materials``
+    (:func:`~mpmref.backends.pointwise.laws.parameter_table`). Given the output ``wave_speed``, a
     plastic law's return map writes each particle's wave speed in the loop that projects it (``return_map_speeds`` of
     :func:`law_kernels`)."""
-    table = parameter_table(materials)
     out = {}
     for cls in {type(m) for m in materials}:
         kernels = law_kernels(cls.compiled)
@@ -177,15 +177,15 @@ def material_kernels(materials):
     return out
 
 
-def wave_speeds(table, particles, idx):
+def wave_speeds(table, parameters, particles, idx):
     """The current wave speed (float64) of the particles ``idx``, each by its material's law, through the
-    :class:`~mpmref.backends.base.MaterialTable` ``table``'s calls."""
+    :class:`~mpmref.backends.base.MaterialTable` ``table``'s calls; ``parameters`` the parameter table of its
+    materials."""
     out = np.empty(idx.size)
     arrays = particle_arrays(particles)
-    parameters = parameter_table(table.materials)
-    of_idx = table.call_of[particles.material[idx]]
+    of_idx = table.call_of[particles.material[idx]] if len(table.calls) > 1 else None
     for c, (material, _, _) in enumerate(table.calls):
-        where = np.flatnonzero(of_idx == c) if len(table.calls) > 1 else np.arange(idx.size)
+        where = np.flatnonzero(of_idx == c) if of_idx is not None else np.arange(idx.size)
         if where.size:
             law_kernels(type(material).compiled).wave_speeds(*arrays, idx[where], where, particles.material,
                                                              parameters, out)
