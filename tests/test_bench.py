@@ -459,6 +459,27 @@ def test_async_case_reports_updates_wall_times_and_the_cost_of_a_level_update():
     assert by_name["stork2d-256: async efficiency, wall ratio / update ratio"].figure is None  # not run here
 
 
+def test_async_case_runs_its_configurations_in_rounds(monkeypatch):
+    """The timed runs of a case alternate configuration by configuration, round after round, each warmed up once
+    first: a change of load during the case weighs on every configuration alike. The other configurations are
+    made from the first run's simulation (the finest step it took)."""
+    from mpmref.bench import asynchronous
+
+    order = []
+
+    def stepping(scene, backend):
+        order.append(scene)
+        return float(len(order)), scene
+
+    monkeypatch.setattr(asynchronous, "stepping", stepping)
+    runs = asynchronous.in_rounds(lambda t: ("a", t), lambda sim: {"s": lambda t: ("s", t, sim)}, 1.0, "numba", 3)
+    first_run = ("a", 1.0)
+    assert order == [("a", 0.1), first_run, ("s", 0.1, first_run),
+                     ("s", 1.0, first_run), ("a", 1.0), ("s", 1.0, first_run), ("a", 1.0), ("s", 1.0, first_run)]
+    assert runs["first"][0]["times_s"] == [2.0, 5.0, 7.0] and runs["s"][0]["times_s"] == [4.0, 6.0, 8.0]
+    assert runs["first"][0]["first_call_s"] == 1.0 and runs["s"][0]["median_s"] == 6.0
+
+
 def test_busy_section_times_one_and_two_threads_with_and_without_a_busy_core():
     """Each run a process of its own (the trap shows only there): medians of the runs, the ratio two over one, the
     threading layer, and the goal read off the busy row. The figures are not judged here (benchmarks, not tests)."""

@@ -7,7 +7,8 @@ count, to the same end time; then asynchronously once more with ``time.interface
 cost of the conservative treatment (stage time per level update that has ghosts, one against the other). Reported:
 particle updates (ghosts included, and the particles' own steps), median wall time of ``repeats`` runs of each
 (the stepping only: set-up and the run's start and end diagnostics are not timed, nor compilation: one short
-warm-up run of each first), their ratios, and the agreement at the end — total energy relative to the initial
+warm-up run of each first; the runs in rounds, every configuration once per round, :func:`in_rounds`), their
+ratios, and the agreement at the end — total energy relative to the initial
 energy, and the largest position difference (particles matched by id) in Δx.
 
 Two more runs make the comparison fair (docs/async.md, "Cost: where the time goes"): synchronous stepping at
@@ -58,13 +59,33 @@ def stepping(scene, backend):
     return sim.run()["wall_s"], sim
 
 
-def timed(make_scene, t_end, backend, repeats):
-    """``make_scene(t_end)`` run ``repeats`` times after a warm-up run to ``t_end / 10`` (compilation): a timing
-    record (``first_call_s`` the warm-up's, ``times_s``, ``median_s``) of the stepping, and the last run."""
-    first, _ = stepping(make_scene(t_end / 10), backend)
-    runs = [stepping(make_scene(t_end), backend) for _ in range(repeats)]
-    times = [wall for wall, _ in runs]
-    return {"first_call_s": first, "times_s": times, "median_s": float(np.median(times))}, runs[-1][1]
+def timing(first_s, times):
+    """A timing record: the warm-up run's wall time (``first_call_s``, compilation included), the timed runs'
+    (``times_s``, in order) and their median (``median_s``)."""
+    return {"first_call_s": first_s, "times_s": times, "median_s": float(np.median(times))}
+
+
+def in_rounds(first, makers, t_end, backend, repeats):
+    """The runs of a case, timed in rounds. ``first`` (a ``make_scene(t_end)``: the asynchronous run) is warmed up (a
+    run to ``t_end / 10``: compilation) and run once; ``makers(sim)``, given that run's simulation, gives the other
+    configurations (``{name: make_scene}``, which may depend on it: the finest step it took), each warmed up in turn.
+    Then ``repeats`` rounds run every configuration once each, ``first`` included (its run above is the first
+    round's), so that a change of the machine's load during the case weighs on every configuration alike rather
+    than on the one that ran then. Returns ``{name: (timing record, the last run's simulation)}``, ``first`` as
+    ``"first"``."""
+    warm = {"first": stepping(first(t_end / 10), backend)[0]}
+    wall, sim = stepping(first(t_end), backend)
+    times, last = {"first": [wall]}, {"first": sim}
+    makers = {"first": first, **makers(sim)}
+    for name, make in makers.items():
+        if name != "first":
+            warm[name], times[name] = stepping(make(t_end / 10), backend)[0], []
+    for k in range(repeats):
+        for name, make in makers.items():
+            if k > 0 or name != "first":  # the first round's "first" ran above
+                wall, last[name] = stepping(make(t_end), backend)
+                times[name].append(wall)
+    return {name: (timing(warm[name], times[name]), last[name]) for name in makers}
 
 
 def time_case(case, t_end, backend, threads, repeats):
@@ -72,21 +93,25 @@ def time_case(case, t_end, backend, threads, repeats):
     name, cells = {**ASYNC_CASES, **SERIES_CASES}[case][:2]
     set_threads(backend, threads)
 
-    def run(**kwargs):
-        return timed(lambda t: example_with_time(name, t, cells=cells, **kwargs), t_end, backend, repeats)
+    def scene(**kwargs):
+        return lambda t: example_with_time(name, t, cells=cells, **kwargs)
+
+    def others(a):
+        finest = a.stepper.summary(a.state)["finest_dt_ticks"]
+        # sync at the finest async step, at its own CFL step, and the one-level control (every block at the finest
+        # step: the machinery alone)
+        return {"sync": scene(dt=finest * a_scene.time.tick), "sync_cfl": scene(cfl_sync=True),
+                "one_level": scene(levels=finest.bit_length() - 1)}
 
     a_scene = example_with_time(name, t_end, cells=cells)
-    rec_a, a = run()
+    runs = in_rounds(scene(), others, t_end, backend, repeats)
+    (rec_a, a), (rec_s, s), (rec_c, c), (rec_o, o) = (runs[k] for k in ("first", "sync", "sync_cfl", "one_level"))
+    rec_r, r = in_rounds(scene(interface="reference"), lambda _: {}, t_end, backend, 1)["first"]
     summary = a.stepper.summary(a.state)
     record = a.stepper.work
     stages_s, n_updates = record.stage_seconds, record.level_updates
-    finest = summary["finest_dt_ticks"]
-    dt = finest * a_scene.time.tick
+    dt = summary["finest_dt_ticks"] * a_scene.time.tick
     s_scene = example_with_time(name, t_end, dt=dt, cells=cells)
-    rec_s, s = run(dt=dt)
-    rec_c, c = run(cfl_sync=True)
-    rec_o, o = run(levels=finest.bit_length() - 1)  # every block at the finest step: the machinery alone
-    rec_r, r = timed(lambda t: example_with_time(name, t, cells=cells, interface="reference"), t_end, backend, 1)
     e_a, e_s = a.diagnostics()["total_energy"], s.diagnostics()["total_energy"]
     e0 = Simulation(s_scene).diagnostics()["total_energy"]
     xa, xs = a.x[np.argsort(a.id)], s.x[np.argsort(s.id)]
