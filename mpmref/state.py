@@ -197,6 +197,12 @@ class Grid:
         strides.setflags(write=False)
         return strides
 
+    def __getstate__(self):
+        """The declared fields only: what is computed from them is computed again where the grid is unpickled
+        (a pickled array comes back writable, and :attr:`strides` is read-only: a compiled kernel given one and the
+        other is compiled twice)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
     def node_indices(self):
         """Integer multi-index of every node, shape (n_nodes, d), C order."""
         grids = np.meshgrid(*[np.arange(s) for s in self.node_shape], indexing="ij")

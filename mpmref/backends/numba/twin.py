@@ -14,7 +14,8 @@ parallel build is not in Numba's on-disk cache for the arguments it is first cal
 until :func:`use_parallel` says the parallel builds have been compiled, by another process, into the cache; it then
 loads them from there (:mod:`mpmref.run.first_run`). The mode is ``parallel`` unless the environment variable
 :data:`BUILDS_VARIABLE` says otherwise (the test suite runs in the mode ``serial``, but where threads are the point)
-or :func:`builds` changes it for a block.
+or :func:`builds` changes it for a block. Within :func:`sharing`, a kernel asks a *share* before it runs: the two
+processes of a first run split its serial builds between them that way (:mod:`.shared_builds`).
 """
 
 import os
@@ -33,6 +34,9 @@ BUILDS_VARIABLE = "MPMREF_KERNEL_BUILDS"
 MODES = ("parallel", "serial", "serial-until-cached")
 #: the kernels declared so far (:func:`builds` makes them choose again)
 _KERNELS = []
+#: what a kernel asks before it runs, while two processes share a first run's compilation
+#: (:mod:`~mpmref.backends.numba.shared_builds`, :func:`sharing`); ``None`` otherwise
+_SHARE = [None]
 
 
 def mode_from_environment(environ=os.environ):
@@ -86,6 +90,9 @@ class TwinKernel:
         run = self._run
         if run is None:
             run = self._run = self._choose(args)
+        share = _SHARE[0]
+        if share is not None and not share.admit(self, run, args):
+            return None
         return run(*args)
 
     def _choose(self, args):
@@ -147,6 +154,19 @@ def builds_everywhere(mode):
             os.environ.pop(BUILDS_VARIABLE, None)
         else:
             os.environ[BUILDS_VARIABLE] = before
+
+
+@contextmanager
+def sharing(share):
+    """Within the block, every kernel call asks ``share.admit(kernel, build, args)`` before it runs ``build`` on
+    ``args``, and is skipped (returning ``None``) where the answer is ``False``: the two sides of a first run's
+    shared compilation (:mod:`~mpmref.backends.numba.shared_builds`)."""
+    before = _SHARE[0]
+    _SHARE[0] = share
+    try:
+        yield share
+    finally:
+        _SHARE[0] = before
 
 
 def mode():
