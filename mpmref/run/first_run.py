@@ -62,12 +62,13 @@ def compile_parallel(scene, backend, folder):
     """The helper process's work: help compile the serial builds of ``scene``'s step on ``backend`` from its last
     kernel back (the kernels the backend's warm-up step calls, recorded without running them), then compile the
     parallel builds of them, and of everything else the scene runs, into Numba's disk cache."""
+    from ..backends.numba.backend import NumbaBackend
     from ..steppers.pipeline import substep
     from .simulation import Simulation
 
     sim = Simulation(scene, backend=backend)
     recorder = shared_builds.Recorder()
-    if hasattr(sim.backend, "warm_up"):
+    if isinstance(sim.backend, NumbaBackend):  # the backend whose kernels are twins (the GPU's would run, not record)
         # a step whose kernels are skipped may fail where it reads what they did not write: what was recorded
         # before is compiled, and the warm-up below compiles the rest (and meets any real error)
         with twin.builds("serial"), twin.sharing(recorder), contextlib.suppress(Exception):
