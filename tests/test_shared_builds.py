@@ -38,6 +38,10 @@ def squares(x, out):
         out[i] = x[i] * x[i]
 
 
+def untypable(x, out):
+    out[0] = x.no_such_attribute
+
+
 def identity(x):
     return x
 
@@ -198,6 +202,17 @@ def test_the_helper_compiles_what_it_claims_from_the_last_call_back_and_skips_th
     assert calls[1][1] in last.serial.overloads and claims.finished(shared_builds.claim_key(last.serial, calls[1][1]))
     assert calls[0][1] not in first.serial.overloads
     assert all(s in k.parallel.overloads for k, s in calls)  # then every parallel build
+
+
+def test_a_build_that_fails_in_the_helper_is_released_and_the_helper_goes_on(fresh_cache):
+    broken, fine = twin.parallel_kernel(untypable, cache=True), twin.parallel_kernel(squares, cache=True)
+    x = np.arange(4.0)
+    calls = [(k, shared_builds.signature_of(k.serial, (x, x))) for k in (fine, broken)]
+    claims = shared_builds.Claims(str(fresh_cache))
+    with pytest.raises(numba.core.errors.TypingError):  # the helper's parallel phase, as before: the run stays serial
+        shared_builds.compile_recorded(calls, claims)
+    assert claims.finished(shared_builds.claim_key(broken.serial, calls[1][1]))  # the run waits for it no longer
+    assert calls[0][1] in fine.serial.overloads  # and the helper went on to the next
 
 
 def test_a_kernel_that_returns_a_value_runs_while_recording_the_others_are_skipped():

@@ -52,7 +52,7 @@ def warm_up(sim, backend):
         raise
     if not twin.serial_kernels():
         twin.choose_again(chosen)
-        for build in started:  # a kernel compiled serially and now cached in parallel: nothing left to wait for
+        for build in started:  # started for a new build of a kernel that runs in parallel: nothing runs serially
             build.stop()
         return None
     return started[0] if started else ParallelBuild(sim.scene, backend)

@@ -23,6 +23,7 @@ warm-up step, not an asynchronous stepper's bookkeeping, which reads the kernels
 """
 
 import ast
+import contextlib
 import hashlib
 import inspect
 import os
@@ -131,9 +132,8 @@ def compile_recorded(calls, claims):
     for kernel, signature in reversed(calls):
         key = claim_key(kernel.serial, signature)
         if claims.take(key):
-            try:
+            with contextlib.suppress(Exception):  # a build that fails here fails in the run too, which says why
                 kernel.serial.compile(signature)
-            finally:  # compiled, or failed: the other process waits no longer (and compiles it, or says why not)
-                claims.finish(key)
+            claims.finish(key)  # compiled, or failed: the other process waits no longer
     for kernel, signature in calls:
         kernel.parallel.compile(signature)
