@@ -12,6 +12,8 @@ process has claimed. tests/test_first_run.py runs a first run from an empty cach
 import pickle
 import threading
 import time
+import tomllib
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -65,7 +67,7 @@ class Spy:
         self.calls = []
 
     def admit(self, kernel, build, args):
-        call = (kernel, shared_builds.signature_of(kernel.serial, args))
+        call = (kernel, twin.signature_of(kernel.serial, args))
         if call not in self.calls:
             self.calls.append(call)
         return True
@@ -92,9 +94,15 @@ def assert_records_what_runs(scene):
     assert all(s in k.serial.overloads for k, s in recorded)  # the types the run compiled for
 
 
-@pytest.mark.parametrize("example", ["mpm88", "snow_slope2d"])
-def test_the_helper_records_the_kernels_a_step_compiles_with_their_types_in_order(example):
-    assert_records_what_runs(Scene.from_toml(ROOT / "examples" / f"{example}.toml"))
+def example(name, **overrides):
+    data = tomllib.loads((ROOT / "examples" / f"{name}.toml").read_text())
+    return Scene.from_dict({**data, **overrides})
+
+
+@pytest.mark.parametrize("example_name, dtype", [("mpm88", "float64"), ("snow_slope2d", "float64"),
+                                                 ("snow88", "float32")])
+def test_the_helper_records_the_kernels_a_step_compiles_with_their_types_in_order(example_name, dtype):
+    assert_records_what_runs(example(example_name, dtype=dtype))
 
 
 @pytest.mark.slow  # every drawn scene compiles its own kernels
@@ -102,19 +110,19 @@ def test_the_helper_records_the_kernels_a_step_compiles_with_their_types_in_orde
 @given(dim=st.sampled_from([2, 3]), scheme=st.sampled_from(["pic", "flip", "apic", "mls", "polypic"]),
        material=st.sampled_from(["fixed_corotated", "neo_hookean", "fluid", "snow", "sand"]),
        walls=st.sampled_from(["open", "sticky", "slip", "separate"]),
-       kernel=st.sampled_from(["linear", "quadratic", "cubic"]))
-def test_on_drawn_scenes_the_helper_records_what_the_step_compiles(dim, scheme, material, walls, kernel):
+       kernel=st.sampled_from(["linear", "quadratic", "cubic"]), dtype=st.sampled_from(["float64", "float32"]))
+def test_on_drawn_scenes_the_helper_records_what_the_step_compiles(dim, scheme, material, walls, kernel, dtype):
     try:
         scene = box_scene(dim, scheme, cells=8, material=material, walls=walls, kernel=kernel,
                           force="mls" if scheme == "mls" else "classic")
     except SceneError:  # a combination the scene rules refuse
         assume(False)
-    assert_records_what_runs(scene)
+    assert_records_what_runs(replace(scene, dtype=np.dtype(dtype)))
 
 
 @pytest.mark.slow  # the CPIC kernels of a scene with rigid bodies
 def test_with_rigid_bodies_the_helper_records_the_cpic_kernels_too():
-    recorded, run = recorded_and_run(Scene.from_toml(ROOT / "examples" / "cut2d.toml"))
+    recorded, run = recorded_and_run(example("cut2d"))
     assert recorded == [(k, s) for k, s in run if not shared_builds.returns_value(k.py_func)]
     assert "tags" in {k.py_func.__name__ for k, _ in recorded}
 
@@ -137,12 +145,12 @@ def test_a_build_is_claimed_once_and_a_removed_folder_claims_nothing(tmp_path):
 def test_the_claim_key_is_numbas_cache_key_of_the_build(fresh_cache):
     a, b = twin.parallel_kernel(squares, cache=True), twin.parallel_kernel(cubes, cache=True)
     x = np.ones(3)
-    sig = shared_builds.signature_of(a.serial, (x, x))
+    sig = twin.signature_of(a.serial, (x, x))
     key = shared_builds.claim_key(a.serial, sig)
     assert key == shared_builds.claim_key(twin.parallel_kernel(squares, cache=True).serial, sig)  # another process's
     assert key != shared_builds.claim_key(a.parallel, sig)  # the parallel build is another function
     assert key != shared_builds.claim_key(b.serial, sig)
-    assert key != shared_builds.claim_key(a.serial, shared_builds.signature_of(a.serial, (x.astype(np.float32),) * 2))
+    assert key != shared_builds.claim_key(a.serial, twin.signature_of(a.serial, (x.astype(np.float32),) * 2))
 
 
 def helper_of(folder, alive=lambda: True):
@@ -152,7 +160,7 @@ def helper_of(folder, alive=lambda: True):
 def test_this_process_waits_for_a_build_the_helper_compiles_and_then_loads_it(fresh_cache):
     kernel, x = twin.parallel_kernel(squares, cache=True), np.arange(4.0)
     helper = helper_of(fresh_cache)
-    sig = shared_builds.signature_of(kernel.serial, (x, x))
+    sig = twin.signature_of(kernel.serial, (x, x))
     key = shared_builds.claim_key(kernel.serial, sig)
     assert helper.claims.take(key)  # the helper's claim
 
@@ -167,13 +175,13 @@ def test_this_process_waits_for_a_build_the_helper_compiles_and_then_loads_it(fr
     assert leader.admit(kernel, kernel.serial, (x, x))
     assert time.perf_counter() - start >= 0.3 and helper.claims.finished(key)
     assert sig not in kernel.serial.overloads  # not compiled here while waiting
-    assert twin.cached_build(kernel.serial, (x, x))  # but in the cache the other copy wrote
+    assert twin.cached_build(kernel.serial, sig)  # but in the cache the other copy wrote
 
 
 def test_this_process_does_not_wait_for_a_helper_that_has_ended(fresh_cache):
     kernel, x = twin.parallel_kernel(squares, cache=True), np.arange(4.0)
     helper = helper_of(fresh_cache, alive=lambda: False)
-    helper.claims.take(shared_builds.claim_key(kernel.serial, shared_builds.signature_of(kernel.serial, (x, x))))
+    helper.claims.take(shared_builds.claim_key(kernel.serial, twin.signature_of(kernel.serial, (x, x))))
     start = time.perf_counter()
     assert shared_builds.Leader(lambda: helper).admit(kernel, kernel.serial, (x, x))
     assert time.perf_counter() - start < 0.25
@@ -188,14 +196,14 @@ def test_the_helper_starts_at_the_first_build_to_compile_and_claims_it_for_this_
         kernel(x, out)
         kernel(x, out)
     assert len(started) == 1 and np.array_equal(out, x * x)
-    key = shared_builds.claim_key(kernel.serial, shared_builds.signature_of(kernel.serial, (x, x)))
+    key = shared_builds.claim_key(kernel.serial, twin.signature_of(kernel.serial, (x, x)))
     assert not started[0].claims.take(key)  # this process's claim: the helper skips it
 
 
 def test_the_helper_compiles_what_it_claims_from_the_last_call_back_and_skips_the_claimed(fresh_cache):
     first, last = twin.parallel_kernel(squares, cache=True), twin.parallel_kernel(cubes, cache=True)
     x = np.arange(4.0)
-    calls = [(k, shared_builds.signature_of(k.serial, (x, x))) for k in (first, last)]
+    calls = [(k, twin.signature_of(k.serial, (x, x))) for k in (first, last)]
     claims = shared_builds.Claims(str(fresh_cache))
     claims.take(shared_builds.claim_key(first.serial, calls[0][1]))  # this process compiles the first
     shared_builds.compile_recorded(calls, claims)
@@ -207,7 +215,7 @@ def test_the_helper_compiles_what_it_claims_from_the_last_call_back_and_skips_th
 def test_a_build_that_fails_in_the_helper_is_released_and_the_helper_goes_on(fresh_cache):
     broken, fine = twin.parallel_kernel(untypable, cache=True), twin.parallel_kernel(squares, cache=True)
     x = np.arange(4.0)
-    calls = [(k, shared_builds.signature_of(k.serial, (x, x))) for k in (fine, broken)]
+    calls = [(k, twin.signature_of(k.serial, (x, x))) for k in (fine, broken)]
     claims = shared_builds.Claims(str(fresh_cache))
     with pytest.raises(numba.core.errors.TypingError):  # the helper's parallel phase, as before: the run stays serial
         shared_builds.compile_recorded(calls, claims)

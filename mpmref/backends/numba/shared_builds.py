@@ -45,11 +45,6 @@ def claim_key(dispatcher, signature):
     return hashlib.sha256(repr((cache._cache_file._index_name, index_key)).encode()).hexdigest()
 
 
-def signature_of(dispatcher, args):
-    """The argument types ``dispatcher`` compiles for ``args``."""
-    return tuple(dispatcher.typeof_pyval(a) for a in args)
-
-
 class Claims:
     """The claims of two processes on the builds they compile, as files in ``folder``: ``KEY`` claimed, ``KEY.done``
     no longer compiling (compiled and in Numba's disk cache, or failed)."""
@@ -89,8 +84,8 @@ class Leader:
     def admit(self, kernel, build, args):
         """Before ``build`` of ``kernel`` runs on ``args``: compile nothing here that the helper compiles. Always runs
         the build (returns ``True``)."""
-        signature = signature_of(build, args)
-        if signature in build.overloads or twin.cached_build(build, args):
+        signature = twin.signature_of(build, args)
+        if twin.cached_build(build, signature):
             return True
         if self.helper is None:
             self.helper = self._start()
@@ -113,7 +108,7 @@ class Recorder:
         """Record the call and skip it, or run it if the kernel returns a value."""
         if returns_value(kernel.py_func):
             return True
-        call = (kernel, signature_of(kernel.serial, args))
+        call = (kernel, twin.signature_of(kernel.serial, args))
         if call not in self.calls:
             self.calls.append(call)
         return False

@@ -99,15 +99,20 @@ class TwinKernel:
         """The build to run in the current mode: the parallel one, the serial one, or (``serial-until-cached``) the
         parallel one if its build for these arguments' types is compiled here or in the disk cache."""
         mode = _MODE[0]
-        if mode == "parallel" or mode == "serial-until-cached" and cached_build(self.parallel, args):
+        if mode == "parallel" or mode == "serial-until-cached" and cached_build(self.parallel,
+                                                                                signature_of(self.parallel, args)):
             return self.parallel
         return self.serial
 
 
-def cached_build(dispatcher, args):
-    """Whether ``dispatcher`` has a build for the types of ``args``, compiled in this process or loaded now from
-    Numba's disk cache (never compiled here)."""
-    signature = tuple(dispatcher.typeof_pyval(a) for a in args)
+def signature_of(dispatcher, args):
+    """The argument types ``dispatcher`` compiles for ``args``."""
+    return tuple(dispatcher.typeof_pyval(a) for a in args)
+
+
+def cached_build(dispatcher, signature):
+    """Whether ``dispatcher`` has a build for the argument types ``signature`` (:func:`signature_of`), compiled in
+    this process or loaded now from Numba's disk cache (never compiled here)."""
     if signature in dispatcher.overloads:
         return True
     compiled = dispatcher._cache.load_overload(signature, dispatcher.targetctx)
